@@ -1,0 +1,58 @@
+"""The ``grasp-env`` command line: one sub-command per module of ``agents``.
+
+Each command module defines ``HELP`` (one line), ``add_arguments(parser)`` and
+``run(args) -> int``. Only the chosen command's module is imported, so ``grasp-env reproduce``
+never pays for importing torch.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+COMMANDS = {
+    "reproduce": "agents.reproduce",
+    "train": "agents.train",
+    "evaluate": "agents.evaluate",
+    "verify": "agents.verify",
+    "bench": "agents.bench",
+}
+SUMMARIES = {
+    "reproduce": "the paper's quasi-static sweep: optimal k_ij and friction angles, table and plots",
+    "train": "train a PPO agent from a YAML config (default: a few minutes here)",
+    "evaluate": "compare a trained agent with the minimax expert and baselines",
+    "verify": "check grip forces in MuJoCo physics along a trajectory",
+    "bench": "run the speed benchmarks in benchmarks/",
+}
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    parser = argparse.ArgumentParser(
+        prog="grasp-env", description="Grip-force optimisation for multi-fingered grasps."
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    chosen = argv[0] if argv and argv[0] in COMMANDS else None
+    for name, summary in SUMMARIES.items():
+        command = sub.add_parser(name, help=summary, description=summary)
+        if name == chosen:
+            module = importlib.import_module(COMMANDS[name])
+            module.add_arguments(command)
+            command.set_defaults(run=module.run)
+    args = parser.parse_args(argv)
+    if args.command is None:
+        parser.print_help()
+        return 2
+    try:
+        return int(args.run(args) or 0)
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+    except ValueError as error:  # bad input: a clear message, not a traceback
+        print(f"grasp-env {args.command}: error: {error}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,169 @@
+"""Contact forces: grasp matrix, equilibrating and interaction forces, friction angles.
+
+Everything is batched over leading axes: p has shape (..., n, 3) for n contacts, and pairs
+(i, j), i < j, are ordered as :func:`contact_pairs` lists them (k12, k13, k23 for n = 3).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cache
+from itertools import combinations
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from .scene import Scene
+
+
+@cache
+def contact_pairs(n_contacts: int) -> np.ndarray:
+    """The pairs (i, j), i < j, that carry an interaction scalar k_ij: shape (m, 2)."""
+    return np.array(list(combinations(range(n_contacts), 2)))
+
+
+def n_pairs(n_contacts: int) -> int:
+    return n_contacts * (n_contacts - 1) // 2
+
+
+def skew(v: np.ndarray) -> np.ndarray:
+    """[v]x, the cross-product matrix: (..., 3) -> (..., 3, 3)."""
+    x, y, z = np.moveaxis(np.asarray(v, dtype=float), -1, 0)
+    zero = np.zeros_like(x)
+    return np.stack(
+        [np.stack([zero, -z, y], -1), np.stack([z, zero, -x], -1), np.stack([-y, x, zero], -1)], -2
+    )
+
+
+def grasp_matrix(positions: ArrayLike) -> np.ndarray:
+    """G = [I ... I; [p_1]x ... [p_n]x], shape (..., 6, 3n), with G P = (sum P_i, sum p_i x P_i)."""
+    p = np.asarray(positions, dtype=float)
+    n = p.shape[-2]
+    eye = np.broadcast_to(np.eye(3), (*p.shape[:-2], n, 3, 3))
+    blocks = np.concatenate([eye, skew(p)], axis=-2)  # (..., n, 6, 3)
+    return np.moveaxis(blocks, -3, -2).reshape(*p.shape[:-2], 6, 3 * n)
+
+
+def load_wrench(
+    weight: ArrayLike, extra_force: ArrayLike = 0.0, extra_torque: ArrayLike = 0.0
+) -> np.ndarray:
+    """External wrench (f, tau) on the object about its centre of gravity, world frame: (..., 6).
+
+    f = (0, 0, -w) + f_d, tau = tau_d.
+    """
+    weight = np.asarray(weight, dtype=float)
+    force = np.zeros((*weight.shape, 3))
+    force[..., 2] = -weight
+    force = force + np.asarray(extra_force, dtype=float)
+    torque = np.broadcast_to(np.asarray(extra_torque, dtype=float), force.shape)
+    return np.concatenate([force, torque], axis=-1)
+
+
+def equilibrating_forces(positions: ArrayLike, wrench: ArrayLike) -> np.ndarray:
+    """Minimum-norm forces balancing ``wrench`` (Kumar & Waldron): F = G^+ (-(f, tau)).
+
+    G^+ = G^T (G G^T)^-1, which exists for every valid layout (no collinear or coplanar
+    contacts) and, unlike the paper's screw-pitch form, has no singularity at zero torque.
+    Returns (..., n, 3).
+    """
+    p = np.asarray(positions, dtype=float)
+    g = grasp_matrix(p)
+    rhs = -np.asarray(wrench, dtype=float)[..., None]
+    lam = np.linalg.solve(g @ np.swapaxes(g, -1, -2), rhs)
+    return (np.swapaxes(g, -1, -2) @ lam)[..., 0].reshape(p.shape)
+
+
+def interaction_basis(positions: ArrayLike) -> np.ndarray:
+    """The interaction directions e_ij as (..., m, n, 3): +u_ij at contact i, -u_ij at contact j.
+
+    u_ij = (p_j - p_i) / |p_j - p_i|; with k_ij > 0 the pair squeezes along its common line.
+    G e_ij = 0 for every pair.
+    """
+    p = np.asarray(positions, dtype=float)
+    pairs = contact_pairs(p.shape[-2])
+    d = p[..., pairs[:, 1], :] - p[..., pairs[:, 0], :]
+    u = d / np.linalg.norm(d, axis=-1, keepdims=True)
+    basis = np.zeros((*p.shape[:-2], len(pairs), p.shape[-2], 3))
+    rows = np.arange(len(pairs))
+    basis[..., rows, pairs[:, 0], :] = u
+    basis[..., rows, pairs[:, 1], :] = -u
+    return basis
+
+
+def net_forces(equilibrating: ArrayLike, basis: ArrayLike, k: ArrayLike) -> np.ndarray:
+    """P = F + sum_{i<j} k_ij e_ij (paper eq. 4): (..., n, 3) from F (..., n, 3) and k (..., m)."""
+    return np.asarray(equilibrating) + np.einsum("...m,...mnc->...nc", np.asarray(k), basis)
+
+
+def friction_angles(forces: ArrayLike, normals: ArrayLike) -> np.ndarray:
+    """theta_i in [0, pi], the angle between P_i and the inward normal n_i (paper eq. 2).
+
+    Computed as atan2(|P x n|, P . n), accurate near zero where acos is not.
+    """
+    forces = np.asarray(forces, dtype=float)
+    normals = np.asarray(normals, dtype=float)
+    tangential = np.linalg.norm(np.cross(forces, normals), axis=-1)
+    return np.arctan2(tangential, np.sum(forces * normals, axis=-1))
+
+
+@dataclass(frozen=True)
+class Grasp:
+    """The contact geometry and equilibrating forces of a scene at one or many poses (world frame).
+
+    Attributes (leading axes ``...`` are the batch of poses):
+        positions: (..., n, 3) contact points relative to the centre of gravity, p_i = R (c_i - g).
+        normals: (..., n, 3) inward unit normals n_i = R nu_i.
+        equilibrating: (..., n, 3) the equilibrating forces F_i.
+        basis: (..., m, n, 3) the interaction directions e_ij.
+        friction_limit: theta_lim = atan(mu), radians (broadcasts against the batch).
+    """
+
+    positions: np.ndarray
+    normals: np.ndarray
+    equilibrating: np.ndarray
+    basis: np.ndarray
+    friction_limit: np.ndarray
+
+    def forces(self, k: ArrayLike) -> np.ndarray:
+        """Net contact forces P for interaction scalars k (..., m)."""
+        return net_forces(self.equilibrating, self.basis, k)
+
+    def angles(self, k: ArrayLike) -> np.ndarray:
+        """Friction angles theta_i (..., n) for interaction scalars k."""
+        return friction_angles(self.forces(k), self.normals)
+
+    def margins(self, k: ArrayLike) -> np.ndarray:
+        """Friction-angle margins theta_lim - theta_i (..., n), radians; >= 0 where a finger holds."""
+        return np.asarray(self.friction_limit)[..., None] - self.angles(k)
+
+
+def grasp(
+    relative_contacts: ArrayLike,
+    object_normals: ArrayLike,
+    rotation: ArrayLike,
+    wrench: ArrayLike,
+    friction_limit: ArrayLike,
+) -> Grasp:
+    """The grasp at orientation ``rotation`` (..., 3, 3), all inputs broadcasting over ``...``.
+
+    ``relative_contacts`` are c_i - g and ``object_normals`` nu_i, both object frame (..., n, 3);
+    ``wrench`` is the world-frame load (..., 6) from :func:`load_wrench`.
+    """
+    rotation = np.asarray(rotation, dtype=float)[..., None, :, :]
+    positions = (rotation @ np.asarray(relative_contacts, dtype=float)[..., None])[..., 0]
+    normals = (rotation @ np.asarray(object_normals, dtype=float)[..., None])[..., 0]
+    return Grasp(
+        positions=positions,
+        normals=normals,
+        equilibrating=equilibrating_forces(positions, wrench),
+        basis=interaction_basis(positions),
+        friction_limit=np.asarray(friction_limit, dtype=float),
+    )
+
+
+def scene_grasp(scene: Scene, rotation: ArrayLike) -> Grasp:
+    """The grasp of ``scene`` at one or many orientations (..., 3, 3)."""
+    wrench = load_wrench(scene.weight, scene.extra_force, scene.extra_torque)
+    return grasp(
+        scene.relative_contacts(), scene.normals, rotation, wrench, scene.friction_limit
+    )

@@ -1,0 +1,161 @@
+"""The grasped object, its contacts and its load (DESIGN.md §1, "Scene")."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from itertools import combinations
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+#: Box faces by name: the outward axis and its sign. A contact on face "-x" has inward normal +x.
+FACES: dict[str, tuple[int, int]] = {
+    "-x": (0, -1), "+x": (0, 1), "-y": (1, -1), "+y": (1, 1), "-z": (2, -1), "+z": (2, 1),
+}  # fmt: skip
+#: The paper's grip: the three faces that meet at the corner (-1/2, -1/2, -1/2).
+PAPER_FACES: tuple[str, ...] = ("-x", "-y", "-z")
+#: The four-finger grip: the paper's three plus a "thumb" on the top face, pressing down.
+FOUR_FINGER_FACES: tuple[str, ...] = ("-x", "-y", "-z", "+z")
+#: Default friction coefficient (theta_lim = atan(0.5) = 26.57 deg).
+DEFAULT_MU = 0.5
+DEFAULT_WEIGHT = 5.0
+
+# Relative tolerance for "on the face" and for degenerate contact layouts.
+_TOL = 1e-9
+
+
+def face_point(face: str, offset: ArrayLike = (0.0, 0.0), size: ArrayLike = 1.0) -> np.ndarray:
+    """Object-frame point on ``face`` of a box of edge lengths ``size``, centred at the origin.
+
+    ``offset`` = (u, v) moves the point from the face centre along the face's two in-plane axes
+    (in axis order, e.g. y then z for an x face), as fractions of the half-widths: |u|, |v| < 1.
+    """
+    if face not in FACES:
+        raise ValueError(f"unknown face {face!r}; expected one of {sorted(FACES)}")
+    half = np.broadcast_to(np.asarray(size, dtype=float), (3,)) / 2
+    offset = np.asarray(offset, dtype=float)
+    if offset.shape != (2,) or not np.all(np.isfinite(offset)) or np.any(np.abs(offset) >= 1):
+        raise ValueError(f"face offset must be 2 finite fractions in (-1, 1), got {offset.tolist()}")
+    axis, sign = FACES[face]
+    point = np.zeros(3)
+    point[axis] = sign * half[axis]
+    point[[a for a in range(3) if a != axis]] = offset * half[[a for a in range(3) if a != axis]]
+    return point
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A box held by point contacts with Coulomb friction.
+
+    All vectors are in the object frame, whose origin is the box centre, except the extra load
+    (``extra_force``, ``extra_torque`` about the centre of gravity), which is in the world frame
+    like the weight. ``Scene()`` is the paper's scene: the unit cube, face-centre contacts on
+    the three faces meeting at the corner (-1/2, -1/2, -1/2), w = 5 N.
+
+    Args:
+        contacts: (n, 3) contact points on the box surface, n = 3 or 4.
+        size: box edge lengths (a number for a cube), metres.
+        weight: weight w > 0, newtons, acting along world -z at the centre of gravity.
+        mu: Coulomb friction coefficient > 0; the friction angle limit is atan(mu).
+        cg_offset: centre of gravity relative to the box centre; must lie inside the box.
+        extra_force, extra_torque: an optional extra wrench on the object (world frame).
+    """
+
+    contacts: np.ndarray = field(
+        default_factory=lambda: np.array([face_point(f) for f in PAPER_FACES])
+    )
+    size: np.ndarray = 1.0  # type: ignore[assignment]
+    weight: float = DEFAULT_WEIGHT
+    mu: float = DEFAULT_MU
+    cg_offset: np.ndarray = (0.0, 0.0, 0.0)  # type: ignore[assignment]
+    extra_force: np.ndarray = (0.0, 0.0, 0.0)  # type: ignore[assignment]
+    extra_torque: np.ndarray = (0.0, 0.0, 0.0)  # type: ignore[assignment]
+    normals: np.ndarray = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        def vector(name: str, value: ArrayLike, shape: tuple[int, ...]) -> np.ndarray:
+            array = np.array(np.broadcast_to(np.asarray(value, dtype=float), shape))
+            if not np.all(np.isfinite(array)):
+                raise ValueError(f"{name} must be finite, got {array.tolist()}")
+            array.flags.writeable = False
+            object.__setattr__(self, name, array)
+            return array
+
+        contacts = np.asarray(self.contacts, dtype=float)
+        if contacts.ndim != 2 or contacts.shape[1] != 3 or contacts.shape[0] not in (3, 4):
+            raise ValueError(f"contacts must have shape (3, 3) or (4, 3), got {contacts.shape}")
+        contacts = vector("contacts", contacts, contacts.shape)
+        size = vector("size", self.size, (3,))
+        if np.any(size <= 0):
+            raise ValueError(f"box size must be positive, got {size.tolist()}")
+        for name in ("weight", "mu"):
+            value = float(self.__getattribute__(name))
+            if not np.isfinite(value) or value <= 0:
+                raise ValueError(f"{name} must be a finite number > 0, got {value}")
+            object.__setattr__(self, name, value)
+        cg = vector("cg_offset", self.cg_offset, (3,))
+        if np.any(np.abs(cg) >= size / 2):
+            raise ValueError(f"cg_offset {cg.tolist()} must lie inside the box (|cg| < size / 2)")
+        vector("extra_force", self.extra_force, (3,))
+        vector("extra_torque", self.extra_torque, (3,))
+
+        normals = np.zeros_like(contacts)
+        half = size / 2
+        for i, c in enumerate(contacts):
+            distance = np.abs(c) - half  # 0 on a face, < 0 inside
+            scale = _TOL * max(1.0, float(half.max()))
+            if np.any(distance > scale):
+                raise ValueError(f"contact {i} at {c.tolist()} lies outside the box {size.tolist()}")
+            on = np.flatnonzero(np.abs(distance) <= scale)
+            if on.size == 0:
+                raise ValueError(f"contact {i} at {c.tolist()} is not on a face of the box")
+            if on.size > 1:
+                raise ValueError(f"contact {i} at {c.tolist()} is on an edge: its normal is ambiguous")
+            normals[i, on[0]] = -np.sign(c[on[0]])  # inward normal
+        normals.flags.writeable = False
+        object.__setattr__(self, "normals", normals)
+        _check_layout(contacts, float(size.max()))
+
+    @classmethod
+    def on_faces(
+        cls,
+        faces: tuple[str, ...] = PAPER_FACES,
+        offsets: ArrayLike | None = None,
+        size: ArrayLike = 1.0,
+        **kwargs: float | ArrayLike,
+    ) -> Scene:
+        """A scene with one contact per named face, moved by ``offsets`` (see :func:`face_point`)."""
+        offsets = np.zeros((len(faces), 2)) if offsets is None else np.asarray(offsets, float)
+        if offsets.shape != (len(faces), 2):
+            raise ValueError(f"offsets must have shape ({len(faces)}, 2), got {offsets.shape}")
+        contacts = np.array([face_point(f, o, size) for f, o in zip(faces, offsets, strict=True)])
+        return cls(contacts=contacts, size=size, **kwargs)  # type: ignore[arg-type]
+
+    @property
+    def n_contacts(self) -> int:
+        return self.contacts.shape[0]
+
+    @property
+    def friction_limit(self) -> float:
+        """theta_lim = atan(mu), radians."""
+        return float(np.arctan(self.mu))
+
+    def relative_contacts(self) -> np.ndarray:
+        """Contact points relative to the centre of gravity, object frame: c_i - g."""
+        return self.contacts - self.cg_offset
+
+
+def _check_layout(contacts: np.ndarray, scale: float) -> None:
+    """Reject layouts whose grasp matrix loses rank (DESIGN.md §1, "Interaction forces")."""
+    for i, j in combinations(range(len(contacts)), 2):
+        if np.linalg.norm(contacts[i] - contacts[j]) <= 1e-6 * scale:
+            raise ValueError(f"contacts {i} and {j} coincide")
+    d = contacts[1:] - contacts[0]
+    if len(contacts) == 3:
+        area = np.linalg.norm(np.cross(d[0], d[1]))
+        if area <= 1e-6 * scale**2:
+            raise ValueError("the 3 contacts are collinear: they cannot resist torque about that line")
+    else:
+        volume = abs(np.linalg.det(d))
+        if volume <= 1e-6 * scale**3:
+            raise ValueError("the 4 contacts are coplanar: their interaction forces are dependent")
