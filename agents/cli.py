@@ -19,7 +19,7 @@ COMMANDS = {
     "bench": "agents.bench",
 }
 SUMMARIES = {
-    "reproduce": "the paper's quasi-static sweep: optimal k_ij and friction angles, table and plots",
+    "reproduce": "the paper's quasi-static sweep: optimal k_ij and friction angles, plots",
     "train": "train a PPO agent from a YAML config (default: a few minutes here)",
     "evaluate": "compare a trained agent with the minimax expert and baselines",
     "verify": "check grip forces in MuJoCo physics along a trajectory",

@@ -15,7 +15,15 @@ from .forces import (
 )
 from .minimax import MinimaxResult, Status, solve_minimax
 from .rotations import axis_angle_matrix, matrix_quaternion, quaternion_matrix
-from .scene import DEFAULT_MU, DEFAULT_WEIGHT, FACES, FOUR_FINGER_FACES, PAPER_FACES, Scene, face_point
+from .scene import (
+    DEFAULT_MU,
+    DEFAULT_WEIGHT,
+    FACES,
+    FOUR_FINGER_FACES,
+    PAPER_FACES,
+    Scene,
+    face_point,
+)
 from .trajectory import PAPER_AXIS, PHI, START_ROTATION, Trajectory, pose_rotation
 
 __all__ = [

@@ -133,7 +133,7 @@ class Grasp:
         return friction_angles(self.forces(k), self.normals)
 
     def margins(self, k: ArrayLike) -> np.ndarray:
-        """Friction-angle margins theta_lim - theta_i (..., n), radians; >= 0 where a finger holds."""
+        """Margins theta_lim - theta_i (..., n), radians: >= 0 where a finger holds."""
         return np.asarray(self.friction_limit)[..., None] - self.angles(k)
 
 
@@ -164,6 +164,4 @@ def grasp(
 def scene_grasp(scene: Scene, rotation: ArrayLike) -> Grasp:
     """The grasp of ``scene`` at one or many orientations (..., 3, 3)."""
     wrench = load_wrench(scene.weight, scene.extra_force, scene.extra_torque)
-    return grasp(
-        scene.relative_contacts(), scene.normals, rotation, wrench, scene.friction_limit
-    )
+    return grasp(scene.relative_contacts(), scene.normals, rotation, wrench, scene.friction_limit)

@@ -67,8 +67,9 @@ def solve_minimax(grasp: Grasp, k_max: ArrayLike, f_max: ArrayLike | None = None
             cons.append(
                 {
                     "type": "ineq",
-                    "fun": lambda x, f=f, e=e, lim=f_lim[idx]: lim
-                    - np.linalg.norm(net_forces(f, e, x[:m]), axis=-1),
+                    "fun": lambda x, f=f, e=e, lim=f_lim[idx]: (
+                        lim - np.linalg.norm(net_forces(f, e, x[:m]), axis=-1)
+                    ),
                 }
             )
         x0 = np.zeros(m + 1)

@@ -22,7 +22,11 @@ def axis_angle_matrix(axis: ArrayLike, angle: ArrayLike) -> np.ndarray:
     rx, ry, rz = r[..., 0], r[..., 1], r[..., 2]
     zero = np.zeros_like(rx)
     cross = np.stack(
-        [np.stack([zero, -rz, ry], -1), np.stack([rz, zero, -rx], -1), np.stack([-ry, rx, zero], -1)],
+        [
+            np.stack([zero, -rz, ry], -1),
+            np.stack([rz, zero, -rx], -1),
+            np.stack([-ry, rx, zero], -1),
+        ],
         -2,
     )
     outer = r[..., :, None] * r[..., None, :]

@@ -35,7 +35,9 @@ def face_point(face: str, offset: ArrayLike = (0.0, 0.0), size: ArrayLike = 1.0)
     half = np.broadcast_to(np.asarray(size, dtype=float), (3,)) / 2
     offset = np.asarray(offset, dtype=float)
     if offset.shape != (2,) or not np.all(np.isfinite(offset)) or np.any(np.abs(offset) >= 1):
-        raise ValueError(f"face offset must be 2 finite fractions in (-1, 1), got {offset.tolist()}")
+        raise ValueError(
+            f"face offset must be 2 finite fractions in (-1, 1), got {offset.tolist()}"
+        )
     axis, sign = FACES[face]
     point = np.zeros(3)
     point[axis] = sign * half[axis]
@@ -105,12 +107,16 @@ class Scene:
             distance = np.abs(c) - half  # 0 on a face, < 0 inside
             scale = _TOL * max(1.0, float(half.max()))
             if np.any(distance > scale):
-                raise ValueError(f"contact {i} at {c.tolist()} lies outside the box {size.tolist()}")
+                raise ValueError(
+                    f"contact {i} at {c.tolist()} lies outside the box {size.tolist()}"
+                )
             on = np.flatnonzero(np.abs(distance) <= scale)
             if on.size == 0:
                 raise ValueError(f"contact {i} at {c.tolist()} is not on a face of the box")
             if on.size > 1:
-                raise ValueError(f"contact {i} at {c.tolist()} is on an edge: its normal is ambiguous")
+                raise ValueError(
+                    f"contact {i} at {c.tolist()} is on an edge: its normal is ambiguous"
+                )
             normals[i, on[0]] = -np.sign(c[on[0]])  # inward normal
         normals.flags.writeable = False
         object.__setattr__(self, "normals", normals)
@@ -124,7 +130,7 @@ class Scene:
         size: ArrayLike = 1.0,
         **kwargs: float | ArrayLike,
     ) -> Scene:
-        """A scene with one contact per named face, moved by ``offsets`` (see :func:`face_point`)."""
+        """One contact per named face, moved by ``offsets`` (see :func:`face_point`)."""
         offsets = np.zeros((len(faces), 2)) if offsets is None else np.asarray(offsets, float)
         if offsets.shape != (len(faces), 2):
             raise ValueError(f"offsets must have shape ({len(faces)}, 2), got {offsets.shape}")
@@ -154,7 +160,9 @@ def _check_layout(contacts: np.ndarray, scale: float) -> None:
     if len(contacts) == 3:
         area = np.linalg.norm(np.cross(d[0], d[1]))
         if area <= 1e-6 * scale**2:
-            raise ValueError("the 3 contacts are collinear: they cannot resist torque about that line")
+            raise ValueError(
+                "the 3 contacts are collinear: they cannot resist torque about that line"
+            )
     else:
         volume = abs(np.linalg.det(d))
         if volume <= 1e-6 * scale**3:

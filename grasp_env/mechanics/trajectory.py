@@ -51,7 +51,9 @@ class Trajectory:
     @property
     def alphas_deg(self) -> np.ndarray:
         """The poses' alpha values in degrees, start and end included."""
-        count = int(np.floor((self.alpha_end_deg - self.alpha_start_deg) / self.alpha_step_deg + 1e-9))
+        count = int(
+            np.floor((self.alpha_end_deg - self.alpha_start_deg) / self.alpha_step_deg + 1e-9)
+        )
         return self.alpha_start_deg + self.alpha_step_deg * np.arange(count + 1)
 
     def __len__(self) -> int:
