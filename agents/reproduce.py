@@ -1,0 +1,241 @@
+"""``grasp-env reproduce``: the paper's experiment (§II and §IV).
+
+The cube turns quasi-statically about an axis; at every pose the minimax problem is solved
+anew. Writes the table (``sweep.csv``), the paper's trend plot (``trend.png``: the minimised
+maximum friction angle and the k_ij against alpha) and its Fig. 2 (``theta1_grid.png``:
+theta_1 over a 100 x 100 grid of (k12, k13) at alpha = 0, the optimum marked).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from grasp_env.mechanics import (
+    PAPER_FACES,
+    MinimaxResult,
+    Scene,
+    Status,
+    Trajectory,
+    contact_pairs,
+    pose_rotation,
+    scene_grasp,
+    solve_minimax,
+)
+from grasp_env.mechanics.forces import Grasp
+
+HELP = "the paper's quasi-static sweep: optimal k_ij and friction angles, table and plots"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--out", type=Path, default=Path("results/reproduce"), help="output dir")
+    parser.add_argument("--weight", type=float, default=5.0, help="object weight w, N (paper: 5)")
+    parser.add_argument("--mu", type=float, default=0.5, help="friction coefficient (default 0.5)")
+    parser.add_argument(
+        "--offsets",
+        type=_floats(6),
+        default=None,
+        metavar="U1,V1,U2,V2,U3,V3",
+        help="contact offsets from the face centres, fractions of the half-width (default 0)",
+    )
+    parser.add_argument(
+        "--cg-offset", type=_floats(3), default=(0.0, 0.0, 0.0), metavar="X,Y,Z",
+        help="centre of gravity relative to the cube's centre, m (default 0)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--axis", type=_floats(3), default=(1.0, -1.0, 0.0), metavar="X,Y,Z",
+        help="world-frame rotation axis of the trajectory (paper: 1,-1,0)",
+    )  # fmt: skip
+    parser.add_argument("--alpha-start", type=float, default=-15.0, help="first alpha, deg")
+    parser.add_argument("--alpha-end", type=float, default=15.0, help="last alpha, deg")
+    parser.add_argument("--alpha-step", type=float, default=1.0, help="alpha step, deg")
+    parser.add_argument(
+        "--k-max", type=float, default=None, help="bound on |k_ij|, N (default 2 x weight)"
+    )
+    parser.add_argument("--no-plots", action="store_true", help="write the CSV only")
+
+
+def _floats(count: int):
+    def parse(text: str) -> tuple[float, ...]:
+        try:
+            values = tuple(float(v) for v in text.split(","))
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {count} comma-separated numbers") from None
+        if len(values) != count:
+            raise argparse.ArgumentTypeError(f"expected {count} comma-separated numbers")
+        return values
+
+    return parse
+
+
+@dataclass(frozen=True)
+class Sweep:
+    """The experiment's result: one row per pose."""
+
+    scene: Scene
+    trajectory: Trajectory
+    k_max: float
+    grasp: Grasp  # batched over the poses
+    optimum: MinimaxResult
+
+
+def run_sweep(scene: Scene, trajectory: Trajectory, k_max: float | None = None) -> Sweep:
+    """Solve the minimax problem at every pose of ``trajectory`` (one batched call)."""
+    k_max = 2.0 * scene.weight if k_max is None else float(k_max)
+    grasp = scene_grasp(scene, trajectory.rotations())
+    return Sweep(scene, trajectory, k_max, grasp, solve_minimax(grasp, k_max))
+
+
+def pair_names(n_contacts: int) -> list[str]:
+    return [f"k{i + 1}{j + 1}" for i, j in contact_pairs(n_contacts)]
+
+
+def write_csv(sweep: Sweep, path: Path) -> None:
+    n = sweep.scene.n_contacts
+    header = ["alpha_deg", *pair_names(n)]
+    header += [f"theta{i + 1}_deg" for i in range(n)]
+    header += ["theta_max_deg", "lower_bound_deg", "status"]
+    header += [f"F{i + 1}{c}" for i in range(n) for c in "xyz"]
+    opt = sweep.optimum
+    with path.open("w", newline="") as file:
+        writer = csv.writer(file)
+        writer.writerow(header)
+        for t, alpha in enumerate(sweep.trajectory.alphas_deg):
+            writer.writerow(
+                [
+                    f"{alpha:g}",
+                    *(f"{k:.10g}" for k in opt.k[t]),
+                    *(f"{a:.10g}" for a in np.rad2deg(opt.angles[t])),
+                    f"{np.rad2deg(opt.max_angle[t]):.10g}",
+                    f"{np.rad2deg(opt.lower_bound[t]):.10g}",
+                    Status(int(opt.status[t])).name.lower(),
+                    *(f"{f:.10g}" for f in sweep.grasp.equilibrating[t].ravel()),
+                ]
+            )
+
+
+def print_table(sweep: Sweep) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    n = sweep.scene.n_contacts
+    limit = np.rad2deg(sweep.scene.friction_limit)
+    table = Table(
+        title=f"Minimax grip along the trajectory (w = {sweep.scene.weight:g} N, "
+        f"mu = {sweep.scene.mu:g}, theta_lim = {limit:.2f} deg)"
+    )
+    for name in ["alpha", *pair_names(n), *(f"theta{i + 1}" for i in range(n)), "max", "holds"]:
+        table.add_column(name, justify="right")
+    opt = sweep.optimum
+    for t, alpha in enumerate(sweep.trajectory.alphas_deg):
+        angles = np.rad2deg(opt.angles[t])
+        table.add_row(
+            f"{alpha:g}",
+            *(f"{k:.4f}" for k in opt.k[t]),
+            *(f"{a:.4f}" for a in angles),
+            f"{angles.max():.4f}",
+            "yes" if angles.max() <= limit else "NO",
+        )
+    Console().print(table)
+
+
+def plot_trend(sweep: Sweep, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    alphas = sweep.trajectory.alphas_deg
+    fig, (ax_theta, ax_k) = plt.subplots(2, 1, figsize=(7, 7), sharex=True)
+    styles = ["-", "--", ":", "-.", (0, (5, 1)), (0, (1, 3))]  # equal curves stay visible
+    angles = np.rad2deg(sweep.optimum.angles).T
+    for i, (theta, style) in enumerate(zip(angles, styles, strict=False)):
+        ax_theta.plot(alphas, theta, ls=style, marker=".", label=f"theta{i + 1}")
+    ax_theta.axhline(np.rad2deg(sweep.scene.friction_limit), color="k", ls="--", label="atan(mu)")
+    ax_theta.set_ylabel("friction angle at the optimum (deg)")
+    ax_theta.legend()
+    ax_theta.set_title("Minimised maximum friction angle along the trajectory")
+    names = pair_names(sweep.scene.n_contacts)
+    for name, k, style in zip(names, sweep.optimum.k.T, styles, strict=False):
+        ax_k.plot(alphas, k, ls=style, marker=".", label=name)
+    ax_k.set_xlabel("alpha (deg)")
+    ax_k.set_ylabel("optimal interaction scalar k_ij (N)")
+    ax_k.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def theta1_grid(sweep: Sweep, points: int = 100) -> tuple[np.ndarray, ...]:
+    """theta_1 (deg) over a points x points grid of (k12, k13) at alpha = 0 (the paper's Fig. 2).
+
+    theta_1 depends on k12 and k13 only; k23 is held at its optimum. The grid spans 0 to
+    2.5 times the larger optimal value, so the optimum sits inside it. Returns the k12 and k13
+    grids, theta_1 on them and the optimal k at alpha = 0.
+    """
+    scene, trajectory = sweep.scene, sweep.trajectory
+    grasp = scene_grasp(scene, pose_rotation(trajectory.axis, 0.0))
+    k_opt = solve_minimax(grasp, sweep.k_max).k
+    top = 2.5 * max(abs(k_opt[0]), abs(k_opt[1]), 0.1 * scene.weight)
+    k12, k13 = np.meshgrid(np.linspace(0, top, points), np.linspace(0, top, points))
+    k = np.broadcast_to(k_opt, (points, points, len(k_opt))).copy()
+    k[..., 0], k[..., 1] = k12, k13
+    theta1 = np.rad2deg(grasp.angles(k)[..., 0])  # the grasp broadcasts over the grid
+    return k12, k13, theta1, k_opt
+
+
+def plot_theta1_grid(sweep: Sweep, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    k12, k13, theta1, k_opt = theta1_grid(sweep)
+    fig = plt.figure(figsize=(11, 4.8))
+    ax3d = fig.add_subplot(1, 2, 1, projection="3d")
+    ax3d.plot_surface(k12, k13, theta1, cmap="viridis", linewidth=0)
+    ax3d.set_xlabel("k12 (N)")
+    ax3d.set_ylabel("k13 (N)")
+    ax3d.set_zlabel("theta1 (deg)")
+    ax3d.set_title("theta1 over (k12, k13) at alpha = 0")
+    ax = fig.add_subplot(1, 2, 2)
+    contour = ax.contourf(k12, k13, theta1, levels=30, cmap="viridis")
+    fig.colorbar(contour, ax=ax, label="theta1 (deg)")
+    ax.plot(k_opt[0], k_opt[1], "r*", ms=14, label=f"optimum ({k_opt[0]:.4f}, {k_opt[1]:.4f})")
+    ax.set_xlabel("k12 (N)")
+    ax.set_ylabel("k13 (N)")
+    ax.legend(loc="upper right")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def run(args: argparse.Namespace) -> int:
+    offsets = None if args.offsets is None else np.reshape(args.offsets, (3, 2))
+    scene = Scene.on_faces(
+        PAPER_FACES, offsets=offsets, weight=args.weight, mu=args.mu, cg_offset=args.cg_offset
+    )
+    trajectory = Trajectory(args.axis, args.alpha_start, args.alpha_end, args.alpha_step)
+    if args.k_max is not None and not (np.isfinite(args.k_max) and args.k_max > 0):
+        raise ValueError(f"--k-max must be a finite number > 0, got {args.k_max}")
+    sweep = run_sweep(scene, trajectory, args.k_max)
+    args.out.mkdir(parents=True, exist_ok=True)
+    print_table(sweep)
+    write_csv(sweep, args.out / "sweep.csv")
+    written = ["sweep.csv"]
+    if not args.no_plots:
+        plot_trend(sweep, args.out / "trend.png")
+        plot_theta1_grid(sweep, args.out / "theta1_grid.png")
+        written += ["trend.png", "theta1_grid.png"]
+    worst = np.rad2deg(sweep.optimum.max_angle.max())
+    print(
+        f"worst optimal max friction angle {worst:.4f} deg "
+        f"(limit {np.rad2deg(scene.friction_limit):.2f} deg); "
+        f"largest certificate gap {np.rad2deg(sweep.optimum.gap.max()):.2e} deg"
+    )
+    print(f"wrote {', '.join(str(args.out / name) for name in written)}")
+    return 0
