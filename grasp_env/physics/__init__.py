@@ -1,0 +1,33 @@
+"""MuJoCo physics: the stability check of contact forces, and rendering (DESIGN.md §2).
+
+Depends on ``grasp_env.mechanics`` only. MuJoCo reads ``MUJOCO_GL`` once, when it is first
+imported; on a Linux machine without a display and with ``MUJOCO_GL`` unset, this package picks
+an offscreen backend before that import: OSMesa (Mesa's software renderer, Debian's
+``libosmesa6``) if it is installed, else EGL. Set ``MUJOCO_GL`` yourself to override, and import
+``grasp_env.physics`` before anything else imports ``mujoco`` for the choice to take effect.
+"""
+
+from __future__ import annotations
+
+import ctypes.util
+import os
+import sys
+
+
+def _choose_gl_backend() -> None:
+    headless = not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+    if (
+        sys.platform.startswith("linux")
+        and headless
+        and "MUJOCO_GL" not in os.environ
+        and "mujoco" not in sys.modules
+    ):
+        os.environ["MUJOCO_GL"] = "osmesa" if ctypes.util.find_library("OSMesa") else "egl"
+
+
+_choose_gl_backend()
+
+from .render import GraspView  # noqa: E402
+from .stability import SETTINGS, PhysicsReport, StabilityChecker  # noqa: E402
+
+__all__ = ["SETTINGS", "GraspView", "PhysicsReport", "StabilityChecker"]
