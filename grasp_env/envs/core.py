@@ -1,0 +1,611 @@
+"""Per-episode work shared by the single and the vector environments.
+
+An episode is a scene held along a trajectory. Everything that does not depend on the agent's
+actions (the grasp geometry, the equilibrating forces, the observations and the expert's grip
+at every pose) is computed once, batched over poses and episodes, when the episode starts;
+a step then only forms P = F + sum k_ij e_ij (eq. 4) and the friction angles (eq. 2) with one
+compiled kernel that the single and the vector environments share, so both compute the very
+same numbers.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numba
+import numpy as np
+
+from ..expert import MinimaxExpert
+from ..mechanics import (
+    DEFAULT_MU,
+    DEFAULT_WEIGHT,
+    FACES,
+    PAPER_FACES,
+    Scene,
+    Trajectory,
+    contact_pairs,
+    face_point,
+    grasp,
+    load_wrench,
+    n_pairs,
+    pose_rotation,
+)
+from .observation import ObservationLayout
+
+#: Edge length L of the grasped cube, metres (the paper's unit cube).
+EDGE = 1.0
+SCENE_KEYS = (
+    "contacts", "cg_offset", "weight", "mu", "extra_force", "extra_torque", "trajectory",
+)  # fmt: skip
+TRAJECTORY_KEYS = ("axis", "alpha_start_deg", "alpha_end_deg", "alpha_step_deg")
+
+
+@numba.njit(cache=True)
+def evaluate(forces, directions, normals, pairs, rows, actions, k_max, limit):
+    """Net forces and friction angles of a batch of (pose, action) pairs.
+
+    ``forces`` (R, n, 3) equilibrating forces, ``directions`` (R, m, 3) the unit vectors u_ij
+    and ``normals`` (R, n, 3) of R stored poses; ``rows`` (B,) picks a pose per item, whose
+    ``actions`` (B, m) are clipped to [-1, 1] and scaled by ``k_max`` (B,); ``limit`` (B,) is
+    theta_lim. Returns (ok, k, P, theta, margin, reward); ok is False if an action is not
+    finite (the outputs are then meaningless).
+    """
+    count = rows.shape[0]
+    n = forces.shape[1]
+    m = directions.shape[1]
+    k = np.empty((count, m))
+    net = np.empty((count, n, 3))
+    theta = np.empty((count, n))
+    margin = np.empty((count, n))
+    reward = np.empty(count)
+    ok = True
+    for b in range(count):
+        row = rows[b]
+        for i in range(n):
+            for c in range(3):
+                net[b, i, c] = forces[row, i, c]
+        for q in range(m):
+            a = actions[b, q]
+            if not math.isfinite(a):
+                ok = False
+            k[b, q] = min(max(a, -1.0), 1.0) * k_max[b]
+            # P_i += k_ij u_ij and P_j -= k_ij u_ij: the basis e_ij of eq. 4
+            i = pairs[q, 0]
+            j = pairs[q, 1]
+            for c in range(3):
+                v = k[b, q] * directions[row, q, c]
+                net[b, i, c] += v
+                net[b, j, c] -= v
+        worst = np.inf
+        for i in range(n):
+            px, py, pz = net[b, i, 0], net[b, i, 1], net[b, i, 2]
+            nx, ny, nz = normals[row, i, 0], normals[row, i, 1], normals[row, i, 2]
+            cx = py * nz - pz * ny
+            cy = pz * nx - px * nz
+            cz = px * ny - py * nx
+            # eq. 2 as atan2(|P x n|, P . n): accurate near 0, where acos is not
+            t = math.atan2(math.sqrt(cx * cx + cy * cy + cz * cz), px * nx + py * ny + pz * nz)
+            theta[b, i] = t
+            margin[b, i] = limit[b] - t
+            worst = min(worst, limit[b] - t)
+        reward[b] = worst
+    return ok, k, net, theta, margin, reward
+
+
+def _read_only(*arrays: np.ndarray) -> None:
+    # Episode arrays are shared with every info dict: views of them must not be writable.
+    for array in arrays:
+        array.flags.writeable = False
+
+
+@dataclass(frozen=True)
+class SceneBatch:
+    """E scenes with their trajectories, as arrays (the unit cube, object frame)."""
+
+    contacts: np.ndarray  # (E, n, 3)
+    cg_offset: np.ndarray  # (E, 3)
+    weight: np.ndarray  # (E,)
+    mu: np.ndarray  # (E,)
+    extra_force: np.ndarray  # (E, 3)
+    extra_torque: np.ndarray  # (E, 3)
+    axis: np.ndarray  # (E, 3) unit vectors
+    alphas_deg: tuple[np.ndarray, ...]  # E arrays of poses
+
+    def __len__(self) -> int:
+        return len(self.weight)
+
+    @property
+    def normals(self) -> np.ndarray:
+        """Inward unit normals (E, n, 3) of the faces the contacts lie on."""
+        axis = np.argmax(np.abs(self.contacts), axis=-1)
+        normals = np.zeros_like(self.contacts)
+        np.put_along_axis(
+            normals,
+            axis[..., None],
+            -np.sign(np.take_along_axis(self.contacts, axis[..., None], -1)),
+            -1,
+        )
+        return normals
+
+    def take(self, index: Sequence[int] | np.ndarray) -> SceneBatch:
+        index = np.asarray(index, dtype=np.intp)
+        return SceneBatch(
+            self.contacts[index],
+            self.cg_offset[index],
+            self.weight[index],
+            self.mu[index],
+            self.extra_force[index],
+            self.extra_torque[index],
+            self.axis[index],
+            tuple(self.alphas_deg[i] for i in index),
+        )
+
+    @staticmethod
+    def concatenate(batches: Sequence[SceneBatch]) -> SceneBatch:
+        return SceneBatch(
+            *(
+                np.concatenate([getattr(b, name) for b in batches])
+                for name in (
+                    "contacts",
+                    "cg_offset",
+                    "weight",
+                    "mu",
+                    "extra_force",
+                    "extra_torque",
+                    "axis",
+                )
+            ),
+            alphas_deg=tuple(a for b in batches for a in b.alphas_deg),
+        )
+
+    @staticmethod
+    def single(scene: Scene, trajectory: Trajectory) -> SceneBatch:
+        return SceneBatch(
+            scene.contacts[None].copy(),
+            scene.cg_offset[None].copy(),
+            np.array([scene.weight]),
+            np.array([scene.mu]),
+            scene.extra_force[None].copy(),
+            scene.extra_torque[None].copy(),
+            np.array([trajectory.axis]),
+            (trajectory.alphas_deg,),
+        )
+
+    def scene(self, index: int) -> Scene:
+        """The mechanics :class:`Scene` of episode ``index``."""
+        return Scene(
+            contacts=self.contacts[index],
+            size=EDGE,
+            weight=float(self.weight[index]),
+            mu=float(self.mu[index]),
+            cg_offset=self.cg_offset[index],
+            extra_force=self.extra_force[index],
+            extra_torque=self.extra_torque[index],
+        )
+
+
+@dataclass(frozen=True)
+class Poses:
+    """World-frame data of P poses (flattened over episodes), ready for :func:`evaluate`."""
+
+    rotations: np.ndarray  # (P, 3, 3)
+    forces: np.ndarray  # (P, n, 3) equilibrating forces F_i, newtons
+    directions: np.ndarray  # (P, m, 3) u_ij
+    normals: np.ndarray  # (P, n, 3)
+    observations: np.ndarray  # (P, size) float32
+    limit: np.ndarray  # (P,) theta_lim
+    k_max: np.ndarray  # (P,)
+    expert_k: np.ndarray = field(default=None)  # type: ignore[assignment]  # (P, m)
+    expert_reward: np.ndarray = field(default=None)  # type: ignore[assignment]  # (P,)
+
+
+def build_poses(
+    scenes: SceneBatch,
+    episode: np.ndarray,
+    alphas_deg: np.ndarray,
+    phase: np.ndarray,
+    expert: MinimaxExpert,
+) -> Poses:
+    """Grasp data, observations and the expert's grip at poses of the batch's episodes.
+
+    ``episode`` (P,) says which scene each pose belongs to, at ``alphas_deg`` (P,) along that
+    scene's trajectory axis; ``phase`` (P,) goes into the observation.
+    """
+    n = scenes.contacts.shape[1]
+    layout = ObservationLayout(n)
+    rotations = pose_rotation(scenes.axis[episode], np.deg2rad(alphas_deg))
+    weight = scenes.weight[episode]
+    limit = np.arctan(scenes.mu[episode])
+    wrench = load_wrench(weight, scenes.extra_force[episode], scenes.extra_torque[episode])
+    relative = (scenes.contacts - scenes.cg_offset[:, None, :])[episode]
+    g = grasp(relative, scenes.normals[episode], rotations, wrench, limit)
+    pairs = contact_pairs(n)
+    directions = g.basis[:, np.arange(len(pairs)), pairs[:, 0], :]
+    observations = layout.build(
+        rotations,
+        g.positions / EDGE,
+        g.normals,
+        wrench[:, :3] / weight[:, None],
+        wrench[:, 3:] / (weight[:, None] * EDGE),
+        limit,
+        phase,
+    )
+    k_max = expert.k_max_ratio * weight
+    poses = Poses(rotations, g.equilibrating, directions, g.normals, observations, limit, k_max)
+    if len(episode) == 0:
+        return poses
+    actions = expert.actions(observations).astype(np.float64)
+    # The expert's grip scored exactly as an agent's action is (same kernel, same clipping).
+    _, k, _, _, _, reward = evaluate(
+        poses.forces,
+        poses.directions,
+        poses.normals,
+        pairs,
+        np.arange(len(episode)),
+        actions,
+        k_max,
+        limit,
+    )
+    object.__setattr__(poses, "expert_k", k)
+    object.__setattr__(poses, "expert_reward", reward)
+    return poses
+
+
+@dataclass(frozen=True)
+class Episode:
+    """One episode's precomputed arrays (read-only), T poses.
+
+    ``observations`` has T + 1 rows: row t is seen before step t, row T (the last pose with
+    phase 1) after the last step.
+    """
+
+    scenes: SceneBatch  # a batch of one: the episode's scene and trajectory
+    rotations: np.ndarray  # (T, 3, 3)
+    forces: np.ndarray  # (T, n, 3)
+    directions: np.ndarray  # (T, m, 3)
+    normals: np.ndarray  # (T, n, 3)
+    observations: np.ndarray  # (T + 1, size) float32
+    expert_k: np.ndarray  # (T, m)
+    expert_reward: np.ndarray  # (T,)
+    limit: float
+    k_max: float
+
+    def __len__(self) -> int:
+        return self.rotations.shape[0]
+
+    @property
+    def scene(self) -> Scene:
+        return self.scenes.scene(0)
+
+
+def build_episodes(scenes: SceneBatch, expert: MinimaxExpert) -> list[Episode]:
+    """The episodes of a batch of scenes, with every pose of every trajectory in one batch."""
+    lengths = np.array([len(a) for a in scenes.alphas_deg])
+    episode = np.repeat(np.arange(len(scenes)), lengths)
+    step = np.concatenate([np.arange(t) for t in lengths]) if len(lengths) else np.zeros(0, int)
+    alphas = np.concatenate(scenes.alphas_deg) if len(lengths) else np.zeros(0)
+    poses = build_poses(scenes, episode, alphas, step / lengths[episode], expert)
+    ends = np.cumsum(lengths)
+    episodes = []
+    for e, (start, end) in enumerate(zip(ends - lengths, ends, strict=True)):
+        part = slice(start, end)
+        final = poses.observations[end - 1].copy()
+        final[ObservationLayout(scenes.contacts.shape[1]).phase] = 1.0
+        arrays = (
+            poses.rotations[part].copy(),
+            poses.forces[part].copy(),
+            poses.directions[part].copy(),
+            poses.normals[part].copy(),
+            np.vstack([poses.observations[part], final[None]]),
+            poses.expert_k[part].copy(),
+            poses.expert_reward[part].copy(),
+        )
+        _read_only(*arrays)
+        episodes.append(
+            Episode(
+                scenes.take([e]),
+                *arrays,
+                limit=float(poses.limit[start]),
+                k_max=float(poses.k_max[start]),
+            )
+        )
+    return episodes
+
+
+# ---------------------------------------------------------------------------- explicit scenes
+
+
+def _vector(name: str, value: Any, shape: tuple[int, ...]) -> np.ndarray:
+    try:
+        array = np.asarray(value, dtype=float)
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"scene {name!r} must be numeric, got {value!r}") from error
+    if array.shape != shape:
+        raise ValueError(f"scene {name!r} must have shape {shape}, got {array.shape}")
+    return array
+
+
+def default_scene(faces: Sequence[str]) -> dict[str, Any]:
+    """The paper's scene and trajectory with one face-centre contact per face in ``faces``."""
+    trajectory = Trajectory()
+    return {
+        "contacts": np.array([face_point(f, size=EDGE) for f in faces]),
+        "cg_offset": np.zeros(3),
+        "weight": DEFAULT_WEIGHT,
+        "mu": DEFAULT_MU,
+        "extra_force": np.zeros(3),
+        "extra_torque": np.zeros(3),
+        "trajectory": {key: getattr(trajectory, key) for key in TRAJECTORY_KEYS},
+    }
+
+
+def parse_scene(spec: Mapping[str, Any] | None, defaults: Mapping[str, Any]) -> SceneBatch:
+    """A validated scene from a mapping with :data:`SCENE_KEYS` (missing keys from ``defaults``).
+
+    ``contacts`` (n, 3) are object-frame points on the faces of the unit cube centred at the
+    origin, n as in ``defaults``; ``cg_offset`` lies inside the cube; ``weight`` (N) and ``mu``
+    are > 0; ``extra_force`` and ``extra_torque`` (world frame, N and N m about the cg) are at
+    most w and w L per component; ``trajectory`` is a mapping with :data:`TRAJECTORY_KEYS`.
+    """
+    spec = {} if spec is None else spec
+    if not isinstance(spec, Mapping):
+        raise ValueError(f"a scene must be a mapping with keys {SCENE_KEYS}, got {spec!r}")
+    for key in spec:
+        if key not in SCENE_KEYS:
+            raise ValueError(f"unknown scene key {key!r}; the scene keys are {SCENE_KEYS}")
+    merged = {**defaults, **spec}
+    trajectory = merged["trajectory"]
+    if not isinstance(trajectory, Mapping):
+        raise ValueError(f"scene 'trajectory' must be a mapping with keys {TRAJECTORY_KEYS}")
+    for key in trajectory:
+        if key not in TRAJECTORY_KEYS:
+            raise ValueError(
+                f"unknown trajectory key {key!r}; the trajectory keys are {TRAJECTORY_KEYS}"
+            )
+    trajectory = Trajectory(**{**defaults["trajectory"], **trajectory})
+    n = np.shape(defaults["contacts"])[0]
+    weight = merged["weight"]
+    if isinstance(weight, bool) or not isinstance(weight, int | float | np.number):
+        raise ValueError(f"scene 'weight' must be a number, got {weight!r}")
+    if isinstance(merged["mu"], bool) or not isinstance(merged["mu"], int | float | np.number):
+        raise ValueError(f"scene 'mu' must be a number, got {merged['mu']!r}")
+    scene = Scene(
+        contacts=_vector("contacts", merged["contacts"], (n, 3)),
+        size=EDGE,
+        weight=float(weight),
+        mu=float(merged["mu"]),
+        cg_offset=_vector("cg_offset", merged["cg_offset"], (3,)),
+        extra_force=_vector("extra_force", merged["extra_force"], (3,)),
+        extra_torque=_vector("extra_torque", merged["extra_torque"], (3,)),
+    )
+    if np.any(np.abs(scene.extra_force) > scene.weight):
+        raise ValueError(
+            f"extra_force {scene.extra_force.tolist()} must be at most the weight"
+            f" ({scene.weight}) per component"
+        )
+    if np.any(np.abs(scene.extra_torque) > scene.weight * EDGE):
+        raise ValueError(
+            f"extra_torque {scene.extra_torque.tolist()} must be at most weight x edge"
+            f" ({scene.weight * EDGE}) per component"
+        )
+    return SceneBatch.single(scene, trajectory)
+
+
+def parse_options(options: Mapping[str, Any] | None) -> Mapping[str, Any] | None:
+    """The scene mapping of ``reset(options=...)``; the only option is ``"scene"``."""
+    if options is None:
+        return None
+    if not isinstance(options, Mapping):
+        raise ValueError(f"options must be a mapping, got {options!r}")
+    for key in options:
+        if key != "scene":
+            raise ValueError(f"unknown option {key!r}; the only option is 'scene'")
+    return options.get("scene")
+
+
+# --------------------------------------------------------------------------- random scenes
+
+
+def _range(name: str, value: Any, low: float, high: float, *, open_low: bool = False) -> tuple:
+    try:
+        lo, hi = (float(v) for v in value)
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"{name} must be a (low, high) pair, got {value!r}") from error
+    below = lo <= low if open_low else lo < low
+    if not (np.isfinite(lo) and np.isfinite(hi)) or below or hi > high or hi < lo:
+        bracket = "(" if open_low else "["
+        raise ValueError(
+            f"{name} must satisfy low <= high within {bracket}{low}, {high}], got {value!r}"
+        )
+    return lo, hi
+
+
+def _fraction(name: str, value: Any, high: float = 1.0) -> float:
+    try:
+        value = float(value)
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"{name} must be a number in [0, {high}), got {value!r}") from error
+    if not 0.0 <= value < high:
+        raise ValueError(f"{name} must be in [0, {high}), got {value}")
+    return value
+
+
+@dataclass(frozen=True)
+class SceneSampler:
+    """Ranges of the random scenes (see :class:`~grasp_env.envs.CubeGraspRandomEnv`)."""
+
+    faces: tuple[str, ...] = PAPER_FACES
+    contact_offset: float = 0.5
+    cg_offset: float = 0.2
+    weight_range: tuple[float, float] = (1.0, 10.0)
+    mu_range: tuple[float, float] = (0.3, 1.0)
+    alpha_start_range_deg: tuple[float, float] = (-30.0, -10.0)
+    alpha_end_range_deg: tuple[float, float] = (10.0, 30.0)
+    alpha_step_deg: float = 1.0
+    extra_force: float = 0.0
+    extra_torque: float = 0.0
+
+    def __post_init__(self) -> None:
+        set_ = object.__setattr__
+        set_(self, "faces", tuple(self.faces))
+        set_(self, "contact_offset", _fraction("contact_offset", self.contact_offset))
+        set_(self, "cg_offset", _fraction("cg_offset", self.cg_offset))
+        set_(self, "weight_range", _range("weight_range", self.weight_range, 0, 1e6, open_low=True))
+        set_(self, "mu_range", _range("mu_range", self.mu_range, 0, 1e6, open_low=True))
+        set_(
+            self,
+            "alpha_start_range_deg",
+            _range("alpha_start_range_deg", self.alpha_start_range_deg, -180, 180),
+        )
+        set_(
+            self,
+            "alpha_end_range_deg",
+            _range("alpha_end_range_deg", self.alpha_end_range_deg, -180, 180),
+        )
+        if self.alpha_start_range_deg[1] > self.alpha_end_range_deg[0]:
+            raise ValueError(
+                "alpha_start_range_deg must lie below alpha_end_range_deg, got"
+                f" {self.alpha_start_range_deg} and {self.alpha_end_range_deg}"
+            )
+        step = float(self.alpha_step_deg)
+        if not (np.isfinite(step) and step > 0):
+            raise ValueError(f"alpha_step_deg must be a finite number > 0, got {step}")
+        set_(self, "alpha_step_deg", step)
+        set_(self, "extra_force", _fraction("extra_force", self.extra_force, 1.0 + 1e-12))
+        set_(self, "extra_torque", _fraction("extra_torque", self.extra_torque, 1.0 + 1e-12))
+        if len(self.faces) not in (3, 4):
+            raise ValueError(f"faces must name 3 or 4 faces, got {self.faces}")
+        # Face names are validated by face_point; distinct faces keep the layout valid.
+        if len(set(self.faces)) != len(self.faces):
+            raise ValueError(f"faces must be distinct, got {self.faces}")
+        for face in self.faces:
+            face_point(face)
+
+    @property
+    def max_length(self) -> int:
+        """The longest trajectory the ranges allow, in poses."""
+        span = self.alpha_end_range_deg[1] - self.alpha_start_range_deg[0]
+        return int(np.floor(span / self.alpha_step_deg + 1e-9)) + 1
+
+    def draw(self, rng: np.random.Generator, count: int) -> SceneBatch:
+        """``count`` scenes from ``rng``; the draw order is fixed (same seed, same scenes)."""
+        n = len(self.faces)
+        offsets = rng.uniform(-self.contact_offset, self.contact_offset, (count, n, 2))
+        half = EDGE / 2
+        cg = rng.uniform(-self.cg_offset, self.cg_offset, (count, 3)) * half
+        weight = rng.uniform(*self.weight_range, count)
+        mu = rng.uniform(*self.mu_range, count)
+        axis = rng.normal(size=(count, 3))
+        axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+        start = rng.uniform(*self.alpha_start_range_deg, count)
+        end = rng.uniform(*self.alpha_end_range_deg, count)
+        extra_force = rng.uniform(-self.extra_force, self.extra_force, (count, 3))
+        extra_torque = rng.uniform(-self.extra_torque, self.extra_torque, (count, 3))
+        contacts = np.empty((count, n, 3))
+        for i, face in enumerate(self.faces):
+            index, sign = FACES[face]
+            others = [a for a in range(3) if a != index]
+            contacts[:, i, index] = sign * half
+            contacts[:, i, others] = offsets[:, i] * half
+        lengths = np.floor((end - start) / self.alpha_step_deg + 1e-9).astype(int) + 1
+        step = self.alpha_step_deg
+        alphas = tuple(s + step * np.arange(t) for s, t in zip(start, lengths, strict=True))
+        return SceneBatch(
+            contacts,
+            cg,
+            weight,
+            mu,
+            extra_force * weight[:, None],
+            extra_torque * (weight * EDGE)[:, None],
+            axis,
+            alphas,
+        )
+
+
+#: Candidate scenes drawn per environment and round of :func:`sample_episodes`.
+DRAWS_PER_ROUND = 8
+#: Give up (the ranges admit almost no holdable scene) after this many candidates per episode.
+MAX_DRAWS = 2000
+
+
+def sample_episodes(
+    rngs: Sequence[np.random.Generator],
+    sampler: SceneSampler,
+    expert: MinimaxExpert,
+    min_margin: float,
+) -> list[Episode]:
+    """One random episode per generator whose expert keeps every margin >= ``min_margin``.
+
+    Each generator draws :data:`DRAWS_PER_ROUND` candidates per round; a cheap screen solves
+    the expert at the trajectory's two ends and middle, then candidates that pass are solved
+    along the whole trajectory in order, the first that holds being the episode. Which scene a
+    generator yields depends on that generator alone, so a vector of environments gets the
+    same episodes as single environments with the same seeds; all solves are batched.
+    """
+    result: list[Episode | None] = [None] * len(rngs)
+    pending = list(range(len(rngs)))
+    rounds = 0
+    while pending:
+        rounds += 1
+        if rounds * DRAWS_PER_ROUND > MAX_DRAWS:
+            raise RuntimeError(
+                f"no scene in {MAX_DRAWS} draws lets the expert hold the whole trajectory;"
+                " widen mu_range or narrow the offset and trajectory ranges"
+            )
+        drafts = SceneBatch.concatenate([sampler.draw(rngs[e], DRAWS_PER_ROUND) for e in pending])
+        # Screen: the two ends and the middle of every candidate's trajectory.
+        picks = [a[[0, len(a) // 2, -1]] for a in drafts.alphas_deg]
+        screen = build_poses(
+            drafts,
+            np.repeat(np.arange(len(drafts)), 3),
+            np.concatenate(picks),
+            np.zeros(3 * len(drafts)),
+            expert,
+        )
+        passed = screen.expert_reward.reshape(len(pending), DRAWS_PER_ROUND, 3).min(-1)
+        queues = {
+            e: list(np.flatnonzero(passed[slot] >= min_margin) + slot * DRAWS_PER_ROUND)
+            for slot, e in enumerate(pending)
+        }
+        while active := [e for e in pending if queues[e] and result[e] is None]:
+            heads = [queues[e].pop(0) for e in active]
+            for e, episode in zip(active, build_episodes(drafts.take(heads), expert), strict=True):
+                if episode.expert_reward.min() >= min_margin:
+                    result[e] = episode
+        pending = [e for e in pending if result[e] is None]
+    return result  # type: ignore[return-value]
+
+
+def check_margin(value: Any) -> float:
+    """``min_expert_margin_deg`` in [0, 45) degrees, returned in radians."""
+    return float(np.deg2rad(_fraction("min_expert_margin_deg", value, 45.0)))
+
+
+def check_k_max_ratio(value: Any) -> float:
+    try:
+        value = float(value)
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"k_max_ratio must be a finite number > 0, got {value!r}") from error
+    if not (np.isfinite(value) and value > 0):
+        raise ValueError(f"k_max_ratio must be a finite number > 0, got {value}")
+    return value
+
+
+__all__ = [
+    "EDGE",
+    "SCENE_KEYS",
+    "TRAJECTORY_KEYS",
+    "Episode",
+    "SceneBatch",
+    "SceneSampler",
+    "build_episodes",
+    "default_scene",
+    "evaluate",
+    "n_pairs",
+    "parse_options",
+    "parse_scene",
+    "sample_episodes",
+]

@@ -1,0 +1,434 @@
+"""The single grasp environments: the paper's trajectory and randomised grasps."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from ..expert import MinimaxExpert
+from ..mechanics import FOUR_FINGER_FACES, PAPER_FACES, Scene, contact_pairs, n_pairs
+from .core import (
+    Episode,
+    SceneSampler,
+    build_episodes,
+    check_k_max_ratio,
+    check_margin,
+    default_scene,
+    evaluate,
+    parse_options,
+    parse_scene,
+    sample_episodes,
+)
+from .observation import ObservationLayout
+
+PHYSICS_ENGINES = (None, "mujoco")
+
+
+def check_physics(physics: str | None, render_mode: str | None, modes: Sequence[str]) -> None:
+    if physics not in PHYSICS_ENGINES:
+        raise ValueError(f"physics must be one of {PHYSICS_ENGINES}, got {physics!r}")
+    if render_mode is not None and render_mode not in modes:
+        raise ValueError(f"render_mode must be None or one of {list(modes)}, got {render_mode!r}")
+
+
+def action_array(action: Any, m: int) -> np.ndarray:
+    """``action`` as a float64 (m,) array, or a ValueError saying what an action must be."""
+    try:
+        array = np.asarray(action, dtype=np.float64)
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"action must be {m} finite numbers in [-1, 1], got {action!r}") from error
+    if array.shape != (m,):
+        raise ValueError(f"action must have shape ({m},), got {array.shape}")
+    return array
+
+
+class _CubeGraspEnv(gym.Env[np.ndarray, np.ndarray]):
+    """What the fixed and the random environments share: spaces, step, physics and rendering."""
+
+    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 10}  # noqa: RUF012
+
+    def __init__(
+        self,
+        faces: Sequence[str],
+        k_max_ratio: float,
+        terminate_on_slip: bool,
+        physics: str | None,
+        render_mode: str | None,
+    ) -> None:
+        check_physics(physics, render_mode, self.metadata["render_modes"])
+        self.faces = tuple(faces)
+        self.k_max_ratio = check_k_max_ratio(k_max_ratio)
+        self.terminate_on_slip = bool(terminate_on_slip)
+        self.physics = physics
+        self.render_mode = render_mode
+        n = len(self.faces)
+        self.layout = ObservationLayout(n)
+        low, high = self.layout.bounds()
+        self.observation_space = spaces.Box(low, high, dtype=np.float32)
+        self.action_space = spaces.Box(-1.0, 1.0, (n_pairs(n),), dtype=np.float32)
+        self.expert = MinimaxExpert(self.k_max_ratio)
+        self._pairs = contact_pairs(n)
+        self._episode: Episode | None = None
+        self._step = 0
+        self._done = True
+        self._last_forces: np.ndarray | None = None
+        self._checker: Any = None
+        self._view: Any = None
+        self._world_scene: Episode | None = None  # the episode the checker and view were built for
+
+    # -- the episode ---------------------------------------------------------------------------
+
+    def _next_episode(self, scene: Mapping[str, Any] | None) -> Episode:
+        raise NotImplementedError
+
+    @property
+    def episode(self) -> Episode:
+        """The current episode's precomputed arrays (after :meth:`reset`)."""
+        if self._episode is None:
+            raise RuntimeError("call reset() first")
+        return self._episode
+
+    @property
+    def scene(self) -> Scene:
+        """The current episode's :class:`~grasp_env.mechanics.Scene`."""
+        return self.episode.scene
+
+    @property
+    def alphas_deg(self) -> np.ndarray:
+        """The current trajectory's alpha values, degrees."""
+        return self.episode.scenes.alphas_deg[0]
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        super().reset(seed=seed)
+        episode = self._next_episode(parse_options(options))
+        self._episode = episode
+        self._rows = np.arange(len(episode))
+        self._k_max = np.array([episode.k_max])
+        self._limit = np.array([episode.limit])
+        self._step = 0
+        self._done = False
+        self._last_forces = None
+        if self.physics is not None or self.render_mode is not None:
+            self._update_world()
+        if self.render_mode == "human":
+            self.render()
+        return episode.observations[0].copy(), {}
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        """Apply the grip k = clip(action, -1, 1) x k_max at the current pose, then move on."""
+        if self._done:
+            raise RuntimeError("the episode has ended (or not started): call reset()")
+        episode = self._episode
+        assert episode is not None
+        a = action_array(action, self._pairs.shape[0])
+        t = self._step
+        ok, k, forces, theta, margin, reward = evaluate(
+            episode.forces,
+            episode.directions,
+            episode.normals,
+            self._pairs,
+            self._rows[t : t + 1],
+            a.reshape(1, -1),
+            self._k_max,
+            self._limit,
+        )
+        if not ok:
+            raise ValueError(f"action must be finite, got {a.tolist()}")
+        slip = theta[0] > episode.limit
+        reward = float(reward[0])
+        expert_reward = float(episode.expert_reward[t])
+        info = {
+            "alpha_deg": float(episode.scenes.alphas_deg[0][t]),
+            "theta": theta[0],
+            "margin": margin[0],
+            "k": k[0],
+            "contact_forces": forces[0],
+            "equilibrating_forces": episode.forces[t].copy(),
+            "expert_k": episode.expert_k[t].copy(),
+            "expert_reward": expert_reward,
+            "optimality_gap": expert_reward - reward,
+            "slip": slip,
+        }
+        terminated = self.terminate_on_slip and bool(slip.any())
+        if self._checker is not None:
+            report = self._checker.check(episode.rotations[t], forces[0])
+            info["physics"] = report.as_dict()
+            terminated = self.terminate_on_slip and not report.holds
+        self._step = t + 1
+        truncated = self._step == len(episode)
+        self._done = terminated or truncated
+        self._last_forces = forces[0]
+        if self.render_mode == "human":
+            self.render()
+        return episode.observations[t + 1].copy(), reward, terminated, truncated, info
+
+    # -- physics and rendering (grasp_env.physics, imported only when asked for) ----------------
+
+    def _update_world(self) -> None:
+        """Build the MuJoCo checker and view for a new scene; reset the checker every episode."""
+        episode = self.episode
+        if self._world_scene is None or self._world_scene.scenes is not episode.scenes:
+            scene = episode.scene
+            if self.physics == "mujoco":
+                from ..physics import StabilityChecker
+
+                self._checker = StabilityChecker(scene)
+            if self._view is not None:
+                self._view.close()
+                self._view = None
+            if self.render_mode is not None:
+                from ..physics import GraspView
+
+                self._view = GraspView(scene, render_mode=self.render_mode)
+            self._world_scene = episode
+        if self._checker is not None:
+            self._checker.reset()
+
+    def render(self) -> np.ndarray | None:
+        """An RGB frame (H, W, 3) uint8 for ``render_mode="rgb_array"``; a window for "human"."""
+        if self.render_mode is None:
+            gym.logger.warn("render() called without a render_mode; pass render_mode to make()")
+            return None
+        episode = self.episode
+        pose = min(self._step, len(episode)) - 1 if self._last_forces is not None else 0
+        forces = episode.forces[0] if self._last_forces is None else self._last_forces
+        return self._view.render(episode.rotations[pose], forces)
+
+    def close(self) -> None:
+        if self._view is not None:
+            self._view.close()
+            self._view = None
+        self._checker = None
+        self._world_scene = None
+        super().close()
+
+    def __getstate__(self) -> dict[str, Any]:
+        # The MuJoCo checker and view hold native resources: rebuilt on the next reset.
+        state = self.__dict__.copy()
+        state.update(_checker=None, _view=None, _world_scene=None)
+        return state
+
+
+_DOC_SPACES = """
+    ## Action Space
+    `Box(-1, 1, (m,), float32)`, m = n (n - 1) / 2 interaction scalars, one per finger pair in
+    the order (1, 2), (1, 3), (2, 3)[, (1, 4), (2, 4), (3, 4)]. The grip is
+    k_ij = a_ij x k_max with k_max = `k_max_ratio` x w; k_ij > 0 squeezes the pair together
+    (paper eq. 4). Actions outside [-1, 1] are clipped; a wrong shape or a non-finite entry
+    raises `ValueError`.
+
+    ## Observation Space
+    `Box(low, high, (14 + 6n,), float32)` in the world frame, scale-free (forces in units of
+    the weight w, lengths in units of the edge L = 1 m):
+
+    | index          | observation                                      | bounds          |
+    |----------------|--------------------------------------------------|-----------------|
+    | 0-5            | first two columns of the orientation R           | [-1, 1]         |
+    | 6 to 5+3n      | contact positions R (c_i - g) / L                | [-√3, √3]       |
+    | 6+3n to 5+6n   | inward contact normals R nu_i                    | [-1, 1]         |
+    | 6+6n to 8+6n   | load force (0, 0, -1) + f_d / w                  | x, y [-1, 1]; z [-2, 0] |
+    | 9+6n to 11+6n  | extra load torque tau_d / (w L)                  | [-1, 1]         |
+    | 12+6n          | friction limit theta_lim = atan(mu), radians     | [0, pi/2]       |
+    | 13+6n          | phase: steps taken / trajectory length           | [0, 1]          |
+
+    This is everything the minimax expert needs (`grasp_env.MinimaxExpert` acts from it alone).
+
+    ## Rewards
+    min_i (theta_lim - theta_i), radians, where theta_i is finger i's friction angle (eq. 2)
+    under the net force P = F + sum k_ij e_ij (eq. 4): positive while every finger is inside
+    its friction cone, and at most theta_lim (all forces along the normals).
+
+    ## Episode End
+    - Termination: a finger slips, theta_i > theta_lim (with `terminate_on_slip=True`; with
+      `physics="mujoco"`, when the MuJoCo check reports that the grasp does not hold).
+    - Truncation: after the last pose of the trajectory.
+
+    ## Info
+    `alpha_deg` (the pose), `theta` (n,) and `margin` (n,) radians, `k` (m,) newtons,
+    `contact_forces` (n, 3) and `equilibrating_forces` (n, 3) world-frame forces on the object,
+    newtons, `expert_k` (m,) and `expert_reward` (the minimax expert's grip and reward at this
+    pose), `optimality_gap` = expert_reward - reward, `slip` (n,) bool; with
+    `physics="mujoco"` also `physics`, the MuJoCo report as a dict.
+"""
+
+_DOC_COMMON_ARGS = """
+    - `k_max_ratio` (default 2): k_max / w, the largest grip an action can command.
+    - `terminate_on_slip` (default True): end the episode when a finger slips.
+    - `physics` (default None): "mujoco" checks every step's forces in MuJoCo
+      (`grasp_env.physics.StabilityChecker`, about 13 ms a step) and terminates on its verdict.
+    - `render_mode`: None, "rgb_array" or "human" (MuJoCo view of the grasp).
+"""
+
+
+class CubeGraspEnv(_CubeGraspEnv):
+    __doc__ = (
+        """The paper's grasp: hold a cube along a quasi-static turn with the least friction angles.
+
+    ## Description
+    A unit cube (L = 1 m, weight w = 5 N) is held by point contacts with Coulomb friction at
+    the centres of the faces meeting at its corner (-1/2, -1/2, -1/2) (Suhaib, Khan and
+    Mukherjee, "Contact Force Optimization for Stable Grasp of Multifingered Robotic
+    Grippers"). The cube turns from alpha = -15 deg to +15 deg in 1 deg steps (31 poses) about
+    a = (1, -1, 0)/√2 from the pose with its body diagonal vertical (eq. 5). At every pose the
+    agent chooses the interaction forces k_ij that the fingers add to the equilibrating forces;
+    the best grip minimises the largest friction angle. In this scene the normals meet at the
+    centre of gravity, so the optimum is 0 deg at every pose: the minimax expert earns
+    theta_lim at each step. The default friction coefficient is mu = 0.5
+    (theta_lim = 26.57 deg).
+
+    `grasp_env/CubeGrasp4-v0` adds a fourth finger at the centre of the top face (+z), pressing
+    down opposite the bottom finger: n = 4 contacts and m = 6 interaction scalars.
+"""
+        + _DOC_SPACES
+        + """
+    ## Starting State
+    The first pose of the trajectory (alpha = -15 deg); nothing is random. `reset(options=
+    {"scene": {...}})` sets another scene for that episode: `contacts` ((n, 3) object-frame
+    points on the faces of the cube centred at the origin), `cg_offset` (3,), `weight` (N),
+    `mu`, `extra_force` and `extra_torque` (world frame, at most w and w L per component) and
+    `trajectory` (`axis`, `alpha_start_deg`, `alpha_end_deg`, `alpha_step_deg`); missing keys
+    keep the environment's values, unknown keys raise `ValueError`.
+
+    ## Arguments
+    ```python
+    gym.make("grasp_env/CubeGrasp-v0", scene=None, faces=("-x", "-y", "-z"), k_max_ratio=2.0,
+             terminate_on_slip=True, physics=None, render_mode=None)
+    ```
+    - `scene` (default None, the paper's): the environment's scene, a mapping with the keys of
+      the `scene` reset option.
+    - `faces` (default ("-x", "-y", "-z")): one face-centre contact per named face;
+      `grasp_env/CubeGrasp4-v0` uses ("-x", "-y", "-z", "+z").
+"""
+        + _DOC_COMMON_ARGS
+        + """
+    ## Version History
+    - v0: initial version.
+    """
+    )
+
+    def __init__(
+        self,
+        scene: Mapping[str, Any] | None = None,
+        faces: Sequence[str] = PAPER_FACES,
+        k_max_ratio: float = 2.0,
+        terminate_on_slip: bool = True,
+        physics: str | None = None,
+        render_mode: str | None = None,
+    ) -> None:
+        faces = tuple(faces)
+        if len(faces) not in (3, 4) or len(set(faces)) != len(faces):
+            raise ValueError(f"faces must name 3 or 4 distinct faces, got {faces}")
+        super().__init__(faces, k_max_ratio, terminate_on_slip, physics, render_mode)
+        base = default_scene(self.faces)
+        self._default_episode = build_episodes(parse_scene(scene, base), self.expert)[0]
+        # Reset options fill missing keys from the environment's own scene.
+        scene = dict(scene or {})
+        self._defaults = {
+            **base,
+            **scene,
+            "trajectory": {**base["trajectory"], **scene.get("trajectory", {})},
+        }
+
+    def _next_episode(self, scene: Mapping[str, Any] | None) -> Episode:
+        if scene is None:
+            return self._default_episode
+        return build_episodes(parse_scene(scene, self._defaults), self.expert)[0]
+
+
+class CubeGraspRandomEnv(_CubeGraspEnv):
+    __doc__ = (
+        """Randomised grasps: a new scene and trajectory every episode, always holdable.
+
+    ## Description
+    As `grasp_env/CubeGrasp-v0`, but every reset draws a scene: each contact moves from its
+    face centre by up to `contact_offset` of the half-width along both in-plane axes, the
+    centre of gravity moves by up to `cg_offset` of the half-width along each axis, the weight
+    and mu are uniform in their ranges, the trajectory turns about a uniformly random axis from
+    the start pose (body diagonal vertical), from alpha_start to alpha_end (uniform in their
+    ranges) by `alpha_step_deg`; optionally an extra load force and torque are drawn. Only
+    draws in which the minimax expert keeps every finger at least `min_expert_margin_deg`
+    inside its friction cone along the whole trajectory are kept, so a perfect policy always
+    completes the episode. Away from the paper's symmetric layout the optimum is typically
+    5 to 40 deg.
+"""
+        + _DOC_SPACES
+        + """
+    ## Starting State
+    The first pose of a freshly drawn scene and trajectory (from the environment's
+    `np_random`: the same seed gives the same episode). `reset(options={"scene": {...}})`
+    sets the scene for that episode instead, as in `grasp_env/CubeGrasp-v0` (missing keys take
+    the paper's values); such a scene is not checked for holdability.
+
+    ## Arguments
+    ```python
+    gym.make("grasp_env/CubeGraspRandom-v0", faces=("-x", "-y", "-z"), contact_offset=0.5,
+             cg_offset=0.2, weight_range=(1.0, 10.0), mu_range=(0.3, 1.0),
+             alpha_start_range_deg=(-30.0, -10.0), alpha_end_range_deg=(10.0, 30.0),
+             alpha_step_deg=1.0, extra_force=0.0, extra_torque=0.0, min_expert_margin_deg=1.0,
+             k_max_ratio=2.0, terminate_on_slip=True, physics=None, render_mode=None)
+    ```
+    - `faces`: one contact per named face, 3 or 4 faces.
+    - `contact_offset`, `cg_offset` in [0, 1): largest offsets as fractions of the half-width.
+    - `weight_range` (N), `mu_range`: uniform ranges, > 0.
+    - `alpha_start_range_deg`, `alpha_end_range_deg`: uniform ranges of the trajectory's
+      first and last alpha (the first lying below the second), `alpha_step_deg` its step.
+    - `extra_force`, `extra_torque` in [0, 1]: each component of an extra load force
+      (torque) is uniform within this fraction of w (of w L); 0 draws none.
+    - `min_expert_margin_deg` in [0, 45): the margin the expert must keep at every pose.
+"""
+        + _DOC_COMMON_ARGS
+        + """
+    ## Version History
+    - v0: initial version.
+    """
+    )
+
+    def __init__(
+        self,
+        faces: Sequence[str] = PAPER_FACES,
+        contact_offset: float = 0.5,
+        cg_offset: float = 0.2,
+        weight_range: tuple[float, float] = (1.0, 10.0),
+        mu_range: tuple[float, float] = (0.3, 1.0),
+        alpha_start_range_deg: tuple[float, float] = (-30.0, -10.0),
+        alpha_end_range_deg: tuple[float, float] = (10.0, 30.0),
+        alpha_step_deg: float = 1.0,
+        extra_force: float = 0.0,
+        extra_torque: float = 0.0,
+        min_expert_margin_deg: float = 1.0,
+        k_max_ratio: float = 2.0,
+        terminate_on_slip: bool = True,
+        physics: str | None = None,
+        render_mode: str | None = None,
+    ) -> None:
+        self.sampler = SceneSampler(
+            tuple(faces),
+            contact_offset,
+            cg_offset,
+            weight_range,
+            mu_range,
+            alpha_start_range_deg,
+            alpha_end_range_deg,
+            alpha_step_deg,
+            extra_force,
+            extra_torque,
+        )
+        self.min_expert_margin = check_margin(min_expert_margin_deg)
+        super().__init__(self.sampler.faces, k_max_ratio, terminate_on_slip, physics, render_mode)
+        self._defaults = default_scene(self.faces)
+
+    def _next_episode(self, scene: Mapping[str, Any] | None) -> Episode:
+        if scene is not None:
+            return build_episodes(parse_scene(scene, self._defaults), self.expert)[0]
+        return sample_episodes([self.np_random], self.sampler, self.expert, self.min_expert_margin)[
+            0
+        ]
+
+
+__all__ = ["FOUR_FINGER_FACES", "CubeGraspEnv", "CubeGraspRandomEnv"]

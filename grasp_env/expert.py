@@ -1,0 +1,81 @@
+"""The minimax optimiser as a policy: actions from observations alone (DESIGN.md §1, "Minimax").
+
+>>> import gymnasium as gym, grasp_env
+>>> from stable_baselines3.common.evaluation import evaluate_policy
+>>> env = gym.make("grasp_env/CubeGrasp-v0")
+>>> mean, std = evaluate_policy(grasp_env.MinimaxExpert(), env, n_eval_episodes=1)
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from .envs.observation import ObservationLayout
+from .mechanics import Grasp, equilibrating_forces, interaction_basis, solve_minimax
+
+#: Default action scale of the environments: k_max = 2 w.
+DEFAULT_K_MAX_RATIO = 2.0
+
+
+class MinimaxExpert:
+    """The globally optimal grip k* = argmin_k max_i theta_i, recomputed from each observation.
+
+    The observation holds the contact positions (in units of the edge length L), the normals,
+    the load (in units of the weight w and of w L) and the friction limit; from these the expert
+    rebuilds the grasp in units of w and solves the minimax problem over the action box
+    |k_ij| <= k_max (eq. 4 and the cone constraint of eq. 2), so its action is k* / k_max.
+
+    It has the ``predict`` signature of a Stable-Baselines3 model, so
+    ``stable_baselines3.common.evaluation.evaluate_policy`` runs it like a trained agent.
+
+    Args:
+        k_max_ratio: k_max / w of the environment it acts in (the environments' keyword of the
+            same name, default 2).
+    """
+
+    def __init__(self, k_max_ratio: float = DEFAULT_K_MAX_RATIO) -> None:
+        k_max_ratio = float(k_max_ratio)
+        if not np.isfinite(k_max_ratio) or k_max_ratio <= 0:
+            raise ValueError(f"k_max_ratio must be a finite number > 0, got {k_max_ratio}")
+        self.k_max_ratio = k_max_ratio
+
+    def predict(
+        self,
+        observation: ArrayLike,
+        state: Any = None,
+        episode_start: ArrayLike | None = None,
+        deterministic: bool = True,
+    ) -> tuple[np.ndarray, None]:
+        """Actions for one observation (size,) or a batch (B, size): returns (actions, None).
+
+        ``state``, ``episode_start`` and ``deterministic`` exist for SB3 compatibility; the
+        expert is deterministic and has no state.
+        """
+        obs = np.asarray(observation, dtype=np.float64)
+        if obs.ndim not in (1, 2):
+            raise ValueError(f"observation must be (size,) or (batch, size), got {obs.shape}")
+        if not np.all(np.isfinite(obs)):
+            raise ValueError("observation must be finite")
+        actions = self.actions(obs.reshape(-1, obs.shape[-1]))
+        return (actions[0] if obs.ndim == 1 else actions), None
+
+    def actions(self, observations: np.ndarray) -> np.ndarray:
+        """Actions (B, m) float32 in [-1, 1] for a batch of observations (B, size)."""
+        layout = ObservationLayout.from_size(observations.shape[-1])
+        n = layout.n_contacts
+        count = observations.shape[0]
+        obs = np.asarray(observations, dtype=np.float64)
+        positions = obs[:, layout.positions].reshape(count, n, 3)
+        wrench = np.concatenate([obs[:, layout.force], obs[:, layout.torque]], axis=1)
+        grasp = Grasp(
+            positions=positions,
+            normals=obs[:, layout.normals].reshape(count, n, 3),
+            equilibrating=equilibrating_forces(positions, wrench),
+            basis=interaction_basis(positions),
+            friction_limit=obs[:, layout.friction_limit],
+        )
+        k = solve_minimax(grasp, self.k_max_ratio).k
+        return np.clip(k / self.k_max_ratio, -1.0, 1.0).astype(np.float32)
