@@ -1,0 +1,174 @@
+"""Environments for training and evaluation: SB3 vector envs, and a fixed set of held-out scenes.
+
+:func:`make_vec_env` gives Stable-Baselines3 a vector environment: the batched numpy one of
+``grasp_env`` where the id has one (``gym.make_vec(..., vectorization_mode=
+"vector_entry_point")`` behind ``grasp_env``'s SB3 adapter), else SB3's ``DummyVecEnv``.
+
+:class:`HeldOutScenes` makes every evaluation see the same scenes: it reseeds its environments
+at every ``reset()`` (SB3's ``evaluate_policy`` resets once per evaluation), and it measures
+each environment's first episode: the optimality gap and margin at every step, whether the
+grasp held along the whole trajectory (also reported as ``info["is_success"]``, which SB3's
+``EvalCallback`` logs), and the grip force used.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from stable_baselines3.common.env_util import make_vec_env as sb3_make_vec_env
+from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper, VecMonitor
+
+import grasp_env  # noqa: F401  (registers the environments)
+
+#: Seeds of the held-out scenes: far from the training seeds (a run's seed + env index).
+HELD_OUT_SEED = 1_000_000
+
+
+def make_vec_env(env_id: str, env_kwargs: dict[str, Any], n_envs: int, seed: int) -> VecEnv:
+    """``n_envs`` environments as an SB3 ``VecEnv`` with episode statistics, seeded.
+
+    Environment i draws its episodes from seed + i. Raises ValueError for keywords the
+    environment does not accept.
+    """
+    venv = _vec_env(env_id, env_kwargs, n_envs)
+    venv.seed(seed)
+    return VecMonitor(venv)
+
+
+def _vec_env(env_id: str, env_kwargs: dict[str, Any], n_envs: int) -> VecEnv:
+    try:
+        if gym.spec(env_id).vector_entry_point is not None:
+            from grasp_env.envs import SB3VecEnv
+
+            return SB3VecEnv(
+                gym.make_vec(
+                    env_id,
+                    num_envs=n_envs,
+                    vectorization_mode="vector_entry_point",
+                    **env_kwargs,
+                )
+            )
+        return sb3_make_vec_env(env_id, n_envs=n_envs, env_kwargs=env_kwargs)
+    except TypeError as error:  # an unknown keyword: say which, as a bad config
+        raise ValueError(f"env_kwargs for {env_id}: {error}") from None
+
+
+@dataclass
+class Episode:
+    """What one held-out episode measured (angles in radians, forces in newtons)."""
+
+    gap: list[float] = field(default_factory=list)  # optimality gap at each step
+    margin: list[float] = field(default_factory=list)  # min_i (theta_lim - theta_i)
+    force: list[float] = field(default_factory=list)  # sum_i |P_i|
+    max_theta: list[float] = field(default_factory=list)  # max_i theta_i
+    expert_max_theta: list[float] = field(default_factory=list)  # the expert's, same pose
+    limit: float = 0.0  # theta_lim
+    alpha_deg: list[float] = field(default_factory=list)
+    k: list[np.ndarray] = field(default_factory=list)
+    expert_k: list[np.ndarray] = field(default_factory=list)
+    contact_forces: list[np.ndarray] = field(default_factory=list)
+    held: bool = True  # no finger slipped at any step
+    finished: bool = False
+
+
+class HeldOutScenes(VecEnvWrapper):
+    """The same ``num_envs`` scenes at every reset, and what happened in each first episode.
+
+    Use ``num_envs`` equal to the number of evaluation episodes: SB3's ``evaluate_policy``
+    then runs exactly one episode per environment, so the scenes are those of seeds
+    ``seed, seed + 1, ...``.
+    """
+
+    def __init__(self, venv: VecEnv, seed: int = HELD_OUT_SEED) -> None:
+        super().__init__(venv)
+        self.held_out_seed = seed
+        self.episodes: list[Episode] = []
+
+    def reset(self) -> np.ndarray:
+        self.venv.seed(self.held_out_seed)
+        self.episodes = [Episode() for _ in range(self.num_envs)]
+        return self.venv.reset()
+
+    def step_wait(self) -> Any:
+        obs, rewards, dones, infos = self.venv.step_wait()
+        for episode, reward, done, info in zip(self.episodes, rewards, dones, infos, strict=True):
+            if episode.finished:
+                continue
+            episode.gap.append(float(info["optimality_gap"]))
+            episode.margin.append(float(reward))
+            episode.force.append(float(np.linalg.norm(info["contact_forces"], axis=-1).sum()))
+            theta = np.asarray(info["theta"])
+            episode.limit = float(theta[0] + info["margin"][0])
+            episode.max_theta.append(float(theta.max()))
+            episode.expert_max_theta.append(episode.limit - float(info["expert_reward"]))
+            episode.alpha_deg.append(float(info["alpha_deg"]))
+            episode.k.append(np.asarray(info["k"]))
+            episode.expert_k.append(np.asarray(info["expert_k"]))
+            episode.contact_forces.append(np.asarray(info["contact_forces"]))
+            episode.held &= not bool(np.any(info["slip"]))
+            if done:
+                episode.finished = True
+                info["is_success"] = episode.held
+        return obs, rewards, dones, infos
+
+    def metrics(self) -> dict[str, float]:
+        """Summary of the finished episodes: see :func:`summarise`."""
+        return summarise([e for e in self.episodes if e.finished])
+
+
+def summarise(episodes: list[Episode]) -> dict[str, float]:
+    """Gap statistics over all steps (degrees), success rate, mean margin and grip force."""
+    if not episodes:
+        raise ValueError("no finished episode to summarise")
+    gap = np.degrees(np.concatenate([e.gap for e in episodes]))
+    return {
+        "mean_gap_deg": float(gap.mean()),
+        "p90_gap_deg": float(np.percentile(gap, 90)),
+        "worst_gap_deg": float(gap.max()),
+        "success_rate": float(np.mean([e.held for e in episodes])),
+        "mean_margin_deg": float(np.degrees(np.mean(np.concatenate([e.margin for e in episodes])))),
+        "mean_force": float(np.mean(np.concatenate([e.force for e in episodes]))),
+        "episodes": len(episodes),
+    }
+
+
+def make_held_out_env(
+    env_id: str, env_kwargs: dict[str, Any], episodes: int, seed: int = HELD_OUT_SEED
+) -> VecEnv:
+    """The evaluation environment: ``episodes`` scenes, run to the end of every trajectory.
+
+    Slips do not end evaluation episodes, so every policy is scored at every pose of the same
+    trajectories; a slip still counts against its success rate. The result is
+    ``VecMonitor(HeldOutScenes(...))``, wrapped like the training env (as SB3's EvalCallback
+    expects); :func:`find_held_out` finds the inner wrapper.
+    """
+    kwargs = {**env_kwargs}
+    if "terminate_on_slip" in _accepted_keywords(env_id):
+        kwargs["terminate_on_slip"] = False
+    return VecMonitor(HeldOutScenes(_vec_env(env_id, kwargs, episodes), seed))
+
+
+def find_held_out(env: VecEnv) -> HeldOutScenes:
+    """The :class:`HeldOutScenes` wrapper inside a wrapped evaluation env."""
+    while not isinstance(env, HeldOutScenes):
+        if not isinstance(env, VecEnvWrapper):
+            raise ValueError("not a held-out evaluation env (see make_held_out_env)")
+        env = env.venv
+    return env
+
+
+def _accepted_keywords(env_id: str) -> set[str]:
+    """Constructor keywords of the environment behind ``env_id`` (empty if unknown)."""
+    import inspect
+
+    entry = gym.spec(env_id).entry_point
+    if isinstance(entry, str):
+        module, _, name = entry.partition(":")
+        entry = getattr(__import__(module, fromlist=[name]), name)
+    try:
+        return set(inspect.signature(entry).parameters)
+    except (TypeError, ValueError):
+        return set()

@@ -1,0 +1,231 @@
+"""``grasp-env evaluate RUN``: the trained agent against the minimax expert and baselines.
+
+Every policy plays the same seeded held-out scenes (run to the end of each trajectory, slips
+counted but not ending the episode): the trained agent, the minimax expert
+(:class:`grasp_env.MinimaxExpert`), the paper's equal-k grip, no interaction force, and random
+actions. Per policy: the mean min-margin min_i (theta_lim - theta_i); the mean, 90th-percentile
+and worst optimality gap over all steps; the success rate (no finger slipped along the whole
+trajectory); the total grip force sum_i |P_i| against the expert's; and the success rate that
+MuJoCo confirms (:class:`grasp_env.physics.StabilityChecker`) on the first few scenes.
+
+Writes ``report.md``, ``comparison.csv`` and ``grip_along_alpha.png`` (learned and optimal
+k_ij and max friction angle along alpha on held-out scenes) into the run directory, beside the
+learning curve that training wrote.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from stable_baselines3 import PPO
+from stable_baselines3.common.evaluation import evaluate_policy
+from stable_baselines3.common.vec_env import VecNormalize
+
+from grasp_env import MinimaxExpert
+
+from .baselines import ConstantPolicy, RandomPolicy, TrainedAgent, equal_k_policy
+from .config import load_config
+from .envs import HELD_OUT_SEED, Episode, find_held_out, make_held_out_env, summarise
+
+HELP = "compare a trained agent with the minimax expert and baselines"
+#: Default number of held-out scenes also checked in MuJoCo physics.
+PHYSICS_EPISODES = 4
+COLUMNS = (
+    ("mean_margin_deg", "mean min-margin (deg)", "{:.2f}"),
+    ("mean_gap_deg", "mean gap (deg)", "{:.2f}"),
+    ("p90_gap_deg", "p90 gap (deg)", "{:.2f}"),
+    ("worst_gap_deg", "worst gap (deg)", "{:.2f}"),
+    ("success_rate", "success", "{:.1%}"),
+    ("force_ratio", "grip force / expert's", "{:.2f}"),
+    ("physics_success_rate", "MuJoCo success", "{:.0%}"),
+)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("run", type=Path, help="a run directory written by grasp-env train")
+    parser.add_argument(
+        "--episodes",
+        type=int,
+        help="held-out scenes (default: the run's eval_episodes)",
+    )
+    parser.add_argument(
+        "--physics-episodes",
+        type=int,
+        default=PHYSICS_EPISODES,
+        help=f"of those, scenes also checked in MuJoCo (default {PHYSICS_EPISODES}; 0: none)",
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    comparison = evaluate_run(args.run, args.episodes, args.physics_episodes)
+    print(comparison.markdown)
+    print(f"\nreport: {comparison.report}")
+    return 0
+
+
+@dataclass(frozen=True)
+class Comparison:
+    """Metrics per policy (see :func:`agents.envs.summarise`), the markdown and its path."""
+
+    metrics: dict[str, dict[str, float]]
+    markdown: str
+    report: Path
+
+
+def load_agent(run_dir: Path) -> TrainedAgent:
+    """The run's final model, with its observation normalisation if it was trained with one."""
+    run_dir = Path(run_dir)
+    if not (run_dir / "model.zip").is_file():
+        raise ValueError(f"{str(run_dir)!r} holds no model.zip: not a finished training run")
+    model = PPO.load(run_dir / "model.zip", device="cpu")
+    normalizer = None
+    if (run_dir / "vecnormalize.pkl").is_file():
+        normalizer = VecNormalize.load(str(run_dir / "vecnormalize.pkl"), model.get_env())
+        normalizer.training = False
+    return TrainedAgent(model, normalizer)
+
+
+def evaluate_run(
+    run_dir: Path, episodes: int | None = None, physics_episodes: int = PHYSICS_EPISODES
+) -> Comparison:
+    """Compare the run's agent with the expert and the baselines; write the report and plots."""
+    run_dir = Path(run_dir)
+    if not (run_dir / "config.yaml").is_file():
+        raise ValueError(f"{str(run_dir)!r} is not a run directory (no config.yaml)")
+    config = load_config(run_dir / "config.yaml")
+    episodes = config.eval_episodes if episodes is None else episodes
+    if episodes < 1:
+        raise ValueError(f"--episodes must be >= 1, got {episodes}")
+    if not 0 <= physics_episodes <= episodes:
+        raise ValueError(f"--physics-episodes must be in [0, {episodes}], got {physics_episodes}")
+
+    env = make_held_out_env(config.env_id, config.env_kwargs, episodes)
+    m = env.action_space.shape[0]
+    k_max_ratio = config.env_kwargs.get("k_max_ratio", 2.0)
+    policies: dict[str, Any] = {
+        "trained agent": load_agent(run_dir),
+        "minimax expert": MinimaxExpert(k_max_ratio),
+        "equal k (paper eq. 8)": equal_k_policy(m, k_max_ratio),
+        "zero interaction": ConstantPolicy(np.zeros(m)),
+        "random": RandomPolicy(m, seed=config.seed),
+    }
+    metrics, played = {}, {}
+    for name, policy in policies.items():
+        evaluate_policy(policy, env, n_eval_episodes=episodes, warn=False)
+        played[name] = list(find_held_out(env).episodes)
+        metrics[name] = summarise(played[name])
+        if physics_episodes:
+            metrics[name]["physics_success_rate"] = physics_success(
+                policy, config.env_id, config.env_kwargs, physics_episodes
+            )
+    expert_force = metrics["minimax expert"]["mean_force"]
+    for row in metrics.values():
+        row["force_ratio"] = row["mean_force"] / expert_force
+
+    plot_grip(played["trained agent"][:3], run_dir / "grip_along_alpha.png")
+    with (run_dir / "comparison.csv").open("w", newline="") as file:
+        fields = ["policy", *next(iter(metrics.values()))]
+        writer = csv.DictWriter(file, fields)
+        writer.writeheader()
+        writer.writerows({"policy": name, **row} for name, row in metrics.items())
+    markdown = report(run_dir, config.env_id, episodes, physics_episodes, metrics)
+    (run_dir / "report.md").write_text(markdown)
+    return Comparison(metrics, markdown, run_dir / "report.md")
+
+
+def physics_success(policy: Any, env_id: str, env_kwargs: dict[str, Any], episodes: int) -> float:
+    """Fraction of the first ``episodes`` held-out scenes held at every pose, as MuJoCo says.
+
+    The single environment with ``physics="mujoco"`` checks each step's contact forces in
+    MuJoCo; with the same seeds it plays the same scenes as the vector env.
+    """
+    kwargs = {**env_kwargs, "physics": "mujoco", "terminate_on_slip": False}
+    env = gym.make(env_id, **kwargs)
+    held = 0
+    try:
+        for index in range(episodes):
+            obs, _ = env.reset(seed=HELD_OUT_SEED + index)
+            holds, done = True, False
+            while not done:
+                action, _ = policy.predict(obs[None], deterministic=True)
+                obs, _, terminated, truncated, info = env.step(action[0])
+                holds &= bool(info["physics"]["holds"])
+                done = terminated or truncated
+            held += holds
+    finally:
+        env.close()
+    return held / episodes
+
+
+def report(
+    run_dir: Path,
+    env_id: str,
+    episodes: int,
+    physics_episodes: int,
+    metrics: dict[str, dict[str, float]],
+) -> str:
+    """The comparison as a markdown report."""
+    columns = [c for c in COLUMNS if c[0] in next(iter(metrics.values()))]
+    physics = f"; MuJoCo success on the first {physics_episodes} scenes" if physics_episodes else ""
+    lines = [
+        f"# {run_dir.name}: learned vs optimised grip forces",
+        "",
+        f"{episodes} held-out scenes of `{env_id}` (seeds {HELD_OUT_SEED}...), every pose of "
+        "every trajectory; the gap is the expert's min-margin minus the policy's, over all "
+        f"steps; success: no finger slipped along the whole trajectory{physics}.",
+        "",
+        "| policy | " + " | ".join(title for _, title, _ in columns) + " |",
+        "|---" * (len(columns) + 1) + "|",
+    ]
+    for name, row in metrics.items():
+        cells = [fmt.format(row[key]) for key, _, fmt in columns]
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    curve = run_dir / "learning_curve.csv"
+    if curve.is_file():
+        with curve.open() as file:
+            rows = list(csv.DictReader(file))
+        if rows:
+            last = rows[-1]
+            minutes = float(last["wall_seconds"]) / 60
+            lines += [
+                "",
+                f"Training: {int(last['env_steps']):,} environment steps in {minutes:.1f} min "
+                f"(learning curve: `learning_curve.png`); grip along alpha: "
+                "`grip_along_alpha.png`.",
+            ]
+    return "\n".join(lines) + "\n"
+
+
+def plot_grip(episodes: list[Episode], path: Path) -> None:
+    """Learned vs optimal k_ij, and the max friction angle, along alpha for a few scenes."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(2, len(episodes), figsize=(5 * len(episodes), 7), squeeze=False)
+    for column, episode in enumerate(episodes):
+        alpha = np.array(episode.alpha_deg)
+        k, expert_k = np.array(episode.k), np.array(episode.expert_k)
+        top, bottom = axes[0, column], axes[1, column]
+        for pair in range(k.shape[1]):
+            (line,) = top.plot(alpha, expert_k[:, pair], "-", label=f"optimal k{pair + 1}")
+            top.plot(alpha, k[:, pair], "--", color=line.get_color(), label=f"learned k{pair + 1}")
+        top.set_title(f"held-out scene {column + 1}")
+        top.set_ylabel("interaction force k (N)")
+        bottom.plot(alpha, np.degrees(episode.expert_max_theta), "-", label="optimal")
+        bottom.plot(alpha, np.degrees(episode.max_theta), "--", label="learned")
+        bottom.axhline(np.degrees(episode.limit), color="k", lw=0.8, label="friction limit")
+        bottom.set_xlabel("alpha (deg)")
+        bottom.set_ylabel("max friction angle (deg)")
+    axes[0, 0].legend(fontsize=7, ncol=2)
+    axes[1, 0].legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

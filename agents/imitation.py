@@ -1,0 +1,213 @@
+"""The minimax expert as teacher: behaviour cloning and DAgger into an SB3 policy network.
+
+The environments' states do not depend on the actions (the trajectory is fixed; only a slip
+can end an episode early), so learning the grip is, at heart, supervised regression of the
+expert's map observation -> k* / k_max. This module does it at scale on the batched vector
+environment:
+
+1. Round 0, behaviour cloning: the expert drives; every state it visits is stored with its
+   action.
+2. Rounds 1, 2, ..., DAgger (Ross, Gordon and Bagnell 2011): the learner drives, the expert
+   labels the states the learner visits, and the data set grows. Where slips end episodes
+   this focuses the data on the states the learner actually reaches.
+3. After each round the policy's mean action (the deterministic action SB3 plays) is fitted to
+   the labels by mean squared error, Adam, cosine learning-rate decay. Only the actor is
+   trained; its log std (the exploration noise PPO starts from) is left as configured.
+
+The result is an ordinary SB3 PPO model that PPO can fine-tune.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import torch
+from gymnasium.vector import AutoresetMode
+from stable_baselines3.common.policies import ActorCriticPolicy
+from stable_baselines3.common.vec_env import VecNormalize
+
+from grasp_env import MinimaxExpert
+
+from .config import ImitationConfig
+
+#: Final learning rate of each round's cosine decay, as a fraction of the initial one.
+LR_FLOOR = 0.01
+
+
+@dataclass(frozen=True)
+class RoundResult:
+    """One round: how many labelled states the data set holds and the final training loss."""
+
+    round: int
+    samples: int
+    env_steps: int
+    loss: float
+    seconds: float
+
+
+def mean_action(policy: ActorCriticPolicy, obs: torch.Tensor) -> torch.Tensor:
+    """The Gaussian policy's mean action (what ``predict(deterministic=True)`` plays, unclipped)."""
+    features = policy.extract_features(obs, policy.pi_features_extractor)
+    return policy.action_net(policy.mlp_extractor.forward_actor(features))
+
+
+def make_teacher(env_kwargs: dict[str, Any]) -> MinimaxExpert:
+    """The expert for environments built with ``env_kwargs`` (it needs their k_max / w)."""
+    return MinimaxExpert(env_kwargs.get("k_max_ratio", 2.0))
+
+
+class StateCollector:
+    """Drives a batched vector environment and returns the states where actions were taken.
+
+    With the NEXT_STEP autoreset of Gymnasium's vector envs, the step after an episode ends
+    only resets that environment, so the final observation it returned is not a state anyone
+    acts in: it is left out.
+    """
+
+    def __init__(self, env_id: str, env_kwargs: dict[str, Any], n_envs: int, seed: int) -> None:
+        self.envs = gym.make_vec(
+            env_id, num_envs=n_envs, vectorization_mode="vector_entry_point", **env_kwargs
+        )
+        self.next_step_reset = (
+            self.envs.metadata.get("autoreset_mode", AutoresetMode.NEXT_STEP)
+            == AutoresetMode.NEXT_STEP
+        )
+        self.obs, _ = self.envs.reset(seed=seed)
+        self.pending = np.zeros(n_envs, dtype=bool)
+        self.env_steps = 0
+
+    def collect(
+        self, act: Callable[[np.ndarray], np.ndarray], samples: int
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """``samples`` (observation, action played) pairs with ``act`` driving (batched)."""
+        observations, actions, count = [], [], 0
+        while count < samples:
+            valid = ~self.pending if self.next_step_reset else np.ones_like(self.pending)
+            action = act(self.obs)
+            observations.append(self.obs[valid])
+            actions.append(action[valid])
+            count += int(valid.sum())
+            self.obs, _, terminated, truncated, _ = self.envs.step(action)
+            self.env_steps += int(valid.sum())
+            self.pending = terminated | truncated
+        return np.concatenate(observations)[:samples], np.concatenate(actions)[:samples]
+
+    def close(self) -> None:
+        self.envs.close()
+
+
+def fit(
+    policy: ActorCriticPolicy,
+    obs: np.ndarray,
+    labels: np.ndarray,
+    epochs: int,
+    batch_size: int,
+    learning_rate: float,
+    generator: torch.Generator,
+) -> float:
+    """Fit the policy's mean action to ``labels`` (MSE); returns the last epoch's mean loss."""
+    obs_t = torch.as_tensor(obs, dtype=torch.float32)
+    labels_t = torch.as_tensor(labels, dtype=torch.float32)
+    actor = [
+        *policy.pi_features_extractor.parameters(),
+        *policy.mlp_extractor.policy_net.parameters(),
+        *policy.action_net.parameters(),
+    ]
+    optimizer = torch.optim.Adam(actor, lr=learning_rate)
+    batches = math.ceil(len(obs_t) / batch_size)
+    schedule = torch.optim.lr_scheduler.CosineAnnealingLR(
+        optimizer, T_max=epochs * batches, eta_min=learning_rate * LR_FLOOR
+    )
+    policy.set_training_mode(True)
+    loss_sum = 0.0
+    for _ in range(epochs):
+        order = torch.randperm(len(obs_t), generator=generator)
+        loss_sum = 0.0
+        for start in range(0, len(obs_t), batch_size):
+            index = order[start : start + batch_size]
+            loss = torch.nn.functional.mse_loss(mean_action(policy, obs_t[index]), labels_t[index])
+            optimizer.zero_grad()
+            loss.backward()
+            optimizer.step()
+            schedule.step()
+            loss_sum += float(loss) * len(index)
+    policy.set_training_mode(False)
+    return loss_sum / len(obs_t)
+
+
+def imitate(
+    policy: ActorCriticPolicy,
+    config: ImitationConfig,
+    env_id: str,
+    env_kwargs: dict[str, Any],
+    seed: int,
+    normalizer: VecNormalize | None = None,
+    after_round: Callable[[RoundResult], None] | None = None,
+) -> list[RoundResult]:
+    """Behaviour cloning then DAgger rounds (see the module docstring) into ``policy``.
+
+    Args:
+        policy: the SB3 actor-critic policy to train in place.
+        config: rounds, samples, epochs, batch size, learning rate, collector envs.
+        env_id, env_kwargs: the environment (it must have a batched vector entry point).
+        seed: seeds the collector's environments and the minibatch order.
+        normalizer: the training run's VecNormalize, if observations are normalised: its
+            statistics are updated with the collected states and applied to them.
+        after_round: called after each round (to evaluate and log).
+    """
+    teacher = make_teacher(env_kwargs)
+    collector = StateCollector(env_id, env_kwargs, config.n_envs, seed)
+    generator = torch.Generator().manual_seed(seed)
+
+    def normalise(obs: np.ndarray) -> np.ndarray:
+        return obs if normalizer is None else normalizer.normalize_obs(obs)
+
+    def learner(obs: np.ndarray) -> np.ndarray:
+        with torch.no_grad():
+            mean = mean_action(policy, torch.as_tensor(normalise(obs), dtype=torch.float32))
+        return np.clip(mean.numpy(), -1.0, 1.0)
+
+    data_obs: list[np.ndarray] = []
+    data_labels: list[np.ndarray] = []
+    results = []
+    try:
+        for round_ in range(config.rounds):
+            start = time.perf_counter()
+            if round_ == 0:  # behaviour cloning: the expert drives, its actions are the labels
+                obs, labels = collector.collect(teacher.actions, config.samples_per_round)
+            else:  # DAgger: the learner drives, the expert labels what it visits
+                obs, _ = collector.collect(learner, config.samples_per_round)
+                labels = teacher.actions(obs)
+            if normalizer is not None:
+                normalizer.obs_rms.update(obs)
+            data_obs.append(obs)
+            data_labels.append(labels)
+            all_obs = normalise(np.concatenate(data_obs))
+            loss = fit(
+                policy,
+                all_obs,
+                np.concatenate(data_labels),
+                config.epochs,
+                config.batch_size,
+                config.learning_rate,
+                generator,
+            )
+            result = RoundResult(
+                round_,
+                len(all_obs),
+                collector.env_steps,
+                loss,
+                time.perf_counter() - start,
+            )
+            results.append(result)
+            if after_round is not None:
+                after_round(result)
+    finally:
+        collector.close()
+    return results

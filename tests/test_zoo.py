@@ -1,0 +1,44 @@
+"""The ecosystem: rl-zoo3 trains on our environment with the hyperparameters in configs/ppo.yml."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import yaml
+
+CONFIGS = Path(__file__).resolve().parent.parent / "configs"
+
+
+def test_zoo_config_covers_every_environment():
+    import grasp_env
+
+    hyperparams = yaml.safe_load((CONFIGS / "ppo.yml").read_text())
+    batched = [env_id for env_id in grasp_env.ENV_IDS if "Mujoco" not in env_id]
+    assert sorted(hyperparams) == sorted(batched)
+
+
+def test_rl_zoo3_trains_on_cube_grasp(tmp_path):
+    steps = 1024
+    command = [
+        sys.executable, "-m", "rl_zoo3.train",
+        "--algo", "ppo",
+        "--env", "grasp_env/CubeGrasp-v0",
+        "--gym-packages", "grasp_env",
+        "-conf", str(CONFIGS / "ppo.yml"),
+        "-n", str(steps),
+        "--hyperparams", "n_envs:2",
+        "--eval-freq", "-1",
+        "--seed", "0",
+        "-f", str(tmp_path / "logs"),
+    ]  # fmt: skip
+    result = subprocess.run(command, cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr[-3000:]
+
+    from stable_baselines3 import PPO
+
+    (saved,) = (tmp_path / "logs" / "ppo").glob("*/grasp_env-CubeGrasp-v0.zip")
+    model = PPO.load(saved, device="cpu")
+    assert model.num_timesteps >= steps
+    assert model.gamma == 0.0  # the zoo read our hyperparameters, not its defaults
