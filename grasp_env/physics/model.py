@@ -176,7 +176,7 @@ def build_mjcf(scene: Scene) -> str:
   <visual>
     <global offwidth="1280" offheight="1280"/>
     <map znear="0.01" zfar="50"/>
-    <headlight ambient="0.35 0.35 0.35" diffuse="0.5 0.5 0.5"/>
+    <headlight ambient="0.4 0.4 0.4" diffuse="0.6 0.6 0.6"/>
   </visual>
   <statistic center="0 0 0" extent="{extent:.17g}"/>
   <asset>
@@ -188,7 +188,7 @@ def build_mjcf(scene: Scene) -> str:
     <body name="object">
       <freejoint name="object"/>
       <inertial pos="{_vec(scene.cg_offset)}" mass="{mass:.17g}" diaginertia="{_vec(inertia)}"/>
-      <geom name="box" type="box" size="{_vec(size / 2)}" rgba="0.45 0.6 0.85 0.55"
+      <geom name="box" type="box" size="{_vec(size / 2)}" rgba="0.55 0.7 0.95 0.45"
             contype="0" conaffinity="0"/>
       {"".join(cones)}
     </body>

@@ -90,20 +90,27 @@ class GraspView:
         camera = mujoco.MjvCamera()
         camera.type = mujoco.mjtCamera.mjCAMERA_FREE
         camera.lookat[:] = 0.0
-        camera.distance = 3.2 * float(np.max(self.scene.size))
+        camera.distance = 2.8 * float(np.max(self.scene.size))
         camera.azimuth = np.degrees(np.arctan2(forward[1], forward[0])) if horizontal > 1e-6 else 45
-        camera.elevation = float(np.clip(np.degrees(np.arctan2(forward[2], horizontal)), -30, 30))
+        camera.elevation = float(np.clip(np.degrees(np.arctan2(forward[2], horizontal)), -55, 55))
         return camera
 
-    def _draw(self, scene: mujoco.MjvScene, rotation: np.ndarray, forces: np.ndarray) -> None:
-        """Pose the model, colour the cones and append the arrows to ``scene``."""
-        positions = self.scene.relative_contacts() @ rotation.T
+    def _colours(self, rotation: np.ndarray, forces: np.ndarray) -> np.ndarray:
+        """Each finger's colour (n, 3); the cones take theirs (before the scene is built)."""
         normals = self.scene.normals @ rotation.T
         ratios = friction_angles(forces, normals) / self.scene.friction_limit
+        colours = np.array([slip_colour(r) for r in ratios])
+        alpha = np.where(ratios >= 1, 0.6, 0.3)
+        self.model.geom_rgba[self._cones] = np.column_stack([colours, alpha])
+        return colours
+
+    def _draw(
+        self, scene: mujoco.MjvScene, rotation: np.ndarray, forces: np.ndarray, colours: np.ndarray
+    ) -> None:
+        """Append the force arrows (on one scale: half the box's edge is the weight)."""
+        positions = self.scene.relative_contacts() @ rotation.T
         scale = 0.5 * self._size / self.scene.weight  # metres per newton
-        for i, (position, force, ratio) in enumerate(zip(positions, forces, ratios, strict=True)):
-            colour = slip_colour(ratio)
-            self.model.geom_rgba[self._cones[i]] = [*colour, 0.6 if ratio >= 1 else 0.3]
+        for position, force, colour in zip(positions, forces, colours, strict=True):
             length = min(scale * np.linalg.norm(force), _MAX_ARROW * self._size)
             if length < 1e-9:
                 continue
@@ -141,9 +148,10 @@ class GraspView:
         forces = check_forces(contact_forces, self.scene.n_contacts)
         self.data.qpos[:] = pose_qpos(self.scene, rotation)
         mujoco.mj_kinematics(self.model, self.data)
+        colours = self._colours(rotation, forces)
         if self._renderer is not None:
             self._renderer.update_scene(self.data, camera=self.camera)
-            self._draw(self._renderer.scene, rotation, forces)
+            self._draw(self._renderer.scene, rotation, forces, colours)
             return self._renderer.render()
         if self._viewer is None:
             from mujoco import viewer  # imported only for a window: it needs a display
@@ -156,7 +164,7 @@ class GraspView:
             self._viewer.cam.elevation = self.camera.elevation
         with self._viewer.lock():
             self._viewer.user_scn.ngeom = 0
-            self._draw(self._viewer.user_scn, rotation, forces)
+            self._draw(self._viewer.user_scn, rotation, forces, colours)
         self._viewer.sync()
         return None
 

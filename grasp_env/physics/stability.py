@@ -16,7 +16,7 @@ import mujoco
 import numpy as np
 from numpy.typing import ArrayLike
 
-from grasp_env.mechanics import Scene
+from grasp_env.mechanics import Scene, matrix_quaternion
 
 from .model import build_mjcf, check_forces, check_rotation, pose_qpos
 
@@ -26,6 +26,7 @@ SETTINGS: dict[str, float] = {
     "settle_mu": 10.0,  #: friction coefficient while the contact forces build up
     "hold_time": 0.5,  #: seconds held at the scene's mu
     "slip_threshold": 1e-4,  #: metres of tangential slip along a face that count as slipping
+    "drift_threshold": 1e-3,  #: metres the object may move: more means forces out of balance
     "check_interval": 0.05,  #: seconds between slip checks (the check stops at the first slip)
 }
 
@@ -35,7 +36,9 @@ class PhysicsReport:
     """The outcome of one MuJoCo check.
 
     Attributes:
-        holds: no fingertip slid more than the slip threshold and none lost contact.
+        holds: no fingertip slid more than the slip threshold, none lost contact, and the object
+            stayed put (drift within the drift threshold; more means the forces do not balance
+            the load).
         slip: (n,) tangential slide of each fingertip along its face during the hold, metres.
         contact_lost: (n,) whether fingertip i was out of contact at the end.
         drift: displacement of the object's centre of gravity since the start, metres.
@@ -143,16 +146,21 @@ class StabilityChecker:
             if not np.all(np.isfinite(slip)):
                 raise FloatingPointError("MuJoCo diverged: non-finite state in the check")
             if np.any(slip > self.settings["slip_threshold"]) or np.any(lost):
-                break
+                break  # the verdict is certain: no need to simulate the rest of the hold
 
-        rot = data.xmat[self._object].reshape(3, 3)
-        cos = np.clip((np.trace(rot @ start_rot.T) - 1) / 2, -1.0, 1.0)
+        turn = matrix_quaternion(data.xmat[self._object].reshape(3, 3) @ start_rot.T)
+        drift = float(np.linalg.norm(data.xipos[self._object] - start_com))
+        holds = (
+            np.all(slip <= self.settings["slip_threshold"])
+            and not np.any(lost)
+            and drift <= self.settings["drift_threshold"]
+        )
         return PhysicsReport(
-            holds=bool(np.all(slip <= self.settings["slip_threshold"]) and not np.any(lost)),
+            holds=bool(holds),
             slip=slip,
             contact_lost=lost,
-            drift=float(np.linalg.norm(data.xipos[self._object] - start_com)),
-            rotation_deg=float(np.degrees(np.arccos(cos))),
+            drift=drift,
+            rotation_deg=float(np.degrees(2 * np.arctan2(np.linalg.norm(turn[1:]), turn[0]))),
             time=steps * model.opt.timestep,
         )
 

@@ -1,0 +1,101 @@
+"""Offscreen rendering draws the grasp: not blank, pose-dependent, slip shown in colour.
+
+Runs headless: ``grasp_env.physics`` picks MUJOCO_GL (OSMesa or EGL) before MuJoCo loads when
+no display is set; CI installs libosmesa6 for it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from grasp_env.mechanics import PAPER_AXIS, Scene, pose_rotation, scene_grasp, solve_minimax
+from grasp_env.physics import GraspView
+from grasp_env.physics.render import slip_colour
+
+SCENE = Scene.on_faces(offsets=[[0.3, -0.2], [0.1, 0.25], [-0.2, 0.1]])  # mu = 0.5, 26.57 deg
+
+
+@pytest.fixture(scope="module")
+def view():
+    view = GraspView(SCENE, width=320, height=240)
+    yield view
+    view.close()
+
+
+def pose(alpha_deg: float):
+    rotation = pose_rotation(PAPER_AXIS, np.radians(alpha_deg))
+    return rotation, scene_grasp(SCENE, rotation)
+
+
+def optimal_forces(alpha_deg: float):
+    rotation, grasp = pose(alpha_deg)
+    return rotation, grasp.forces(solve_minimax(grasp, 2 * SCENE.weight).k)  # 6 to 7 deg
+
+
+def red_pixels(image: np.ndarray) -> int:
+    r, g, b = (image[..., c].astype(int) for c in range(3))
+    return int(np.sum((r > 150) & (g < 90) & (b < 90)))
+
+
+def green_pixels(image: np.ndarray) -> int:
+    r, g, b = (image[..., c].astype(int) for c in range(3))
+    return int(np.sum((g > 120) & (r < 120) & (b < 120)))
+
+
+def test_picture_is_not_blank(view):
+    image = view.render(*optimal_forces(0.0))
+    assert image.shape == (240, 320, 3)
+    assert image.dtype == np.uint8
+    assert len(np.unique(image.reshape(-1, 3), axis=0)) > 200
+    # The translucent blue box fills the middle of the picture: blue dominates there.
+    middle = image[80:160, 110:210].astype(int)
+    assert np.mean(middle[..., 2] - middle[..., 0]) > 40
+    assert green_pixels(image) > 100  # the friction cones of a safe grip
+
+
+def test_picture_follows_the_pose(view):
+    first = view.render(*optimal_forces(-15.0)).astype(int)
+    second = view.render(*optimal_forces(15.0)).astype(int)
+    changed = np.any(np.abs(first - second) > 30, axis=-1)
+    assert changed.mean() > 0.02
+
+
+def test_slipping_finger_is_drawn_red(view):
+    rotation, grasp = pose(8.0)
+    k = np.array([2.79471, 3.95029, 0.49405])  # angles 22.6, 7.8 and 30.1 deg: finger 3 slips
+    angles = np.degrees(grasp.angles(k))
+    assert angles[2] > np.degrees(SCENE.friction_limit) > angles[0] > angles[1]
+    slipping = view.render(rotation, grasp.forces(k))
+    safe = view.render(*optimal_forces(8.0))
+    assert red_pixels(safe) == 0
+    assert red_pixels(slipping) > 200
+
+
+def test_slip_colour_scale():
+    np.testing.assert_allclose(slip_colour(0.0), [0.15, 0.75, 0.2])
+    np.testing.assert_allclose(slip_colour(1.0), [0.9, 0.1, 0.1])
+    np.testing.assert_allclose(slip_colour(3.0), slip_colour(1.0))
+    redness = [slip_colour(r)[0] - slip_colour(r)[1] for r in np.linspace(0, 1, 21)]
+    assert np.all(np.diff(redness) > 0)  # redder as the finger nears its limit
+
+
+def test_bad_arguments_raise_clear_errors(view):
+    rotation, forces = optimal_forces(0.0)
+    with pytest.raises(ValueError, match="render_mode must be one of"):
+        GraspView(SCENE, render_mode="ansi")
+    with pytest.raises(ValueError, match=r"width must be an integer in \[16, 4096\]"):
+        GraspView(SCENE, width=0)
+    with pytest.raises(ValueError, match="finite"):
+        view.render(rotation, np.full((3, 3), np.nan))
+    with pytest.raises(ValueError, match=r"shape \(3, 3\)"):
+        view.render(rotation, forces[:2])
+
+
+def test_closed_view_refuses_to_render():
+    view = GraspView(SCENE, width=64, height=64)
+    rotation, forces = optimal_forces(0.0)
+    assert view.render(rotation, forces).shape == (64, 64, 3)
+    view.close()
+    with pytest.raises(ValueError, match="closed"):
+        view.render(rotation, forces)
