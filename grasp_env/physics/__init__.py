@@ -1,32 +1,49 @@
 """MuJoCo physics: the stability check of contact forces, and rendering (DESIGN.md §2).
 
-Depends on ``grasp_env.mechanics`` only. MuJoCo reads ``MUJOCO_GL`` once, when it is first
-imported; on a Linux machine without a display and with ``MUJOCO_GL`` unset, this package picks
-an offscreen backend before that import: EGL where there is a GPU render node, else OSMesa
-(Mesa's software renderer, Debian's ``libosmesa6``) if it is installed, else EGL (which Mesa
-also provides without a GPU). Set ``MUJOCO_GL`` yourself to override, and import
-``grasp_env.physics`` before anything else imports ``mujoco`` for the choice to take effect.
+Depends on ``grasp_env.mechanics`` only.
+
+Offscreen rendering without a display: MuJoCo reads ``MUJOCO_GL`` once, when it is first
+imported, and otherwise falls back on GLFW, which needs a display. On a Linux machine without
+one and with ``MUJOCO_GL`` unset, this package picks an offscreen backend: EGL where there is a
+GPU render node, else OSMesa (Mesa's software renderer, Debian's ``libosmesa6``) if it is
+installed, else EGL (which Mesa also provides without a GPU). It sets ``MUJOCO_GL`` if MuJoCo
+is not imported yet, and otherwise installs that backend's context in MuJoCo's renderer. Set
+``MUJOCO_GL`` yourself to choose.
 """
 
 from __future__ import annotations
 
 import ctypes.util
 import glob
+import importlib
 import os
 import sys
 
 
+def _headless_backend() -> str | None:
+    """The offscreen GL backend to use, or None where MuJoCo's own choice stands."""
+    display = os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")
+    if not sys.platform.startswith("linux") or display or "MUJOCO_GL" in os.environ:
+        return None
+    gpu = bool(glob.glob("/dev/dri/renderD*"))
+    osmesa = ctypes.util.find_library("OSMesa") is not None
+    return "osmesa" if osmesa and not gpu else "egl"
+
+
 def _choose_gl_backend() -> None:
-    headless = not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
-    if (
-        sys.platform.startswith("linux")
-        and headless
-        and "MUJOCO_GL" not in os.environ
-        and "mujoco" not in sys.modules
-    ):
-        gpu = bool(glob.glob("/dev/dri/renderD*"))
-        osmesa = ctypes.util.find_library("OSMesa") is not None
-        os.environ["MUJOCO_GL"] = "osmesa" if osmesa and not gpu else "egl"
+    backend = _headless_backend()
+    if backend is None:
+        return
+    if "mujoco" not in sys.modules:
+        os.environ["MUJOCO_GL"] = backend
+        return
+    # MuJoCo came first and chose GLFW, which cannot work here: give its renderer the context
+    # MUJOCO_GL would have given (glfw loads no PyOpenGL, so the platform is still free).
+    from mujoco.rendering.classic import gl_context
+
+    context = importlib.import_module(f"mujoco.{backend}").GLContext
+    gl_context.GLContext = context
+    sys.modules["mujoco"].GLContext = context
 
 
 _choose_gl_backend()
