@@ -5,7 +5,8 @@ the world origin and the fingertips just inside its faces; drive the fingertips 
 commanded forces; settle briefly with a high friction coefficient (so that building up the
 contact forces cannot itself cause slip); switch to the scene's mu; hold, and measure how far
 each fingertip slides along its face. The grasp holds when no fingertip slides more than
-``slip_threshold`` and every fingertip stays in contact.
+``slip_threshold``, every fingertip stays in contact, and the object stays put (moves at most
+``drift_threshold``: forces that do not balance the load carry it away, fingers and all).
 """
 
 from __future__ import annotations
@@ -41,8 +42,8 @@ class PhysicsReport:
             the load).
         slip: (n,) tangential slide of each fingertip along its face during the hold, metres.
         contact_lost: (n,) whether fingertip i was out of contact at the end.
-        drift: displacement of the object's centre of gravity since the start, metres.
-        rotation_deg: rotation of the object since the start, degrees.
+        drift: displacement of the object's centre of gravity during the hold, metres.
+        rotation_deg: rotation of the object during the hold, degrees.
         time: simulated seconds of hold (shorter than the full hold when it slipped early).
     """
 
@@ -122,14 +123,13 @@ class StabilityChecker:
         data.xfrc_applied[self._object] = np.concatenate(
             [self.scene.extra_force, self.scene.extra_torque]
         )
-        mujoco.mj_forward(model, data)
-        start_com = data.xipos[self._object].copy()
-        start_rot = data.xmat[self._object].reshape(3, 3).copy()
-
         model.pair_friction[self._pairs, :2] = self.settings["settle_mu"]
         mujoco.mj_step(model, data, nstep=self._settle_steps)
         model.pair_friction[self._pairs, :2] = self._friction[self._pairs, :2]
+        # Measure from here: the settle only pressed the fingertips into the faces.
         anchor = self._tips_in_object_frame()
+        start_com = data.xipos[self._object].copy()
+        start_rot = data.xmat[self._object].reshape(3, 3).copy()
 
         slip = np.zeros(self.scene.n_contacts)
         lost = np.zeros(self.scene.n_contacts, dtype=bool)
