@@ -55,14 +55,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default="expert",
         metavar="expert|equal-k|PATH",
         help="the grip: the minimax expert (default), the paper's equal-k grip, or a saved"
-        " SB3 PPO model (.zip)",
+        " SB3 PPO model (a .zip, or a `grasp-env train` run directory)",
     )
     parser.add_argument(
         "--env",
         default="grasp_env/CubeGrasp-v0",
         help="environment that drives a saved model (default grasp_env/CubeGrasp-v0)",
     )
-    parser.add_argument("--weight", type=float, default=DEFAULT_WEIGHT, help="weight w, N")
+    parser.add_argument(
+        "--weight", type=float, default=DEFAULT_WEIGHT, help=f"weight, N (default {DEFAULT_WEIGHT})"
+    )
     parser.add_argument(
         "--mu", type=float, default=DEFAULT_MU, help=f"friction coefficient (default {DEFAULT_MU})"
     )
@@ -139,10 +141,13 @@ def model_forces(
 ) -> tuple[Scene, np.ndarray]:
     """A saved PPO model's grip, stepping ``env_id`` pinned to ``scene`` and ``trajectory``.
 
+    ``path`` is the model's .zip or a training run's directory (holding ``model.zip``).
     Observations are normalised with ``vecnormalize.pkl`` from the model's folder when it
     exists (SB3's VecNormalize statistics). Returns the environment's scene and the contact
     forces it applied, (T, n, 3).
     """
+    if path.is_dir():
+        path = path / "model.zip"
     if not path.is_file():
         raise ValueError(
             f"--policy must be 'expert', 'equal-k' or the path of a saved model; {path} is"

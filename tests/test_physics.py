@@ -286,7 +286,7 @@ def test_verify_runs_a_saved_model(tmp_path, capsys):
 
     path = tmp_path / "model.zip"
     PPO("MlpPolicy", gym.make("grasp_env/CubeGrasp-v0"), seed=0, device="cpu").save(path)
-    status = main(["verify", "--policy", str(path), "--out", str(tmp_path)])
+    status = main(["verify", "--policy", str(tmp_path), "--out", str(tmp_path)])  # a run dir
     out = capsys.readouterr().out
     assert status == 0
     assert "MuJoCo: holds at" in out
