@@ -315,6 +315,29 @@ def build_episodes(scenes: SceneBatch, expert: MinimaxExpert) -> list[Episode]:
     return episodes
 
 
+_EPISODE_CACHE: dict[tuple, Episode] = {}
+_EPISODE_CACHE_SIZE = 32
+
+
+def cached_episode(scenes: SceneBatch, expert: MinimaxExpert) -> Episode:
+    """:func:`build_episodes` of one scene, remembered: environments made with the same scene
+    (every ``gym.make("grasp_env/CubeGrasp-v0")``) share one read-only episode."""
+    key = (
+        expert.k_max_ratio,
+        *(
+            getattr(scenes, name).tobytes()
+            for name in ("contacts", "cg_offset", "weight", "mu", "extra_force", "extra_torque")
+        ),
+        scenes.axis.tobytes(),
+        scenes.alphas_deg[0].tobytes(),
+    )
+    if key not in _EPISODE_CACHE:
+        if len(_EPISODE_CACHE) >= _EPISODE_CACHE_SIZE:
+            _EPISODE_CACHE.pop(next(iter(_EPISODE_CACHE)))
+        _EPISODE_CACHE[key] = build_episodes(scenes, expert)[0]
+    return _EPISODE_CACHE[key]
+
+
 # ---------------------------------------------------------------------------- explicit scenes
 
 
@@ -423,13 +446,15 @@ def _range(name: str, value: Any, low: float, high: float, *, open_low: bool = F
     return lo, hi
 
 
-def _fraction(name: str, value: Any, high: float = 1.0) -> float:
+def _fraction(name: str, value: Any, high: float = 1.0, *, closed: bool = False) -> float:
+    """A number in [0, high) (or [0, high] if ``closed``)."""
+    interval = f"[0, {high:g}{']' if closed else ')'}"
     try:
         value = float(value)
     except (TypeError, ValueError) as error:
-        raise ValueError(f"{name} must be a number in [0, {high}), got {value!r}") from error
-    if not 0.0 <= value < high:
-        raise ValueError(f"{name} must be in [0, {high}), got {value}")
+        raise ValueError(f"{name} must be a number in {interval}, got {value!r}") from error
+    if not (0.0 <= value <= high if closed else 0.0 <= value < high):
+        raise ValueError(f"{name} must be in {interval}, got {value}")
     return value
 
 
@@ -474,8 +499,8 @@ class SceneSampler:
         if not (np.isfinite(step) and step > 0):
             raise ValueError(f"alpha_step_deg must be a finite number > 0, got {step}")
         set_(self, "alpha_step_deg", step)
-        set_(self, "extra_force", _fraction("extra_force", self.extra_force, 1.0 + 1e-12))
-        set_(self, "extra_torque", _fraction("extra_torque", self.extra_torque, 1.0 + 1e-12))
+        set_(self, "extra_force", _fraction("extra_force", self.extra_force, closed=True))
+        set_(self, "extra_torque", _fraction("extra_torque", self.extra_torque, closed=True))
         if len(self.faces) not in (3, 4):
             raise ValueError(f"faces must name 3 or 4 faces, got {self.faces}")
         # Face names are validated by face_point; distinct faces keep the layout valid.

@@ -15,6 +15,7 @@ from .core import (
     Episode,
     SceneSampler,
     build_episodes,
+    cached_episode,
     check_k_max_ratio,
     check_margin,
     default_scene,
@@ -175,6 +176,8 @@ class _CubeGraspEnv(gym.Env[np.ndarray, np.ndarray]):
         episode = self.episode
         if self._world_scene is None or self._world_scene.scenes is not episode.scenes:
             scene = episode.scene
+            if self._checker is not None:
+                self._checker.close()
             if self.physics == "mujoco":
                 from ..physics import StabilityChecker
 
@@ -204,7 +207,9 @@ class _CubeGraspEnv(gym.Env[np.ndarray, np.ndarray]):
         if self._view is not None:
             self._view.close()
             self._view = None
-        self._checker = None
+        if self._checker is not None:
+            self._checker.close()
+            self._checker = None
         self._world_scene = None
         super().close()
 
@@ -326,7 +331,7 @@ class CubeGraspEnv(_CubeGraspEnv):
             raise ValueError(f"faces must name 3 or 4 distinct faces, got {faces}")
         super().__init__(faces, k_max_ratio, terminate_on_slip, physics, render_mode)
         base = default_scene(self.faces)
-        self._default_episode = build_episodes(parse_scene(scene, base), self.expert)[0]
+        self._default_episode = cached_episode(parse_scene(scene, base), self.expert)
         # Reset options fill missing keys from the environment's own scene.
         scene = dict(scene or {})
         self._defaults = {

@@ -1,0 +1,344 @@
+"""Batched numpy vector environments: N grasps stepped by one compiled kernel call.
+
+``gym.make_vec(id, num_envs=N, vectorization_mode="vector_entry_point")`` returns them. Step for
+step they equal N single environments reset with the seeds seed, seed + 1, ..., seed + N - 1:
+each sub-environment has its own generator and the single and vector environments share the
+per-episode precomputation and the step kernel.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+from gymnasium.utils import seeding
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+
+from ..mechanics import contact_pairs
+from .core import Episode, evaluate, parse_options, sample_episodes
+from .cube_grasp import CubeGraspEnv, CubeGraspRandomEnv, _CubeGraspEnv
+
+_MODES = (AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP)
+
+
+class _PoseStore:
+    """The pose arrays of every running episode, stacked so that one kernel call serves all.
+
+    Rows [0, T0] hold the environment's default episode (shared, never copied); after them
+    each sub-environment owns a slot of ``capacity`` rows for episodes of its own (the slots
+    grow, and move, when a longer episode comes). Row ``base + t`` holds pose t of an episode
+    and its observation t (T + 1 observations).
+    """
+
+    def __init__(self, num_envs: int, default: Episode | None) -> None:
+        self.num_envs = num_envs
+        self.default = default
+        self.capacity = 0
+        self.offset = 0 if default is None else len(default) + 1
+        self.arrays: dict[str, np.ndarray] = {}
+        if default is not None:
+            self.arrays = {name: value for name, value in self._rows(default).items()}
+
+    @staticmethod
+    def _rows(episode: Episode) -> dict[str, np.ndarray]:
+        """An episode's arrays padded to T + 1 rows (the last pose repeated)."""
+
+        def pad(array: np.ndarray) -> np.ndarray:
+            return np.concatenate([array, array[-1:]])
+
+        return {
+            "forces": pad(episode.forces),
+            "directions": pad(episode.directions),
+            "normals": pad(episode.normals),
+            "observations": episode.observations,
+            "expert_k": pad(episode.expert_k),
+            "expert_reward": pad(episode.expert_reward),
+            "alphas": pad(episode.scenes.alphas_deg[0]),
+        }
+
+    def _grow(self, capacity: int, template: dict[str, np.ndarray]) -> None:
+        grown = {}
+        for name, sample in template.items():
+            array = np.zeros(
+                (self.offset + self.num_envs * capacity, *sample.shape[1:]), sample.dtype
+            )
+            if name in self.arrays:
+                old = self.arrays[name]
+                array[: self.offset] = old[: self.offset]
+                if self.capacity:
+                    new_slots = array[self.offset :].reshape(self.num_envs, capacity, -1)
+                    old_slots = old[self.offset :].reshape(self.num_envs, self.capacity, -1)
+                    new_slots[:, : self.capacity] = old_slots
+            grown[name] = array
+        self.arrays = grown
+        self.capacity = capacity
+
+    def put(self, env: int, episode: Episode) -> bool:
+        """Store ``episode`` for sub-environment ``env``; True if it went into the env's slot."""
+        if episode is self.default:
+            return False
+        rows = self._rows(episode)
+        if len(episode) + 1 > self.capacity:
+            self._grow(max(len(episode) + 1, 2 * self.capacity), rows)
+        base = self.offset + env * self.capacity
+        for name, value in rows.items():
+            self.arrays[name][base : base + len(value)] = value
+        return True
+
+    def bases(self, in_slot: np.ndarray) -> np.ndarray:
+        """First rows of the sub-environments' episodes (slots move when the store grows)."""
+        slots = self.offset + self.capacity * np.arange(self.num_envs, dtype=np.int64)
+        return np.where(in_slot, slots, 0)
+
+
+class _CubeGraspVectorEnv(VectorEnv):
+    """N grasp environments in numpy; see the single environment for spaces, reward and info.
+
+    Args:
+        num_envs: number of sub-environments.
+        autoreset_mode: ``AutoresetMode.NEXT_STEP`` (Gymnasium's default: the step after an
+            episode ends resets that sub-environment, ignoring its action, with reward 0) or
+            ``AutoresetMode.SAME_STEP`` (it resets at once; the last observation and info are
+            in ``info["final_obs"]`` and ``info["final_info"]``).
+        **kwargs: the single environment's keywords (``physics`` and ``render_mode`` are not
+            supported: use ``vectorization_mode="sync"`` for those).
+    """
+
+    metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP, "render_modes": []}  # noqa: RUF012
+    _single: type[_CubeGraspEnv]
+
+    def __init__(
+        self,
+        num_envs: int = 1,
+        autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
+        **kwargs: Any,
+    ) -> None:
+        if isinstance(num_envs, bool) or not isinstance(num_envs, int | np.integer) or num_envs < 1:
+            raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
+        try:
+            mode = AutoresetMode(autoreset_mode)
+        except ValueError as error:
+            raise ValueError(
+                f"autoreset_mode must be one of {[m.value for m in _MODES]}, got {autoreset_mode!r}"
+            ) from error
+        if mode not in _MODES:
+            raise ValueError(f"autoreset_mode must be one of {[m.value for m in _MODES]}")
+        if kwargs.get("physics") is not None or kwargs.get("render_mode") is not None:
+            raise ValueError(
+                "the batched vector env supports neither physics nor render_mode; use"
+                ' gym.make_vec(..., vectorization_mode="sync") for those'
+            )
+        self.num_envs = int(num_envs)
+        self.autoreset_mode = mode
+        self.metadata = {**self.metadata, "autoreset_mode": mode}
+        self.render_mode = None
+        # A single environment holds the configuration: defaults, sampler, expert, spaces.
+        self.template = self._single(**kwargs)
+        self.single_observation_space = self.template.observation_space
+        self.single_action_space = self.template.action_space
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+        self.terminate_on_slip = self.template.terminate_on_slip
+        n = self.template.layout.n_contacts
+        self._pairs = contact_pairs(n)
+        self._n = n
+        self._store = _PoseStore(self.num_envs, getattr(self.template, "_default_episode", None))
+        self._rngs: list[np.random.Generator | None] = [None] * self.num_envs
+        self._episodes: list[Episode | None] = [None] * self.num_envs
+        self._base = np.zeros(self.num_envs, dtype=np.int64)
+        self._in_slot = np.zeros(self.num_envs, dtype=bool)
+        self._length = np.zeros(self.num_envs, dtype=np.int64)
+        self._k_max = np.zeros(self.num_envs)
+        self._limit = np.zeros(self.num_envs)
+        self._t = np.zeros(self.num_envs, dtype=np.int64)
+        self._autoreset = np.zeros(self.num_envs, dtype=bool)
+        self._started = False
+
+    # -- episodes ------------------------------------------------------------------------------
+
+    def _rng(self, env: int) -> np.random.Generator:
+        if self._rngs[env] is None:
+            self._rngs[env], _ = seeding.np_random()
+        return self._rngs[env]  # type: ignore[return-value]
+
+    def _start(self, envs: np.ndarray, scene: Mapping[str, Any] | None) -> None:
+        """New episodes for sub-environments ``envs`` (from their own generators)."""
+        if len(envs) == 0:
+            return
+        if scene is None and isinstance(self.template, CubeGraspRandomEnv):
+            episodes = sample_episodes(
+                [self._rng(e) for e in envs],
+                self.template.sampler,
+                self.template.expert,
+                self.template.min_expert_margin,
+            )
+        else:
+            episodes = [self.template._next_episode(scene)] * len(envs)
+        for e, episode in zip(envs, episodes, strict=True):
+            self._episodes[e] = episode
+            self._in_slot[e] = self._store.put(e, episode)
+            self._length[e] = len(episode)
+            self._k_max[e] = episode.k_max
+            self._limit[e] = episode.limit
+        self._base = self._store.bases(self._in_slot)
+        self._t[envs] = 0
+
+    def episode(self, env: int) -> Episode:
+        """Sub-environment ``env``'s current episode."""
+        episode = self._episodes[env]
+        if episode is None:
+            raise RuntimeError("call reset() first")
+        return episode
+
+    def reset(
+        self,
+        *,
+        seed: int | Sequence[int | None] | None = None,
+        options: dict[str, Any] | None = None,
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        """Reset every sub-environment; ``seed`` is None, an int (env i gets seed + i) or a list.
+
+        ``options={"scene": {...}}`` sets the scene of this episode of every sub-environment.
+        """
+        if seed is None:
+            seeds: Sequence[int | None] = [None] * self.num_envs
+        elif isinstance(seed, int | np.integer):
+            seeds = [int(seed) + i for i in range(self.num_envs)]
+        else:
+            seeds = list(seed)
+            if len(seeds) != self.num_envs:
+                raise ValueError(f"seed must list {self.num_envs} seeds, got {len(seeds)}")
+        for env, single in enumerate(seeds):
+            if single is not None:
+                self._rngs[env], _ = seeding.np_random(single)
+        scene = parse_options(options)
+        self._start(np.arange(self.num_envs), scene)
+        self._autoreset[:] = False
+        self._started = True
+        return self._store.arrays["observations"][self._base], {}
+
+    # -- stepping ------------------------------------------------------------------------------
+
+    def _actions(self, actions: Any) -> np.ndarray:
+        m = self._pairs.shape[0]
+        try:
+            array = np.asarray(actions, dtype=np.float64)
+        except (TypeError, ValueError) as error:
+            raise ValueError(
+                f"actions must be a ({self.num_envs}, {m}) array of finite numbers"
+            ) from error
+        if array.shape != (self.num_envs, m):
+            raise ValueError(f"actions must have shape ({self.num_envs}, {m}), got {array.shape}")
+        return array
+
+    def step(
+        self, actions: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+        """Step every sub-environment; k = clip(action, -1, 1) x k_max (see the single env)."""
+        if not self._started:
+            raise RuntimeError("call reset() before step()")
+        a = self._actions(actions)
+        count = self.num_envs
+        arrays = self._store.arrays
+        restarting = np.flatnonzero(self._autoreset)
+        if restarting.size:  # NEXT_STEP: these sub-environments reset and ignore their action
+            self._start(restarting, None)
+            arrays = self._store.arrays
+            active = ~self._autoreset
+            a = np.where(active[:, None], a, 0.0)
+        rows = self._base + self._t
+        ok, k, forces, theta, margin, reward = evaluate(
+            arrays["forces"],
+            arrays["directions"],
+            arrays["normals"],
+            self._pairs,
+            rows,
+            a,
+            self._k_max,
+            self._limit,
+        )
+        if not ok:
+            bad = np.flatnonzero(~np.isfinite(a).all(axis=1))
+            raise ValueError(f"actions must be finite; sub-environments {bad.tolist()} are not")
+        slip = theta > self._limit[:, None]
+        terminated = slip.any(axis=1) if self.terminate_on_slip else np.zeros(count, bool)
+        self._t += 1
+        truncated = self._t == self._length
+        expert_reward = arrays["expert_reward"][rows]
+        info = {
+            "alpha_deg": arrays["alphas"][rows],
+            "theta": theta,
+            "margin": margin,
+            "k": k,
+            "contact_forces": forces,
+            "equilibrating_forces": arrays["forces"][rows],
+            "expert_k": arrays["expert_k"][rows],
+            "expert_reward": expert_reward,
+            "optimality_gap": expert_reward - reward,
+            "slip": slip,
+        }
+        observations = arrays["observations"][rows + 1]
+        if restarting.size:
+            # Restarted sub-environments: observation 0, no reward, no info, nothing ended.
+            reward[restarting] = 0.0
+            terminated[restarting] = False
+            truncated[restarting] = False
+            self._t[restarting] = 0
+            observations[restarting] = arrays["observations"][self._base[restarting]]
+            mask = active
+        else:
+            mask = np.ones(count, bool)
+        done = terminated | truncated
+        if self.autoreset_mode == AutoresetMode.SAME_STEP and done.any():
+            # As Gymnasium's SyncVectorEnv: the ended episodes' last observation and info move
+            # to final_obs and final_info, and the new episodes' first observation replaces it.
+            ended = np.flatnonzero(done)
+            final_obs = np.full(count, None, dtype=object)
+            final_obs[ended] = list(observations[ended])
+            final_info = {**info, **{f"_{key}": done for key in info}}
+            self._start(ended, None)
+            observations[ended] = self._store.arrays["observations"][self._base[ended]]
+            info.update({f"_{key}": ~done for key in list(info)})
+            info.update(
+                final_obs=final_obs, _final_obs=done, final_info=final_info, _final_info=done
+            )
+        else:
+            if self.autoreset_mode == AutoresetMode.NEXT_STEP:
+                self._autoreset = done
+            info.update({f"_{key}": mask for key in list(info)})
+        return observations, reward, terminated, truncated, info
+
+    def close_extras(self, **kwargs: Any) -> None:
+        self.template.close()
+
+
+_VECTOR_DOC = """
+
+    Step for step equal to single environments seeded seed, seed + 1, ...; the info is a dict
+    of arrays with Gymnasium's ``_key`` masks. Episodes of the default scene share one copy of
+    the precomputed arrays; other episodes are precomputed at reset for all resetting
+    sub-environments in one batch.
+"""
+
+
+class CubeGraspVectorEnv(_CubeGraspVectorEnv):
+    __doc__ = (
+        "Batched `grasp_env/CubeGrasp-v0` (and `CubeGrasp4-v0`).\n\n    "
+        + (_CubeGraspVectorEnv.__doc__ or "")
+        + _VECTOR_DOC
+    )
+    _single = CubeGraspEnv
+
+
+class CubeGraspRandomVectorEnv(_CubeGraspVectorEnv):
+    __doc__ = (
+        "Batched `grasp_env/CubeGraspRandom-v0`.\n\n    "
+        + (_CubeGraspVectorEnv.__doc__ or "")
+        + _VECTOR_DOC
+    )
+    _single = CubeGraspRandomEnv
+
+
+__all__ = ["CubeGraspRandomVectorEnv", "CubeGraspVectorEnv"]

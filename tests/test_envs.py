@@ -1,0 +1,610 @@
+"""The Gymnasium environments, their vector versions, the SB3 adapter and the expert policy.
+
+One parameterised suite over every environment id (as dm_control's suite_test and
+Gymnasium-Robotics' test_envs): API checks, determinism, bounds, kwargs, pickling; then the
+promises of issue 3 one by one.
+"""
+
+from __future__ import annotations
+
+import pickle
+import warnings
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+from gymnasium.vector import AutoresetMode
+
+import grasp_env
+from grasp_env import MinimaxExpert
+from grasp_env.envs import ObservationLayout
+from grasp_env.mechanics import FOUR_FINGER_FACES, Scene, scene_grasp, solve_minimax
+
+FAST_IDS = ["grasp_env/CubeGrasp-v0", "grasp_env/CubeGraspRandom-v0", "grasp_env/CubeGrasp4-v0"]
+MUJOCO_IDS = [i for i in grasp_env.ENV_IDS if "Mujoco" in i]
+LIMIT = float(np.arctan(0.5))
+
+
+def _has_physics() -> bool:
+    try:
+        from grasp_env.physics import GraspView, StabilityChecker  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+HAS_PHYSICS = _has_physics()
+
+
+def make(env_id: str, **kwargs):
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # e.g. the passive checker's complaints
+        return gym.make(env_id, **kwargs)
+
+
+def rollout(env, seed: int, steps: int, action_seed: int = 0):
+    """Observations and step results of ``steps`` random steps, resetting when an episode ends."""
+    rng = np.random.default_rng(action_seed)
+    obs, _ = env.reset(seed=seed)
+    record = [obs]
+    for _ in range(steps):
+        action = rng.uniform(-1, 1, env.action_space.shape).astype(np.float32)
+        obs, reward, terminated, truncated, info = env.step(action)
+        record.append((obs, reward, terminated, truncated, info))
+        if terminated or truncated:
+            obs, _ = env.reset()
+            record.append(obs)
+    return record
+
+
+def assert_same(a, b):
+    """Equal nested data: arrays exactly, floats exactly."""
+    if isinstance(a, dict):
+        assert a.keys() == b.keys()
+        for key in a:
+            assert_same(a[key], b[key])
+    elif isinstance(a, tuple | list):
+        assert len(a) == len(b)
+        for x, y in zip(a, b, strict=True):
+            assert_same(x, y)
+    else:
+        np.testing.assert_array_equal(a, b)
+
+
+# ------------------------------------------------------------------------- every environment
+
+
+def test_registration():
+    assert set(FAST_IDS) | set(MUJOCO_IDS) == set(grasp_env.ENV_IDS)
+    for env_id in grasp_env.ENV_IDS:
+        assert env_id in gym.registry
+    # Code that only takes an id string can import the package through the id.
+    env = gym.make("grasp_env:grasp_env/CubeGrasp-v0")
+    assert env.unwrapped.spec.id == "grasp_env/CubeGrasp-v0"
+
+
+@pytest.mark.parametrize("env_id", FAST_IDS)
+def test_gymnasium_check_env(env_id):
+    env = gym.make(env_id)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        # Rendering needs MuJoCo's GL context and, for "human", a display: tested below.
+        check_env(env.unwrapped, skip_render_check=True)
+
+
+@pytest.mark.parametrize("env_id", FAST_IDS)
+def test_sb3_check_env(env_id):
+    from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+    env = gym.make(env_id).unwrapped
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        sb3_check_env(env, warn=True, skip_render_check=True)
+
+
+@pytest.mark.parametrize("env_id", FAST_IDS)
+def test_spaces(env_id):
+    env = make(env_id)
+    n = 4 if "4" in env_id else 3
+    assert env.action_space == gym.spaces.Box(-1, 1, (n * (n - 1) // 2,), np.float32)
+    space = env.observation_space
+    assert space.dtype == np.float32 and space.shape == (ObservationLayout(n).size,)
+    assert np.all(np.isfinite(space.low)) and np.all(np.isfinite(space.high))
+
+
+@pytest.mark.parametrize("env_id", FAST_IDS)
+def test_same_seed_same_rollout(env_id):
+    first = rollout(make(env_id), seed=7, steps=80)
+    second = rollout(make(env_id), seed=7, steps=80)
+    assert_same(first, second)
+
+
+def test_random_env_seeds_differ():
+    env = make("grasp_env/CubeGraspRandom-v0")
+    a, _ = env.reset(seed=1)
+    b, _ = env.reset(seed=2)
+    assert not np.array_equal(a, b)
+
+
+@pytest.mark.parametrize("env_id", FAST_IDS)
+def test_pickle(env_id):
+    env = make(env_id)
+    expert = MinimaxExpert()
+    obs, _ = env.reset(seed=3)
+    obs, *_ = env.step(expert.predict(obs)[0])
+    clone = pickle.loads(pickle.dumps(env))
+    action = expert.predict(obs)[0]
+    assert_same(env.step(action), clone.step(action))
+    assert_same(rollout(env, 5, 40), rollout(clone, 5, 40))
+
+
+@pytest.mark.parametrize("env_id", FAST_IDS)
+def test_observations_in_bounds_and_finite(env_id):
+    """Long random rollouts, random scenes included: never out of bounds, never NaN."""
+    env = make(env_id)
+    space = env.observation_space
+    record = rollout(env, seed=11, steps=1500)
+    observations = [r if isinstance(r, np.ndarray) else r[0] for r in record]
+    rewards = [r[1] for r in record if isinstance(r, tuple)]
+    for obs in observations:
+        assert obs.dtype == np.float32 and space.contains(obs)
+    assert np.all(np.isfinite(rewards))
+    for r in record:
+        if isinstance(r, tuple):
+            for key in ("theta", "margin", "k", "contact_forces", "expert_reward"):
+                assert np.all(np.isfinite(r[4][key])), key
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "constant"),
+    [
+        ({}, {"force", "torque"}),  # no extra load is drawn by default: the load is (0, 0, -1)
+        ({"extra_force": 0.2, "extra_torque": 0.1}, set()),
+    ],
+)
+def test_random_env_no_constant_observation_element(kwargs, constant):
+    env = make("grasp_env/CubeGraspRandom-v0", **kwargs)
+    layout = env.unwrapped.layout
+    obs = np.array([env.reset(seed=s)[0] for s in range(12)])
+    varies = obs.std(axis=0) > 0
+    expected = np.ones(layout.size, bool)
+    for name in constant:
+        expected[getattr(layout, name)] = False
+    expected[layout.phase] = False  # every episode starts at phase 0 ...
+    np.testing.assert_array_equal(varies, expected)
+    phases = [r[0][layout.phase] for r in rollout(env, 0, 40) if isinstance(r, tuple)]
+    assert len(set(phases)) > 10  # ... and moves along the trajectory
+
+
+def test_kwargs_accepted():
+    scene = {"mu": 0.8, "weight": 2.0, "trajectory": {"alpha_start_deg": -5.0}}
+    env = make("grasp_env/CubeGrasp-v0", scene=scene, k_max_ratio=1.0, terminate_on_slip=False)
+    obs, _ = env.reset()
+    assert obs[env.unwrapped.layout.friction_limit] == np.float32(np.arctan(0.8))
+    assert len(env.unwrapped.alphas_deg) == 21
+    steps = 0
+    while True:
+        _, _, terminated, truncated, info = env.step(np.array([1, -1, 1], np.float32))
+        assert np.allclose(info["k"], [2.0, -2.0, 2.0])  # k_max = 1 x w
+        assert not terminated  # slips, but does not stop
+        steps += 1
+        if truncated:
+            break
+    assert steps == 21 and info["slip"].any()
+
+    random = make(
+        "grasp_env/CubeGraspRandom-v0",
+        faces=FOUR_FINGER_FACES,
+        contact_offset=0.3,
+        cg_offset=0.1,
+        weight_range=(2.0, 3.0),
+        mu_range=(0.8, 0.9),
+        alpha_start_range_deg=(-5.0, -4.0),
+        alpha_end_range_deg=(4.0, 5.0),
+        alpha_step_deg=2.0,
+        extra_force=0.1,
+        extra_torque=0.05,
+        min_expert_margin_deg=2.0,
+        k_max_ratio=3.0,
+    )
+    for seed in range(3):
+        obs, _ = random.reset(seed=seed)
+        unwrapped = random.unwrapped
+        scene = unwrapped.scene
+        assert obs.shape == (38,) and scene.n_contacts == 4
+        assert 2.0 <= scene.weight <= 3.0 and 0.8 <= scene.mu <= 0.9
+        assert np.all(np.abs(scene.cg_offset) <= 0.05) and np.any(scene.extra_force != 0)
+        assert 4 <= len(unwrapped.alphas_deg) <= 6
+        assert unwrapped.episode.expert_reward.min() >= np.deg2rad(2.0)
+        assert unwrapped.episode.k_max == pytest.approx(3.0 * scene.weight)
+
+
+# ------------------------------------------------------------------------------- the expert
+
+
+def test_expert_reward_is_theta_lim_on_the_paper_trajectory():
+    """The paper's normals meet at the cg: the optimum is 0 deg at all 31 poses."""
+    env = make("grasp_env/CubeGrasp-v0")
+    expert = MinimaxExpert()
+    obs, _ = env.reset(seed=0)
+    rewards = []
+    while True:
+        action, _ = expert.predict(obs)
+        obs, reward, terminated, truncated, info = env.step(action)
+        rewards.append(reward)
+        assert not terminated
+        assert info["optimality_gap"] == 0.0  # the info's expert is this very policy
+        if truncated:
+            break
+    assert len(rewards) == 31
+    np.testing.assert_allclose(rewards, LIMIT, atol=1e-6)
+    np.testing.assert_allclose(env.unwrapped.alphas_deg, np.arange(-15, 16))
+
+
+@pytest.mark.parametrize("env_id", FAST_IDS)
+def test_expert_never_below_random_actions(env_id):
+    """At every pose the expert's reward (info) is at least the random action's reward."""
+    env = make(env_id, terminate_on_slip=False)
+    gaps = []
+    for seed in range(4):
+        env.reset(seed=seed)
+        env.action_space.seed(seed)
+        truncated = False
+        while not truncated:
+            _, reward, _, truncated, info = env.step(env.action_space.sample())
+            gaps.append(info["optimality_gap"])
+            assert info["expert_reward"] - reward == info["optimality_gap"]
+    assert len(gaps) > 100 and min(gaps) >= -1e-7
+
+
+def test_expert_matches_the_mechanics_optimum():
+    """The expert acting on float32 observations reaches the optimum of the exact scene."""
+    env = make("grasp_env/CubeGraspRandom-v0")
+    expert = MinimaxExpert()
+    for seed in range(3):
+        obs, _ = env.reset(seed=seed)
+        unwrapped = env.unwrapped
+        optimum = solve_minimax(
+            scene_grasp(unwrapped.scene, unwrapped.episode.rotations[0]),
+            2.0 * unwrapped.scene.weight,
+        )
+        _, reward, *_ = env.step(expert.predict(obs)[0])
+        assert reward == pytest.approx(unwrapped.scene.friction_limit - optimum.max_angle, abs=1e-6)
+
+
+def test_expert_batched_and_evaluate_policy():
+    from stable_baselines3.common.evaluation import evaluate_policy
+
+    env = make("grasp_env/CubeGraspRandom-v0")
+    obs = np.array([env.reset(seed=s)[0] for s in range(4)])
+    batched, state = MinimaxExpert().predict(obs)
+    assert state is None and batched.shape == (4, 3) and batched.dtype == np.float32
+    for row, action in zip(obs, batched, strict=True):
+        np.testing.assert_array_equal(MinimaxExpert().predict(row)[0], action)
+
+    paper = make("grasp_env/CubeGrasp-v0")
+    mean, std = evaluate_policy(MinimaxExpert(), paper, n_eval_episodes=2, warn=False)
+    assert mean == pytest.approx(31 * LIMIT, abs=1e-4) and std == pytest.approx(0, abs=1e-6)
+
+
+def test_random_env_expert_holds_every_episode():
+    env = make("grasp_env/CubeGraspRandom-v0")
+    expert = MinimaxExpert()
+    obs, _ = env.reset(seed=21)
+    episodes = 0
+    while episodes < 6:
+        obs, reward, terminated, truncated, _ = env.step(expert.predict(obs)[0])
+        assert not terminated and reward >= np.deg2rad(1.0) - 1e-9
+        if truncated:
+            episodes += 1
+            obs, _ = env.reset()
+
+
+# ------------------------------------------------------------------------- bad input
+
+
+@pytest.mark.parametrize(
+    ("action", "message"),
+    [
+        (np.zeros(2), r"shape \(3,\)"),
+        (np.zeros((1, 3)), r"shape \(3,\)"),
+        (np.array([0.0, np.nan, 0.0]), "finite"),
+        (np.array([np.inf, 0.0, 0.0]), "finite"),
+        (["a", "b", "c"], "finite numbers"),
+    ],
+)
+def test_bad_action_raises(action, message):
+    env = gym.make("grasp_env/CubeGrasp-v0").unwrapped
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match=message):
+        env.step(action)
+
+
+def test_out_of_range_action_is_clipped():
+    big, clipped = make("grasp_env/CubeGrasp-v0"), make("grasp_env/CubeGrasp-v0")
+    big.reset(seed=0)
+    clipped.reset(seed=0)
+    result = big.step(np.array([7.0, -9.0, 0.5]))
+    assert_same(result, clipped.step(np.array([1.0, -1.0, 0.5])))
+    np.testing.assert_allclose(result[4]["k"], [10.0, -10.0, 5.0])
+
+
+def test_step_before_reset_and_after_the_end_raises():
+    env = gym.make("grasp_env/CubeGrasp-v0").unwrapped
+    with pytest.raises(RuntimeError, match="reset"):
+        env.step(np.zeros(3))
+    env.reset(seed=0)
+    env.step(np.ones(3))  # slips: the episode ends
+    with pytest.raises(RuntimeError, match="reset"):
+        env.step(np.zeros(3))
+
+
+@pytest.mark.parametrize(
+    ("options", "message"),
+    [
+        ({"seen": {}}, "unknown option 'seen'"),
+        ({"scene": {"friction": 0.5}}, "unknown scene key 'friction'"),
+        ({"scene": {"trajectory": {"steps": 3}}}, "unknown trajectory key 'steps'"),
+        ({"scene": {"contacts": np.zeros((2, 3))}}, r"shape \(3, 3\)"),
+        ({"scene": {"contacts": [[-0.5, 0, 0], [0, -0.5, 0], [0, 0, -0.4]]}}, "not on a face"),
+        ({"scene": {"mu": 0.0}}, "mu must be"),
+        ({"scene": {"mu": "high"}}, "'mu' must be a number"),
+        ({"scene": {"weight": -1.0}}, "weight must be"),
+        ({"scene": {"cg_offset": [0.6, 0, 0]}}, "inside the box"),
+        ({"scene": {"extra_force": [6.0, 0, 0]}}, "at most the weight"),
+        ({"scene": {"extra_torque": [0, 0, 9.0]}}, "at most weight x edge"),
+        ({"scene": {"trajectory": {"alpha_end_deg": -20.0}}}, "alpha_end_deg"),
+        ({"scene": {"trajectory": {"axis": [0, 0, 0]}}}, "axis"),
+        ({"scene": "paper"}, "mapping"),
+        ("scene", "options must be a mapping"),
+    ],
+)
+@pytest.mark.parametrize("env_id", ["grasp_env/CubeGrasp-v0", "grasp_env/CubeGraspRandom-v0"])
+def test_bad_option_raises(env_id, options, message):
+    env = gym.make(env_id).unwrapped
+    with pytest.raises(ValueError, match=message):
+        env.reset(seed=0, options=options)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"k_max_ratio": 0.0}, "k_max_ratio"),
+        ({"physics": "bullet"}, "physics must be"),
+        ({"render_mode": "ascii"}, "render_mode must be"),
+        ({"contact_offset": 1.0}, r"contact_offset must be in \[0, 1\)"),
+        ({"mu_range": (0.5, 0.1)}, "mu_range"),
+        ({"weight_range": (0.0, 1.0)}, "weight_range"),
+        ({"alpha_start_range_deg": (-10.0, 20.0)}, "below alpha_end_range_deg"),
+        ({"faces": ("-x", "-x", "-z")}, "distinct"),
+        ({"faces": ("-x", "-q", "-z")}, "unknown face"),
+        ({"min_expert_margin_deg": 50}, "min_expert_margin_deg"),
+        ({"extra_force": 2.0}, "extra_force"),
+    ],
+)
+def test_bad_kwargs_raise(kwargs, message):
+    with warnings.catch_warnings(), pytest.raises(ValueError, match=message):
+        warnings.simplefilter("ignore")  # gym.make's own warning about an unknown render_mode
+        gym.make("grasp_env/CubeGraspRandom-v0", **kwargs)
+
+
+def test_bad_fixed_env_kwargs_raise():
+    with pytest.raises(ValueError, match="unknown scene key 'size'"):
+        gym.make("grasp_env/CubeGrasp-v0", scene={"size": 2.0})
+    with pytest.raises(ValueError, match="3 or 4 distinct faces"):
+        gym.make("grasp_env/CubeGrasp-v0", faces=("-x", "-y"))
+
+
+def test_impossible_ranges_raise():
+    env = gym.make("grasp_env/CubeGraspRandom-v0", mu_range=(0.01, 0.011)).unwrapped
+    with pytest.raises(RuntimeError, match="widen mu_range"):
+        env.reset(seed=0)
+
+
+# ------------------------------------------------------------------------- scene options
+
+
+def test_scene_option_pins_an_episode():
+    scene = {
+        "contacts": [[-0.5, 0.1, -0.2], [0.0, -0.5, 0.3], [0.2, 0.1, -0.5]],
+        "cg_offset": [0.05, 0.0, -0.02],
+        "weight": 3.0,
+        "mu": 0.9,
+        "trajectory": {"axis": [0, 1, 0], "alpha_start_deg": 0, "alpha_end_deg": 4},
+    }
+    fixed = make("grasp_env/CubeGrasp-v0")
+    random = make("grasp_env/CubeGraspRandom-v0")
+    first = rollout_with_options(fixed, scene)
+    assert_same(first, rollout_with_options(random, scene))
+    got = fixed.unwrapped.scene
+    assert got == got and got.weight == 3.0 and got.mu == 0.9
+    np.testing.assert_array_equal(got.contacts, scene["contacts"])
+    np.testing.assert_allclose(fixed.unwrapped.alphas_deg, [0, 1, 2, 3, 4])
+    # Options hold for that episode only: the next reset is the paper's scene again.
+    fixed.reset()
+    assert fixed.unwrapped.scene.weight == 5.0 and len(fixed.unwrapped.alphas_deg) == 31
+
+
+def rollout_with_options(env, scene):
+    obs, _ = env.reset(seed=0, options={"scene": scene})
+    record = [obs]
+    done = False
+    while not done:
+        record.append(env.step(np.array([0.2, -0.1, 0.3], np.float32)))
+        done = record[-1][2] or record[-1][3]
+    return record
+
+
+def test_scene_option_missing_keys_keep_defaults():
+    env = make("grasp_env/CubeGrasp-v0", scene={"mu": 0.7})
+    env.reset(options={"scene": {"weight": 8.0}})
+    scene = env.unwrapped.scene
+    assert scene.mu == 0.7 and scene.weight == 8.0  # the env's mu, the option's weight
+    np.testing.assert_array_equal(scene.contacts, Scene().contacts)
+
+
+# ------------------------------------------------------------------------- vector envs
+
+
+def step_singles(envs, actions, autoreset):
+    results = []
+    for env, action, restart in zip(envs, actions, autoreset, strict=True):
+        if restart:
+            obs, _ = env.reset()
+            results.append((obs, 0.0, False, False, None))
+        else:
+            results.append(env.step(action))
+    return results
+
+
+@pytest.mark.parametrize("env_id", FAST_IDS)
+def test_vector_env_equals_single_envs(env_id):
+    """NEXT_STEP autoreset, step for step against N single environments seeded seed + i."""
+    count = 5
+    venv = gym.make_vec(env_id, num_envs=count, vectorization_mode="vector_entry_point")
+    assert venv.metadata["autoreset_mode"] == AutoresetMode.NEXT_STEP
+    envs = [make(env_id) for _ in range(count)]
+    obs, _ = venv.reset(seed=40)
+    np.testing.assert_array_equal(obs, [e.reset(seed=40 + i)[0] for i, e in enumerate(envs)])
+    rng = np.random.default_rng(0)
+    autoreset = np.zeros(count, bool)
+    for _ in range(120):
+        # Small grips slip less often: long episodes and short ones both occur.
+        actions = rng.uniform(-0.3, 0.3, venv.action_space.shape).astype(np.float32)
+        obs, reward, terminated, truncated, info = venv.step(actions)
+        for i, (o, r, te, tr, single_info) in enumerate(step_singles(envs, actions, autoreset)):
+            np.testing.assert_array_equal(obs[i], o)
+            assert (reward[i], terminated[i], truncated[i]) == (r, te, tr)
+            if single_info is None:
+                assert not info["_theta"][i]
+            else:
+                for key, value in single_info.items():
+                    assert info[f"_{key}"][i]
+                    np.testing.assert_array_equal(info[key][i], value)
+        autoreset = terminated | truncated
+    assert autoreset.any() or True
+
+
+def test_vector_env_same_step_autoreset():
+    count = 4
+    venv = gym.make_vec(
+        "grasp_env/CubeGraspRandom-v0",
+        num_envs=count,
+        vectorization_mode="vector_entry_point",
+        autoreset_mode=AutoresetMode.SAME_STEP,
+    )
+    envs = [make("grasp_env/CubeGraspRandom-v0") for _ in range(count)]
+    venv.reset(seed=[3, 4, 5, 6])
+    for i, env in enumerate(envs):
+        env.reset(seed=3 + i)
+    rng = np.random.default_rng(2)
+    ended = 0
+    for _ in range(60):
+        actions = rng.uniform(-0.3, 0.3, venv.action_space.shape).astype(np.float32)
+        obs, reward, terminated, truncated, info = venv.step(actions)
+        for i, env in enumerate(envs):
+            o, r, te, tr, single_info = env.step(actions[i])
+            assert (reward[i], terminated[i], truncated[i]) == (r, te, tr)
+            if te or tr:
+                ended += 1
+                np.testing.assert_array_equal(info["final_obs"][i], o)
+                assert info["_final_obs"][i] and not info["_theta"][i]
+                np.testing.assert_array_equal(info["final_info"]["theta"][i], single_info["theta"])
+                o, _ = env.reset()
+            np.testing.assert_array_equal(obs[i], o)
+    assert ended > 0
+
+
+def test_vector_env_bad_input():
+    venv = gym.make_vec(
+        "grasp_env/CubeGrasp-v0", num_envs=3, vectorization_mode="vector_entry_point"
+    )
+    with pytest.raises(RuntimeError, match="reset"):
+        venv.step(np.zeros((3, 3)))
+    venv.reset(seed=0)
+    with pytest.raises(ValueError, match=r"shape \(3, 3\)"):
+        venv.step(np.zeros((2, 3)))
+    with pytest.raises(ValueError, match=r"finite; sub-environments \[1\]"):
+        venv.step(np.array([[0, 0, 0], [0, np.nan, 0], [0, 0, 0]], float))
+    with pytest.raises(ValueError, match="unknown scene key 'mass'"):
+        venv.reset(options={"scene": {"mass": 1}})
+    with pytest.raises(ValueError, match="physics nor render_mode"):
+        gym.make_vec(
+            "grasp_env/CubeGrasp-v0", num_envs=2, vectorization_mode="vector_entry_point",
+            physics="mujoco",
+        )  # fmt: skip
+
+
+def test_vector_env_scene_option_and_long_trajectories():
+    """A scene option reaches every sub-environment; longer episodes grow the store."""
+    venv = gym.make_vec(
+        "grasp_env/CubeGrasp-v0", num_envs=3, vectorization_mode="vector_entry_point"
+    )
+    single = make("grasp_env/CubeGrasp-v0")
+    scene = {"mu": 0.9, "trajectory": {"alpha_start_deg": -40.0, "alpha_end_deg": 40.0}}
+    obs, _ = venv.reset(seed=0, options={"scene": scene})
+    first, _ = single.reset(seed=0, options={"scene": scene})
+    np.testing.assert_array_equal(obs, np.stack([first] * 3))
+    expert = MinimaxExpert()
+    for step in range(81):
+        actions = expert.predict(obs)[0]
+        obs, reward, terminated, truncated, _ = venv.step(actions)
+        o, r, te, tr, _ = single.step(actions[0])
+        np.testing.assert_array_equal(obs[0], o)
+        assert (reward[0], terminated[0], truncated[0]) == (r, te, tr)
+        assert not te and tr == (step == 80)
+
+
+def test_sb3_vec_env_trains():
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.vec_env import VecMonitor
+
+    from grasp_env.envs.sb3 import SB3VecEnv
+
+    venv = SB3VecEnv("grasp_env/CubeGrasp-v0", num_envs=8)
+    venv.seed(5)
+    obs = venv.reset()
+    assert obs.shape == (8, 32)
+    obs, rewards, dones, infos = venv.step(np.ones((8, 3), np.float32))  # every finger slips
+    assert dones.all() and rewards.dtype == np.float32
+    for info in infos:
+        assert info["terminal_observation"].shape == (32,)
+        assert info["TimeLimit.truncated"] is False
+    assert venv.last_info["slip"].all()
+    model = PPO("MlpPolicy", VecMonitor(venv), n_steps=16, batch_size=64, n_epochs=1, seed=0)
+    model.learn(256)
+
+
+# ------------------------------------------------------------------------- physics, rendering
+
+
+needs_physics = pytest.mark.skipif(not HAS_PHYSICS, reason="grasp_env.physics not available yet")
+
+
+@needs_physics
+def test_mujoco_env_checks_every_step():
+    env = make("grasp_env/CubeGraspMujoco-v0")
+    expert = MinimaxExpert()
+    obs, _ = env.reset(seed=0)
+    for _ in range(3):  # the expert's grip holds in MuJoCo too
+        obs, _, terminated, _, info = env.step(expert.predict(obs)[0])
+        assert info["physics"]["holds"] and not terminated
+    env.reset(seed=0)
+    _, _, terminated, _, info = env.step(np.array([1.0, -1.0, 1.0], np.float32))
+    assert not info["physics"]["holds"] and terminated and info["slip"].any()
+    env.close()
+
+
+@needs_physics
+def test_rgb_array_render():
+    env = make("grasp_env/CubeGrasp-v0", render_mode="rgb_array", terminate_on_slip=False)
+    env.reset(seed=0)
+    first = env.render()
+    env.step(np.zeros(3, np.float32))
+    env.step(np.zeros(3, np.float32))
+    later = env.render()
+    assert first.dtype == np.uint8 and first.ndim == 3 and first.shape[2] == 3
+    assert not np.array_equal(first, later)  # the cube has turned
+    env.close()
+    env.close()  # closing twice is harmless
