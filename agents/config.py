@@ -232,7 +232,8 @@ def _check_range(
 def _build(cls: type, data: Any, where: str) -> Any:
     """Instantiate dataclass ``cls`` from a mapping, checking the keys and their types."""
     if not isinstance(data, Mapping):
-        raise ValueError(f"{where or 'config'} must be a mapping, got {type(data).__name__}")
+        name = where.rstrip(".") or "config"
+        raise ValueError(f"{name} must be a mapping, got {type(data).__name__}")
     hints = typing.get_type_hints(cls)
     names = [f.name for f in dataclasses.fields(cls)]
     for key in data:

@@ -41,16 +41,9 @@ def make_vec_env(env_id: str, env_kwargs: dict[str, Any], n_envs: int, seed: int
 def _vec_env(env_id: str, env_kwargs: dict[str, Any], n_envs: int) -> VecEnv:
     try:
         if gym.spec(env_id).vector_entry_point is not None:
-            from grasp_env.envs import SB3VecEnv
+            from grasp_env.envs.sb3 import SB3VecEnv
 
-            return SB3VecEnv(
-                gym.make_vec(
-                    env_id,
-                    num_envs=n_envs,
-                    vectorization_mode="vector_entry_point",
-                    **env_kwargs,
-                )
-            )
+            return SB3VecEnv(env_id, num_envs=n_envs, **env_kwargs)
         return sb3_make_vec_env(env_id, n_envs=n_envs, env_kwargs=env_kwargs)
     except TypeError as error:  # an unknown keyword: say which, as a bad config
         raise ValueError(f"env_kwargs for {env_id}: {error}") from None
@@ -69,7 +62,6 @@ class Episode:
     alpha_deg: list[float] = field(default_factory=list)
     k: list[np.ndarray] = field(default_factory=list)
     expert_k: list[np.ndarray] = field(default_factory=list)
-    contact_forces: list[np.ndarray] = field(default_factory=list)
     held: bool = True  # no finger slipped at any step
     finished: bool = False
 
@@ -94,29 +86,41 @@ class HeldOutScenes(VecEnvWrapper):
 
     def step_wait(self) -> Any:
         obs, rewards, dones, infos = self.venv.step_wait()
-        for episode, reward, done, info in zip(self.episodes, rewards, dones, infos, strict=True):
+        info = batched_info(self.venv, infos)
+        for i, episode in enumerate(self.episodes):
             if episode.finished:
                 continue
-            episode.gap.append(float(info["optimality_gap"]))
-            episode.margin.append(float(reward))
-            episode.force.append(float(np.linalg.norm(info["contact_forces"], axis=-1).sum()))
-            theta = np.asarray(info["theta"])
-            episode.limit = float(theta[0] + info["margin"][0])
+            theta = info["theta"][i]
+            episode.limit = float(theta[0] + info["margin"][i][0])
+            episode.gap.append(float(info["optimality_gap"][i]))
+            episode.margin.append(float(rewards[i]))
+            episode.force.append(float(np.linalg.norm(info["contact_forces"][i], axis=-1).sum()))
             episode.max_theta.append(float(theta.max()))
-            episode.expert_max_theta.append(episode.limit - float(info["expert_reward"]))
-            episode.alpha_deg.append(float(info["alpha_deg"]))
-            episode.k.append(np.asarray(info["k"]))
-            episode.expert_k.append(np.asarray(info["expert_k"]))
-            episode.contact_forces.append(np.asarray(info["contact_forces"]))
-            episode.held &= not bool(np.any(info["slip"]))
-            if done:
+            episode.expert_max_theta.append(episode.limit - float(info["expert_reward"][i]))
+            episode.alpha_deg.append(float(info["alpha_deg"][i]))
+            episode.k.append(np.array(info["k"][i]))
+            episode.expert_k.append(np.array(info["expert_k"][i]))
+            episode.held &= not bool(np.any(info["slip"][i]))
+            if dones[i]:
                 episode.finished = True
-                info["is_success"] = episode.held
+                infos[i]["is_success"] = episode.held
         return obs, rewards, dones, infos
 
     def metrics(self) -> dict[str, float]:
         """Summary of the finished episodes: see :func:`summarise`."""
         return summarise([e for e in self.episodes if e.finished])
+
+
+def batched_info(venv: VecEnv, infos: list[dict[str, Any]]) -> dict[str, np.ndarray]:
+    """The step's info as arrays over environments.
+
+    grasp_env's SB3 adapter keeps the full batched info in ``last_info`` (its per-env dicts
+    stay small); other VecEnvs give one dict per environment.
+    """
+    info = getattr(venv, "last_info", None)
+    if info is not None:
+        return info
+    return {key: np.array([i[key] for i in infos]) for key in infos[0]}
 
 
 def summarise(episodes: list[Episode]) -> dict[str, float]:

@@ -48,7 +48,10 @@ COLUMNS = (
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("run", type=Path, help="a run directory written by grasp-env train")
+    # dest "run" would shadow the CLI's args.run (the command's entry point)
+    parser.add_argument(
+        "run_dir", type=Path, metavar="RUN", help="a run directory written by grasp-env train"
+    )
     parser.add_argument(
         "--episodes",
         type=int,
@@ -57,13 +60,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--physics-episodes",
         type=int,
-        default=PHYSICS_EPISODES,
         help=f"of those, scenes also checked in MuJoCo (default {PHYSICS_EPISODES}; 0: none)",
     )
 
 
 def run(args: argparse.Namespace) -> int:
-    comparison = evaluate_run(args.run, args.episodes, args.physics_episodes)
+    comparison = evaluate_run(args.run_dir, args.episodes, args.physics_episodes)
     print(comparison.markdown)
     print(f"\nreport: {comparison.report}")
     return 0
@@ -92,9 +94,13 @@ def load_agent(run_dir: Path) -> TrainedAgent:
 
 
 def evaluate_run(
-    run_dir: Path, episodes: int | None = None, physics_episodes: int = PHYSICS_EPISODES
+    run_dir: Path, episodes: int | None = None, physics_episodes: int | None = None
 ) -> Comparison:
-    """Compare the run's agent with the expert and the baselines; write the report and plots."""
+    """Compare the run's agent with the expert and the baselines; write the report and plots.
+
+    ``episodes`` defaults to the run's ``eval_episodes``, ``physics_episodes`` (how many of
+    them MuJoCo also checks) to :data:`PHYSICS_EPISODES` or all if fewer.
+    """
     run_dir = Path(run_dir)
     if not (run_dir / "config.yaml").is_file():
         raise ValueError(f"{str(run_dir)!r} is not a run directory (no config.yaml)")
@@ -102,6 +108,8 @@ def evaluate_run(
     episodes = config.eval_episodes if episodes is None else episodes
     if episodes < 1:
         raise ValueError(f"--episodes must be >= 1, got {episodes}")
+    if physics_episodes is None:
+        physics_episodes = min(PHYSICS_EPISODES, episodes)
     if not 0 <= physics_episodes <= episodes:
         raise ValueError(f"--physics-episodes must be in [0, {episodes}], got {physics_episodes}")
 

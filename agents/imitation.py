@@ -136,7 +136,7 @@ def fit(
             loss.backward()
             optimizer.step()
             schedule.step()
-            loss_sum += float(loss) * len(index)
+            loss_sum += float(loss.detach()) * len(index)
     policy.set_training_mode(False)
     return loss_sum / len(obs_t)
 

@@ -23,6 +23,7 @@ import argparse
 import csv
 import re
 import time
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -34,6 +35,7 @@ from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback,
 from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.utils import set_random_seed
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize, sync_envs_normalization
+from tqdm import TqdmExperimentalWarning
 
 from .config import DEFAULT_CONFIG, TrainConfig, load_config, save_config
 from .envs import find_held_out, make_held_out_env, make_vec_env
@@ -124,6 +126,9 @@ def train(
     run_dir.mkdir(parents=True, exist_ok=True)
     save_config(config, run_dir / "config.yaml")
     steps_done = 0 if checkpoint is None else checkpoint_steps(checkpoint)
+
+    # SB3's progress bar uses tqdm's rich front end, which warns that it is experimental.
+    warnings.filterwarnings("ignore", category=TqdmExperimentalWarning)
 
     # 1. Seeding: torch, numpy, random; few threads (the machine is shared, numbers repeatable).
     torch.set_num_threads(config.torch_threads)

@@ -1,0 +1,232 @@
+"""The agents: configs, a tiny training run end to end, resume, determinism, imitation, baselines.
+
+Tiny runs on the paper's scene (``grasp_env/CubeGrasp-v0``): a few hundred PPO steps of a
+16 x 16 network, so that each run takes seconds.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from stable_baselines3 import PPO
+from stable_baselines3.common.evaluation import evaluate_policy
+
+from agents import cli
+from agents.baselines import ConstantPolicy, equal_k_policy
+from agents.config import CONFIG_DIR, config_from_dict, load_config, save_config
+from agents.envs import find_held_out, make_held_out_env
+from agents.train import RecordEvaluation, checkpoint_steps, latest_checkpoint, train
+
+TINY = {
+    "env_id": "grasp_env/CubeGrasp-v0",
+    "env_kwargs": {"terminate_on_slip": False},
+    "n_envs": 2,
+    "seed": 3,
+    "total_timesteps": 256,
+    "eval_freq": 128,
+    "eval_episodes": 2,
+    "checkpoint_freq": 128,
+    "policy": {"net_arch": [16, 16]},
+    "ppo": {"n_steps": 32, "batch_size": 32, "n_epochs": 2},
+}
+
+
+def tiny(**changes):
+    return config_from_dict({**TINY, **changes})
+
+
+def curve(run: Path) -> list[dict[str, str]]:
+    with (run / "learning_curve.csv").open() as file:
+        return list(csv.DictReader(file))
+
+
+# --- configs -------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("changes", "message"),
+    [
+        ({"learning_rate": 1e-3}, "unknown config key 'learning_rate'"),
+        ({"ppo": {"lr": 1e-3}}, "unknown config key 'ppo.lr'"),
+        ({"n_envs": "4"}, "n_envs must be an integer"),
+        ({"n_envs": 0}, r"n_envs must be in \[1"),
+        ({"seed": 1.5}, "seed must be an integer"),
+        ({"normalize": "yes"}, "normalize must be true or false"),
+        ({"ppo": {"gamma": 1.5}}, r"ppo.gamma must be in \[0.0, 1.0\]"),
+        ({"ppo": {"learning_rate": "fast"}}, "ppo.learning_rate must be a number"),
+        ({"policy": {"net_arch": [16, "wide"]}}, r"policy.net_arch\[1\] must be an integer"),
+        ({"policy": {"activation": "gelu"}}, "policy.activation must be one of"),
+        ({"imitation": {"rounds": 0}}, r"imitation.rounds must be in \[1"),
+        ({"imitation": [1]}, "imitation must be a mapping"),
+        ({"env_id": "grasp_env/CubeGrab-v0"}, "env_id: unknown environment 'grasp_env/CubeG"),
+    ],
+)
+def test_config_errors_name_the_key(changes, message):
+    with pytest.raises(ValueError, match=message):
+        tiny(**changes)
+
+
+def test_config_numbers_as_yaml_writes_them():
+    # PyYAML reads 3e-4 as a string and 1e6 as a float; both mean what they say.
+    config = tiny(total_timesteps=1e6, ppo={"learning_rate": "3e-4"})
+    assert config.total_timesteps == 1_000_000
+    assert config.ppo.learning_rate == pytest.approx(3e-4)
+
+
+def test_config_round_trips_through_yaml(tmp_path):
+    config = tiny(imitation={"rounds": 2, "epochs": 3})
+    save_config(config, tmp_path / "config.yaml")
+    assert load_config(tmp_path / "config.yaml") == config
+
+
+@pytest.mark.parametrize("path", sorted(CONFIG_DIR.glob("*.yaml")), ids=lambda p: p.name)
+def test_shipped_configs_load(path):
+    config = load_config(path)
+    assert config.env_id.startswith("grasp_env/")
+
+
+def test_unknown_env_keyword_is_a_clear_error(tmp_path):
+    with pytest.raises(ValueError, match=r"env_kwargs for grasp_env/CubeGrasp-v0.*grip_strength"):
+        train(tiny(env_kwargs={"grip_strength": 2}), tmp_path / "run", progress_bar=False)
+
+
+def test_cli_reports_a_bad_config_cleanly(tmp_path, capsys):
+    path = tmp_path / "bad.yaml"
+    path.write_text(yaml.safe_dump({**TINY, "n_env": 4}))
+    assert cli.main(["train", "--config", str(path), "--run-dir", str(tmp_path / "r")]) == 2
+    assert "unknown config key 'n_env'" in capsys.readouterr().err
+    assert not (tmp_path / "r").exists()
+
+
+# --- training ------------------------------------------------------------------------------
+
+
+def test_tiny_run_end_to_end(tmp_path, capsys):
+    """grasp-env train writes the run, then grasp-env evaluate compares it with the expert."""
+    config_path = tmp_path / "tiny.yaml"
+    config_path.write_text(yaml.safe_dump(TINY))
+    run = tmp_path / "run"
+    assert cli.main(["train", "--config", str(config_path), "--run-dir", str(run)]) == 0
+    printed = capsys.readouterr().out
+    assert "| minimax expert |" in printed and "| trained agent |" in printed
+
+    for name in ("model.zip", "config.yaml", "learning_curve.csv", "learning_curve.png",
+                 "eval/evaluations.npz", "report.md", "grip_along_alpha.png"):  # fmt: skip
+        assert (run / name).is_file(), name
+    assert list((run / "tb").glob("ppo_0/events.out.tfevents.*"))
+    assert load_config(run / "config.yaml") == config_from_dict(TINY)
+    assert [int(r["env_steps"]) for r in curve(run)] == [0, 128, 256]
+
+    model = PPO.load(run / "model.zip", device="cpu")
+    assert model.num_timesteps == 256
+    action, _ = model.predict(np.zeros(model.observation_space.shape, np.float32))
+    assert action.shape == (3,)
+
+    assert cli.main(["evaluate", str(run), "--episodes", "1", "--physics-episodes", "1"]) == 0
+    with (run / "comparison.csv").open() as file:
+        rows = {row["policy"]: row for row in csv.DictReader(file)}
+    expert, zero = rows["minimax expert"], rows["zero interaction"]
+    # In the paper's scene the optimum is 0 deg at every pose: the expert is the reference
+    # (gap 0) and holds, also in MuJoCo; with no interaction force the side fingers slip.
+    assert float(expert["mean_gap_deg"]) == pytest.approx(0.0, abs=1e-6)
+    assert float(expert["success_rate"]) == 1.0
+    assert float(expert["physics_success_rate"]) == 1.0
+    assert float(zero["success_rate"]) == 0.0
+    assert float(zero["physics_success_rate"]) == 0.0
+    assert float(zero["mean_gap_deg"]) > 10.0
+
+
+def test_interrupt_saves_and_resume_continues_the_step_count(tmp_path, monkeypatch):
+    config = tiny(normalize=True)
+    run = tmp_path / "run"
+    record = RecordEvaluation._on_step
+
+    def ctrl_c_after_first_evaluation(self):
+        record(self)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(RecordEvaluation, "_on_step", ctrl_c_after_first_evaluation)
+    with pytest.raises(KeyboardInterrupt):
+        train(config, run, progress_bar=False)
+    saved = latest_checkpoint(run)
+    assert checkpoint_steps(saved) == 128
+    assert (run / "model.zip").is_file()
+    assert (saved.parent / "ppo_vecnormalize_128_steps.pkl").is_file()
+
+    monkeypatch.setattr(RecordEvaluation, "_on_step", record)
+    model = train(config, run, resume=True, progress_bar=False)
+    assert model.num_timesteps == 256
+    model = train(dataclasses.replace(config, total_timesteps=384), run, resume=True)
+    assert model.num_timesteps == 384
+    assert [int(r["env_steps"]) for r in curve(run)] == [0, 128, 256, 384]
+    with np.load(run / "eval" / "evaluations.npz") as log:
+        assert log["timesteps"].tolist() == [128, 256, 384]
+    assert (run / "vecnormalize.pkl").is_file()
+
+
+def test_same_seed_same_first_evaluation(tmp_path):
+    def first_ppo_evaluation(seed: int, name: str) -> dict[str, str]:
+        train(tiny(seed=seed, total_timesteps=128), tmp_path / name, progress_bar=False)
+        (row,) = [r for r in curve(tmp_path / name) if r["phase"] == "ppo"]
+        return {k: v for k, v in row.items() if k != "wall_seconds"}
+
+    first = first_ppo_evaluation(7, "a")
+    assert first_ppo_evaluation(7, "b") == first
+    assert first_ppo_evaluation(8, "c") != first
+
+
+def test_a_run_directory_is_not_overwritten(tmp_path):
+    train(tiny(total_timesteps=0), tmp_path / "run", progress_bar=False)
+    with pytest.raises(ValueError, match="already holds a run; use --resume"):
+        train(tiny(total_timesteps=0), tmp_path / "run", progress_bar=False)
+
+
+# --- the expert as teacher -----------------------------------------------------------------
+
+
+def test_behaviour_cloning_and_dagger_learn_the_expert(tmp_path):
+    config = tiny(
+        total_timesteps=0,
+        policy={"net_arch": [32, 32], "log_std_init": -2.0},
+        imitation={
+            "rounds": 2,
+            "samples_per_round": 310,
+            "epochs": 150,
+            "batch_size": 62,
+            "learning_rate": 3e-3,
+            "n_envs": 4,
+        },
+    )
+    train(config, tmp_path / "run", progress_bar=False)
+    rows = curve(tmp_path / "run")
+    assert [r["phase"] for r in rows] == ["initial", "imitation", "imitation"]
+    steps = [int(r["env_steps"]) for r in rows]  # whole vector steps: up to n_envs - 1 more
+    assert steps[0] == 0 and 310 <= steps[1] < 314 and 620 <= steps[2] < 624
+    initial, taught = float(rows[0]["mean_gap_deg"]), float(rows[-1]["mean_gap_deg"])
+    assert taught < 1.0 < initial
+    assert float(rows[-1]["success_rate"]) == 1.0
+
+
+# --- baselines -----------------------------------------------------------------------------
+
+
+def test_equal_k_grip_is_optimal_at_alpha_zero_of_the_paper_scene():
+    """Eq. 8: k_ij = w tan(phi) / (3 sqrt 3) for all pairs is the optimum at alpha = 0."""
+    env = make_held_out_env("grasp_env/CubeGrasp-v0", {}, 1)
+    evaluate_policy(equal_k_policy(3, k_max_ratio=2.0), env, n_eval_episodes=1, warn=False)
+    (episode,) = find_held_out(env).episodes
+    alpha, gap = np.array(episode.alpha_deg), np.degrees(episode.gap)
+    assert np.array(episode.k)[alpha == 0] == pytest.approx(5 * np.sqrt(2) / (3 * np.sqrt(3)))
+    assert gap[alpha == 0] == pytest.approx(0.0, abs=1e-6)
+    assert gap[np.abs(alpha) == 15].min() > 0.1  # away from alpha = 0 it is not optimal
+
+
+def test_constant_policy_is_batched():
+    actions, state = ConstantPolicy([0.1, 0.2]).predict(np.zeros((5, 32)))
+    assert actions.shape == (5, 2) and state is None
+    assert np.all(actions == np.array([0.1, 0.2], np.float32))
