@@ -141,7 +141,7 @@ class _CubeGraspEnv(gym.Env[np.ndarray, np.ndarray]):
         )
         if not ok:
             raise ValueError(f"action must be finite, got {a.tolist()}")
-        slip = theta[0] > episode.limit
+        slip = margin[0] < 0.0  # theta_i > theta_lim, as the vector env computes it
         reward = float(reward[0])
         expert_reward = float(episode.expert_reward[t])
         info = {
@@ -156,7 +156,7 @@ class _CubeGraspEnv(gym.Env[np.ndarray, np.ndarray]):
             "optimality_gap": expert_reward - reward,
             "slip": slip,
         }
-        terminated = self.terminate_on_slip and bool(slip.any())
+        terminated = self.terminate_on_slip and reward < 0.0
         if self._checker is not None:
             report = self._checker.check(episode.rotations[t], forces[0])
             info["physics"] = report.as_dict()

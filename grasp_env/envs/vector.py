@@ -262,24 +262,25 @@ class _CubeGraspVectorEnv(VectorEnv):
         if not ok:
             bad = np.flatnonzero(~np.isfinite(a).all(axis=1))
             raise ValueError(f"actions must be finite; sub-environments {bad.tolist()} are not")
-        slip = theta > self._limit[:, None]
-        terminated = slip.any(axis=1) if self.terminate_on_slip else np.zeros(count, bool)
+        # theta_i > theta_lim exactly when the rounded margin is negative (and the minimum).
+        slip = margin < 0.0
+        terminated = reward < 0.0 if self.terminate_on_slip else np.zeros(count, bool)
         self._t += 1
         truncated = self._t == self._length
-        expert_reward = arrays["expert_reward"][rows]
+        expert_reward = np.take(arrays["expert_reward"], rows)
         info = {
-            "alpha_deg": arrays["alphas"][rows],
+            "alpha_deg": np.take(arrays["alphas"], rows),
             "theta": theta,
             "margin": margin,
             "k": k,
             "contact_forces": forces,
-            "equilibrating_forces": arrays["forces"][rows],
-            "expert_k": arrays["expert_k"][rows],
+            "equilibrating_forces": np.take(arrays["forces"], rows, axis=0),
+            "expert_k": np.take(arrays["expert_k"], rows, axis=0),
             "expert_reward": expert_reward,
             "optimality_gap": expert_reward - reward,
             "slip": slip,
         }
-        observations = arrays["observations"][rows + 1]
+        observations = np.take(arrays["observations"], rows + 1, axis=0)
         if restarting.size:
             # Restarted sub-environments: observation 0, no reward, no info, nothing ended.
             reward[restarting] = 0.0
