@@ -101,6 +101,9 @@ def _read_only(*arrays: np.ndarray) -> None:
         array.flags.writeable = False
 
 
+_SCENE_ARRAYS = ("contacts", "cg_offset", "weight", "mu", "extra_force", "extra_torque", "axis")
+
+
 @dataclass(frozen=True)
 class SceneBatch:
     """E scenes with their trajectories, as arrays (the unit cube, object frame)."""
@@ -146,18 +149,7 @@ class SceneBatch:
     @staticmethod
     def concatenate(batches: Sequence[SceneBatch]) -> SceneBatch:
         return SceneBatch(
-            *(
-                np.concatenate([getattr(b, name) for b in batches])
-                for name in (
-                    "contacts",
-                    "cg_offset",
-                    "weight",
-                    "mu",
-                    "extra_force",
-                    "extra_torque",
-                    "axis",
-                )
-            ),
+            *(np.concatenate([getattr(b, name) for b in batches]) for name in _SCENE_ARRAYS),
             alphas_deg=tuple(a for b in batches for a in b.alphas_deg),
         )
 
@@ -303,10 +295,11 @@ def build_episodes(scenes: SceneBatch, expert: MinimaxExpert) -> list[Episode]:
             poses.expert_k[part].copy(),
             poses.expert_reward[part].copy(),
         )
-        _read_only(*arrays)
+        scene = scenes.take([e])
+        _read_only(*arrays, *(getattr(scene, name) for name in _SCENE_ARRAYS), *scene.alphas_deg)
         episodes.append(
             Episode(
-                scenes.take([e]),
+                scene,
                 *arrays,
                 limit=float(poses.limit[start]),
                 k_max=float(poses.k_max[start]),
@@ -324,11 +317,7 @@ def cached_episode(scenes: SceneBatch, expert: MinimaxExpert) -> Episode:
     (every ``gym.make("grasp_env/CubeGrasp-v0")``) share one read-only episode."""
     key = (
         expert.k_max_ratio,
-        *(
-            getattr(scenes, name).tobytes()
-            for name in ("contacts", "cg_offset", "weight", "mu", "extra_force", "extra_torque")
-        ),
-        scenes.axis.tobytes(),
+        *(getattr(scenes, name).tobytes() for name in _SCENE_ARRAYS),
         scenes.alphas_deg[0].tobytes(),
     )
     if key not in _EPISODE_CACHE:
@@ -551,7 +540,7 @@ class SceneSampler:
 
 
 #: Candidate scenes drawn per environment and round of :func:`sample_episodes`.
-DRAWS_PER_ROUND = 8
+DRAWS_PER_ROUND = 4
 #: Give up (the ranges admit almost no holdable scene) after this many candidates per episode.
 MAX_DRAWS = 2000
 

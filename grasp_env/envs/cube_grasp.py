@@ -79,7 +79,7 @@ class _CubeGraspEnv(gym.Env[np.ndarray, np.ndarray]):
         self._last_forces: np.ndarray | None = None
         self._checker: Any = None
         self._view: Any = None
-        self._world_scene: Episode | None = None  # the episode the checker and view were built for
+        self._world_episode: Episode | None = None  # what the checker and view show
 
     # -- the episode ---------------------------------------------------------------------------
 
@@ -174,7 +174,7 @@ class _CubeGraspEnv(gym.Env[np.ndarray, np.ndarray]):
     def _update_world(self) -> None:
         """Build the MuJoCo checker and view for a new scene; reset the checker every episode."""
         episode = self.episode
-        if self._world_scene is None or self._world_scene.scenes is not episode.scenes:
+        if self._world_episode is None or self._world_episode.scenes is not episode.scenes:
             scene = episode.scene
             if self._checker is not None:
                 self._checker.close()
@@ -189,7 +189,7 @@ class _CubeGraspEnv(gym.Env[np.ndarray, np.ndarray]):
                 from ..physics import GraspView
 
                 self._view = GraspView(scene, render_mode=self.render_mode)
-            self._world_scene = episode
+            self._world_episode = episode
         if self._checker is not None:
             self._checker.reset()
 
@@ -210,13 +210,13 @@ class _CubeGraspEnv(gym.Env[np.ndarray, np.ndarray]):
         if self._checker is not None:
             self._checker.close()
             self._checker = None
-        self._world_scene = None
+        self._world_episode = None
         super().close()
 
     def __getstate__(self) -> dict[str, Any]:
         # The MuJoCo checker and view hold native resources: rebuilt on the next reset.
         state = self.__dict__.copy()
-        state.update(_checker=None, _view=None, _world_scene=None)
+        state.update(_checker=None, _view=None, _world_episode=None)
         return state
 
 
@@ -262,7 +262,7 @@ _DOC_SPACES = """
     `physics="mujoco"` also `physics`, the MuJoCo report as a dict.
 """
 
-_DOC_COMMON_ARGS = """
+_DOC_COMMON_ARGS = """\
     - `k_max_ratio` (default 2): k_max / w, the largest grip an action can command.
     - `terminate_on_slip` (default True): end the episode when a finger slips.
     - `physics` (default None): "mujoco" checks every step's forces in MuJoCo
