@@ -540,7 +540,7 @@ class SceneSampler:
 
 
 #: Candidate scenes drawn per environment and round of :func:`sample_episodes`.
-DRAWS_PER_ROUND = 4
+DRAWS_PER_ROUND = 2
 #: Give up (the ranges admit almost no holdable scene) after this many candidates per episode.
 MAX_DRAWS = 2000
 
