@@ -1,7 +1,31 @@
 """The minimax grip: k* = argmin over the box |k_ij| <= k_max of max_i theta_i(k) (DESIGN.md §1).
 
-INTERIM implementation (SLSQP, local, no certificate) that fixes the public API; to be replaced
-by the certified batched solver.
+The problem is quasi-convex: theta_i <= t < 90 deg exactly when P_i(k) = F_i + A_i k (eq. 4)
+lies in the cone |P_i - (n_i . P_i) n_i| <= tan(t) (n_i . P_i), convex in k. The solver
+(numba kernels in ``_minimax_kernels``) works in three stages for each grasp:
+
+1. **Primal.** An SQP method on  min t s.t. theta_i(k) <= t  (eq. 2), the box and the
+   optional force limits, started from the k that minimises the tangential forces, finds the
+   active set: the fingers at the maximum angle (typically all of them, the paper's closing
+   observation), the k_ij on the box, the fingers at the force limit, and fingers whose force
+   vanishes at the optimum (the cone's apex; with four fingers one may let go). Newton's
+   method on the KKT system of that active set then converges to rounding level. When all
+   tangential forces can vanish (the paper's exact scene, where the normal lines meet at the
+   centre of gravity) the optimum is 0 and is found by least squares directly.
+2. **Certificate.** Weak duality: for weights l_i >= 0 and |y_i| <= 1 the vectors
+   z_i = l_i (cos t B_i y_i - sin t n_i) satisfy z_i . P <= 0 for every P in the cone, so if
+       L(t) = sum_i z_i . F_i - k_max || sum_i A_i' z_i ||_1 > 0
+   no k in the box has every theta_i <= t (the minimum over the box of an affine function).
+   The KKT multipliers at the optimum t* give L(t*) = 0 exactly only in exact arithmetic;
+   moved to t* - 1e-11 rad and corrected so that the free components of the L1 term vanish,
+   they give L > 0: ``lower_bound`` is that t, computed, not assumed (the force limits add
+   their own dual terms).
+3. **Fallback.** Whatever does not certify to 1e-9 rad goes to a robust method: Dinkelbach
+   iterations on t (with Crouzeix-Ferland-Schaible weights) over the convex cone problem at
+   fixed t, each solved by a log-barrier interior-point method, then stage 2 again.
+
+Forces are scaled by the largest equilibrating force inside the kernels, so the tolerances
+mean the same for any weight.
 """
 
 from __future__ import annotations
@@ -11,17 +35,17 @@ from enum import IntEnum
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.optimize import minimize
 
-from .forces import Grasp, friction_angles, net_forces
+from . import _minimax_kernels as kernels
+from .forces import Grasp, n_pairs
 
 
 class Status(IntEnum):
     """Where the optimum lies."""
 
-    INTERIOR = 0  #: optimum strictly inside the box
-    BOUNDARY = 1  #: optimum on the box boundary: the interaction forces would grow further
-    NOT_PUSHING = 2  #: no k in the box keeps every finger pushing (some angle >= 90 deg)
+    INTERIOR = kernels.INTERIOR  #: the box does not limit the optimum
+    BOUNDARY = kernels.BOUNDARY  #: the optimum is on the box: the interaction forces would grow
+    NOT_PUSHING = kernels.NOT_PUSHING  #: no k in the box keeps every finger pushing (>= 90 deg)
 
 
 @dataclass(frozen=True)
@@ -31,9 +55,11 @@ class MinimaxResult:
     Attributes:
         k: (..., m) optimal interaction scalars.
         angles: (..., n) friction angles at k, radians.
-        max_angle: (...) max_i angles, an upper bound on the optimum attained by k.
+        max_angle: (...) max_i angles, the optimum (attained by k).
         lower_bound: (...) certified lower bound: no k in the box has a smaller max angle.
-        status: (...) :class:`Status` codes.
+            Within 1e-9 rad of ``max_angle`` unless the status is NOT_PUSHING, where it is
+            pi/2 (no k keeps every finger below 90 deg).
+        status: (...) :class:`Status` codes (int8).
     """
 
     k: np.ndarray
@@ -48,43 +74,73 @@ class MinimaxResult:
         return self.max_angle - self.lower_bound
 
 
+def _positive_limit(name: str, value: ArrayLike, batch: tuple[int, ...]) -> np.ndarray:
+    array = np.asarray(value, dtype=float)
+    try:
+        array = np.broadcast_to(array, batch)
+    except ValueError:
+        raise ValueError(
+            f"{name} must broadcast to the grasp's batch shape {batch}, got shape {array.shape}"
+        ) from None
+    if not np.all(np.isfinite(array)) or np.any(array <= 0):
+        raise ValueError(f"{name} must be finite and > 0 (newtons), got {np.unique(array)[:5]}")
+    return np.ascontiguousarray(array, dtype=float).reshape(-1)
+
+
 def solve_minimax(grasp: Grasp, k_max: ArrayLike, f_max: ArrayLike | None = None) -> MinimaxResult:
-    """Globally minimise the largest friction angle over |k_ij| <= k_max (and |P_i| <= f_max)."""
-    F, E, N = grasp.equilibrating, grasp.basis, grasp.normals
-    batch = F.shape[:-2]
-    m = E.shape[-3]
-    k_max = np.broadcast_to(np.asarray(k_max, dtype=float), batch)
-    f_lim = None if f_max is None else np.broadcast_to(np.asarray(f_max, dtype=float), batch)
-    ks = np.zeros((*batch, m))
-    for idx in np.ndindex(*batch):
-        f, e, n, kk = F[idx], E[idx], N[idx], k_max[idx]
+    """Globally minimise the largest friction angle over |k_ij| <= k_max (and |P_i| <= f_max).
 
-        def worst(x, f=f, e=e, n=n):
-            return friction_angles(net_forces(f, e, x[:m]), n)
+    Args:
+        grasp: one grasp or a batch of them (any leading axes), from :func:`scene_grasp`.
+        k_max: the box half-width, newtons, > 0; broadcasts against the batch.
+        f_max: optional limit on each finger's force |P_i|, newtons, > 0; broadcasts.
 
-        cons = [{"type": "ineq", "fun": lambda x, worst=worst: x[m] - worst(x)}]
-        if f_lim is not None:
-            cons.append(
-                {
-                    "type": "ineq",
-                    "fun": lambda x, f=f, e=e, lim=f_lim[idx]: (
-                        lim - np.linalg.norm(net_forces(f, e, x[:m]), axis=-1)
-                    ),
-                }
-            )
-        x0 = np.zeros(m + 1)
-        x0[m] = worst(x0).max()
-        res = minimize(
-            lambda x: x[m],
-            x0,
-            constraints=cons,
-            bounds=[(-kk, kk)] * m + [(0, np.pi)],
-            method="SLSQP",
-            options={"ftol": 1e-12, "maxiter": 500},
+    Returns:
+        The optimum with its certificate; see :class:`MinimaxResult`. Never NaN.
+    """
+    F = np.asarray(grasp.equilibrating, dtype=float)
+    if F.ndim < 2 or F.shape[-1] != 3 or F.shape[-2] not in (3, 4):
+        raise ValueError(f"grasp forces must have shape (..., 3 or 4, 3), got {F.shape}")
+    n = F.shape[-2]
+    m = n_pairs(n)
+    E = np.asarray(grasp.basis, dtype=float)
+    N = np.asarray(grasp.normals, dtype=float)
+    try:
+        batch = np.broadcast_shapes(F.shape[:-2], N.shape[:-2], E.shape[:-3])
+    except ValueError:
+        raise ValueError("the grasp's arrays have incompatible batch shapes") from None
+    if E.shape[-3:] != (m, n, 3) or N.shape[-2:] != (n, 3):
+        raise ValueError(
+            f"grasp basis must be (..., {m}, {n}, 3) and normals (..., {n}, 3), "
+            f"got {E.shape} and {N.shape}"
         )
-        ks[idx] = np.clip(res.x[:m], -kk, kk)
-    angles = friction_angles(net_forces(F, E, ks), N)
-    max_angle = angles.max(axis=-1)
-    on_box = np.any(np.abs(ks) >= k_max[..., None] * (1 - 1e-9), axis=-1)
-    status = np.where(max_angle >= np.pi / 2, Status.NOT_PUSHING, np.where(on_box, 1, 0))
-    return MinimaxResult(ks, angles, max_angle, np.zeros(batch), status.astype(np.int8))
+    for name, array in (("equilibrating forces", F), ("basis", E), ("normals", N)):
+        if not np.all(np.isfinite(array)):
+            raise ValueError(f"grasp {name} contain NaN or inf")
+    k_lim = _positive_limit("k_max", k_max, batch)
+    f_lim = (
+        np.full(k_lim.shape, np.inf) if f_max is None else _positive_limit("f_max", f_max, batch)
+    )
+    size = k_lim.size
+    F = np.ascontiguousarray(np.broadcast_to(F, (*batch, n, 3))).reshape(size, n, 3)
+    E = np.ascontiguousarray(np.broadcast_to(E, (*batch, m, n, 3))).reshape(size, m, n, 3)
+    N = np.ascontiguousarray(np.broadcast_to(N, (*batch, n, 3))).reshape(size, n, 3)
+    k = np.empty((size, m))
+    angles = np.empty((size, n))
+    lower = np.empty(size)
+    status = np.empty(size, dtype=np.int8)
+    if size == 1:  # one grasp: skip the parallel launch
+        lower[0], status[0], _ = kernels.solve_one(
+            F[0], E[0], N[0], k_lim[0], f_lim[0], k[0], angles[0]
+        )
+    else:
+        path = np.empty(size, dtype=np.int8)
+        kernels.solve_batch(F, E, N, k_lim, f_lim, k, angles, lower, status, path)
+    angles = angles.reshape(*batch, n)
+    return MinimaxResult(
+        k=k.reshape(*batch, m),
+        angles=angles,
+        max_angle=angles.max(axis=-1),
+        lower_bound=lower.reshape(batch),
+        status=status.reshape(batch),
+    )

@@ -1,0 +1,1562 @@
+"""Numba kernels of the certified minimax solver; the method is described in ``minimax.py``.
+
+One problem: n <= 4 fingers, m = n (n - 1) / 2 <= 6 interaction scalars. Each finger is
+written in its own frame (inward normal n_i, tangential basis b_i, c_i): with the forces
+divided by ``scale`` (the largest equilibrating force),
+
+    a_i(k) = a0_i + al_i . k          normal component n_i . P_i
+    tau_i(k) = tau0_i + T_i k         tangential components (b_i . P_i, c_i . P_i)
+    theta_i = atan2(|tau_i|, a_i)     paper eq. 2
+
+and |P_i| = sqrt(a_i^2 + |tau_i|^2). Every routine works on these arrays.
+"""
+
+from __future__ import annotations
+
+from math import atan2, cos, inf, log, pi, sin, sqrt
+
+import numpy as np
+from numba import njit, prange
+
+#: Accepted certificate gap, radians (1e-6 deg is 1.7e-8 rad).
+GAP_TOL = 1e-9
+#: Offsets below the primal value at which the dual certificate is tried, radians.
+_DELTAS = (1e-11, 1e-10, 1e-9)
+INTERIOR, BOUNDARY, NOT_PUSHING = 0, 1, 2
+#: A released finger (zero force at the optimum) is held at this normal force (normalised),
+#: inside its cone, so that its friction angle is well defined.
+RELEASE = 1e-10
+
+_jit = njit(cache=True, nogil=True, error_model="numpy")
+
+
+@_jit
+def setup(F, E, N, a0, al, tau0, T):
+    """Fill the finger-frame arrays from world-frame F (n,3), E (m,n,3), N (n,3); return scale."""
+    n = F.shape[0]
+    m = E.shape[0]
+    scale = 0.0
+    for i in range(n):
+        s = sqrt(F[i, 0] ** 2 + F[i, 1] ** 2 + F[i, 2] ** 2)
+        if s > scale:
+            scale = s
+    if scale == 0.0:
+        scale = 1.0
+    for i in range(n):
+        nx, ny, nz = N[i, 0], N[i, 1], N[i, 2]
+        nn = sqrt(nx * nx + ny * ny + nz * nz)
+        nx, ny, nz = nx / nn, ny / nn, nz / nn
+        # b = n x (the axis least aligned with n), normalised; c = n x b
+        if abs(nx) <= abs(ny) and abs(nx) <= abs(nz):
+            bx, by, bz = 0.0, nz, -ny
+        elif abs(ny) <= abs(nz):
+            bx, by, bz = -nz, 0.0, nx
+        else:
+            bx, by, bz = ny, -nx, 0.0
+        bn = sqrt(bx * bx + by * by + bz * bz)
+        bx, by, bz = bx / bn, by / bn, bz / bn
+        cx, cy, cz = ny * bz - nz * by, nz * bx - nx * bz, nx * by - ny * bx
+        f0, f1, f2 = F[i, 0] / scale, F[i, 1] / scale, F[i, 2] / scale
+        a0[i] = nx * f0 + ny * f1 + nz * f2
+        tau0[i, 0] = bx * f0 + by * f1 + bz * f2
+        tau0[i, 1] = cx * f0 + cy * f1 + cz * f2
+        for j in range(m):
+            e0, e1, e2 = E[j, i, 0], E[j, i, 1], E[j, i, 2]
+            al[i, j] = nx * e0 + ny * e1 + nz * e2
+            T[i, 0, j] = bx * e0 + by * e1 + bz * e2
+            T[i, 1, j] = cx * e0 + cy * e1 + cz * e2
+    return scale
+
+
+@_jit
+def evaluate(k, a0, al, tau0, T, a, tau, rho, theta):
+    """Normal and tangential components, |tau| and theta at k; returns max theta."""
+    n, m = al.shape
+    worst = -1.0
+    for i in range(n):
+        s, t0, t1 = a0[i], tau0[i, 0], tau0[i, 1]
+        for j in range(m):
+            s += al[i, j] * k[j]
+            t0 += T[i, 0, j] * k[j]
+            t1 += T[i, 1, j] * k[j]
+        a[i] = s
+        tau[i, 0] = t0
+        tau[i, 1] = t1
+        rho[i] = sqrt(t0 * t0 + t1 * t1)
+        theta[i] = atan2(rho[i], s)
+        if theta[i] > worst:
+            worst = theta[i]
+    return worst
+
+
+@_jit
+def lu_solve(A, b, size):
+    """Solve A x = b in place (b <- x) by Gaussian elimination with partial pivoting.
+
+    Returns False for a (numerically) singular matrix.
+    """
+    big = 0.0
+    for r in range(size):
+        for c in range(size):
+            big = max(big, abs(A[r, c]))
+    if big == 0.0:
+        return False
+    for c in range(size):
+        p = c
+        for r in range(c + 1, size):
+            if abs(A[r, c]) > abs(A[p, c]):
+                p = r
+        if abs(A[p, c]) <= 1e-14 * big:
+            return False
+        if p != c:
+            for cc in range(size):
+                A[c, cc], A[p, cc] = A[p, cc], A[c, cc]
+            b[c], b[p] = b[p], b[c]
+        for r in range(c + 1, size):
+            f = A[r, c] / A[c, c]
+            if f != 0.0:
+                for cc in range(c + 1, size):
+                    A[r, cc] -= f * A[c, cc]
+                b[r] -= f * b[c]
+    for c in range(size - 1, -1, -1):
+        s = b[c]
+        for cc in range(c + 1, size):
+            s -= A[c, cc] * b[cc]
+        b[c] = s / A[c, c]
+    return True
+
+
+@_jit
+def cholesky_inverse(H, size, out):
+    """out <- H^-1 for symmetric H via Cholesky; False unless H is positive definite."""
+    L = np.zeros((size, size))
+    for j in range(size):
+        s = H[j, j]
+        for q in range(j):
+            s -= L[j, q] * L[j, q]
+        if s <= 1e-14 * max(1.0, abs(H[j, j])):
+            return False
+        L[j, j] = sqrt(s)
+        for r in range(j + 1, size):
+            s = H[r, j]
+            for q in range(j):
+                s -= L[r, q] * L[j, q]
+            L[r, j] = s / L[j, j]
+    # invert L (lower triangular), then out = L^-T L^-1
+    Li = np.zeros((size, size))
+    for j in range(size):
+        Li[j, j] = 1.0 / L[j, j]
+        for r in range(j + 1, size):
+            s = 0.0
+            for q in range(j, r):
+                s -= L[r, q] * Li[q, j]
+            Li[r, j] = s / L[r, r]
+    for r in range(size):
+        for c in range(size):
+            s = 0.0
+            for q in range(max(r, c), size):
+                s += Li[q, r] * Li[q, c]
+            out[r, c] = s
+    return True
+
+
+@_jit
+def quadprog(Ginv, c, C, b, nc, meq, dim, x, u):
+    """Goldfarb-Idnani dual active-set method: min 1/2 x'Gx + c'x subject to C x >= b.
+
+    The first ``meq`` rows are equalities C x = b (their rows may be negated in place).
+    ``Ginv`` is G^-1 (G positive definite). Fills x and the multipliers u (nc). The active
+    set is kept explicitly and the projections are recomputed from it at each step, which
+    at these sizes (dim <= 7) is as cheap as updating factorisations and simpler.
+    Returns False if the constraints are infeasible (or the iteration limit is hit).
+    """
+    for i in range(dim):
+        s = 0.0
+        for j in range(dim):
+            s -= Ginv[i, j] * c[j]
+        x[i] = s
+    for i in range(nc):
+        u[i] = 0.0
+    active = np.empty(dim, dtype=np.int64)
+    ua = np.empty(dim)
+    is_active = np.zeros(nc, dtype=np.bool_)
+    sign = np.ones(nc)
+    GN = np.empty((dim, dim))
+    M = np.empty((dim, dim))
+    r = np.empty(dim)
+    y = np.empty(dim)
+    z = np.empty(dim)
+    q = 0
+    cnorm = np.empty(nc)
+    for i in range(nc):
+        s = 0.0
+        for j in range(dim):
+            s += C[i, j] * C[i, j]
+        cnorm[i] = sqrt(s)
+    for _ in range(4 * (nc + dim)):
+        p = -1
+        worst = 0.0
+        for i in range(meq):
+            if not is_active[i]:
+                p = i
+                s = -b[i]
+                for j in range(dim):
+                    s += C[i, j] * x[j]
+                if s > 0.0:  # approach the equality from its violated side
+                    b[i] = -b[i]
+                    for j in range(dim):
+                        C[i, j] = -C[i, j]
+                    sign[i] = -1.0
+                break
+        for i in range(nc if p < 0 else 0):
+            if not is_active[i]:
+                s = -b[i]
+                for j in range(dim):
+                    s += C[i, j] * x[j]
+                s /= cnorm[i]
+                if s < worst - 1e-13 * (1.0 + abs(b[i]) / cnorm[i]):
+                    worst = s
+                    p = i
+        if p < 0:
+            for a_ in range(q):
+                u[active[a_]] = ua[a_] * sign[active[a_]]
+            return 0
+        up = 0.0
+        for _inner in range(2 * dim + 2):
+            for i in range(dim):
+                s = 0.0
+                for j in range(dim):
+                    s += Ginv[i, j] * C[p, j]
+                y[i] = s
+            for a_ in range(q):
+                row = active[a_]
+                for i in range(dim):
+                    s = 0.0
+                    for j in range(dim):
+                        s += Ginv[i, j] * C[row, j]
+                    GN[i, a_] = s
+            for a_ in range(q):
+                s = 0.0
+                for j in range(dim):
+                    s += C[active[a_], j] * y[j]
+                r[a_] = s
+                for b_ in range(q):
+                    s = 0.0
+                    for j in range(dim):
+                        s += C[active[a_], j] * GN[j, b_]
+                    M[a_, b_] = s
+            if q > 0 and not lu_solve(M, r, q):
+                return 1
+            zn = 0.0
+            zz = 0.0
+            for i in range(dim):
+                s = y[i]
+                for a_ in range(q):
+                    s -= GN[i, a_] * r[a_]
+                z[i] = s
+                zn += s * C[p, i]
+                zz += s * s
+            t1 = inf
+            kd = -1
+            for a_ in range(q):
+                if active[a_] >= meq and r[a_] > 1e-14:
+                    ratio = ua[a_] / r[a_]
+                    if ratio < t1:
+                        t1 = ratio
+                        kd = a_
+            sp = -b[p]
+            for j in range(dim):
+                sp += C[p, j] * x[j]
+            if q < dim and zn > 1e-12 * cnorm[p] * sqrt(zz) and zz > 0.0:
+                t2 = -sp / zn
+            else:
+                t2 = inf
+            t = min(t1, t2)
+            if t == inf:
+                return 2
+            for a_ in range(q):
+                ua[a_] -= t * r[a_]
+            up += t
+            if t2 < inf:
+                for i in range(dim):
+                    x[i] += t * z[i]
+            if t2 <= t1:
+                active[q] = p
+                ua[q] = up
+                is_active[p] = True
+                q += 1
+                break
+            # drop constraint kd (partial step) and continue with p
+            is_active[active[kd]] = False
+            for a_ in range(kd, q - 1):
+                active[a_] = active[a_ + 1]
+                ua[a_] = ua[a_ + 1]
+            q -= 1
+        else:
+            return 3
+    return 4
+
+
+@_jit
+def finger_derivatives(mode, t, i, w, a, tau, rho, al, T, grad, H):
+    """Value, gradient (into grad) and w x Hessian (added to H) of finger i's angle function.
+
+    mode 0: theta_i(k) (paper eq. 2).  mode 1: g_i(k) = cos t |tau_i| - sin t a_i, the cone
+    form at a fixed t (convex in k); theta_i <= t  <=>  g_i <= 0.
+    """
+    m = al.shape[1]
+    ai, ri = a[i], rho[i]
+    if ri > 0.0:
+        u0, u1 = tau[i, 0] / ri, tau[i, 1] / ri
+    else:
+        u0, u1 = 1.0, 0.0
+    if mode == 2:
+        # theta with only its convex, circumferential curvature (the cone form's Hessian)
+        r2 = ri * ri + ai * ai
+        for j in range(m):
+            grad[j] = (ai * (T[i, 0, j] * u0 + T[i, 1, j] * u1) - ri * al[i, j]) / r2
+        if w != 0.0:
+            c1 = w * abs(ai) / (r2 * max(ri, 1e-300))
+            for p in range(m):
+                gv_p = T[i, 1, p] * u0 - T[i, 0, p] * u1
+                for q in range(m):
+                    H[p, q] += c1 * gv_p * (T[i, 1, q] * u0 - T[i, 0, q] * u1)
+        return atan2(ri, ai)
+    if mode == 0:
+        r2 = ri * ri + ai * ai
+        for j in range(m):
+            grad[j] = (ai * (T[i, 0, j] * u0 + T[i, 1, j] * u1) - ri * al[i, j]) / r2
+        if w != 0.0:
+            c1 = w * ai / (r2 * max(ri, 1e-300))
+            c2 = w * (ri * ri - ai * ai) / (r2 * r2)
+            c3 = w * 2.0 * ai * ri / (r2 * r2)
+            for p in range(m):
+                gr_p = T[i, 0, p] * u0 + T[i, 1, p] * u1
+                gv_p = T[i, 1, p] * u0 - T[i, 0, p] * u1
+                for q in range(m):
+                    gr_q = T[i, 0, q] * u0 + T[i, 1, q] * u1
+                    gv_q = T[i, 1, q] * u0 - T[i, 0, q] * u1
+                    H[p, q] += (
+                        c1 * gv_p * gv_q
+                        + c2 * (gr_p * al[i, q] + al[i, p] * gr_q)
+                        + c3 * (al[i, p] * al[i, q] - gr_p * gr_q)
+                    )
+        return atan2(ri, ai)
+    ct, st = cos(t), sin(t)
+    for j in range(m):
+        grad[j] = ct * (T[i, 0, j] * u0 + T[i, 1, j] * u1) - st * al[i, j]
+    if w != 0.0:
+        c1 = w * ct / max(ri, 1e-300)
+        for p in range(m):
+            gv_p = T[i, 1, p] * u0 - T[i, 0, p] * u1
+            for q in range(m):
+                H[p, q] += c1 * gv_p * (T[i, 1, q] * u0 - T[i, 0, q] * u1)
+    return ct * ri - st * ai
+
+
+@_jit
+def force_derivatives(i, w, a, tau, al, T, grad, H):
+    """|P_i|, its gradient (into grad) and w x its Hessian (added to H)."""
+    m = al.shape[1]
+    P = sqrt(a[i] ** 2 + tau[i, 0] ** 2 + tau[i, 1] ** 2)
+    Ps = max(P, 1e-300)
+    v0, v1, v2 = a[i] / Ps, tau[i, 0] / Ps, tau[i, 1] / Ps
+    for j in range(m):
+        grad[j] = v0 * al[i, j] + v1 * T[i, 0, j] + v2 * T[i, 1, j]
+    if w != 0.0:
+        for p in range(m):
+            for q in range(m):
+                AtA = al[i, p] * al[i, q] + T[i, 0, p] * T[i, 0, q] + T[i, 1, p] * T[i, 1, q]
+                H[p, q] += w * (AtA - grad[p] * grad[q]) / Ps
+    return P
+
+
+@_jit
+def merit(k, a0, al, tau0, T, f, penalty, R, a, tau, rho, theta):
+    """max theta_i over the fingers not released, plus the penalised force-limit excess."""
+    evaluate(k, a0, al, tau0, T, a, tau, rho, theta)
+    worst = -inf
+    for i in range(al.shape[0]):
+        if not R[i]:
+            worst = max(worst, theta[i])
+        if f < inf:
+            excess = sqrt(a[i] ** 2 + rho[i] ** 2) - f
+            if excess > 0.0:
+                worst += penalty * excess
+    return worst
+
+
+@_jit
+def sqp(a0, al, tau0, T, K, f, R, release, k, lam, nu, max_iter, tol, hmode):
+    """SQP for min t s.t. theta_i(k) <= t, |k_j| <= K, |P_i| <= f, from k inside the box.
+
+    Released fingers (R) are held at P_i = release * n_i (k must satisfy this on entry).
+    Each step solves the QP  min z + z^2 / 2 + d'Hd / 2  subject to
+    theta_i + grad_i . d <= theta_max + z, the box, the linearised force limits and the
+    released fingers' A_i d = 0, with H the Lagrangian Hessian convexified, then backtracks
+    on the merit max_i theta_i. Updates k, lam (the theta multipliers, summing to 1) and nu;
+    returns the number of steps taken, or < 0 if a QP failed.
+    """
+    n, m = al.shape
+    has_f = f < inf
+    dim = m + 1
+    nr = 0
+    for i in range(n):
+        nr += R[i]
+    meq = 3 * nr
+    nc = meq + (n - nr) + 2 * m + (n if has_f else 0)
+    a = np.empty(n)
+    tau = np.empty((n, 2))
+    rho = np.empty(n)
+    theta = np.empty(n)
+    grads = np.zeros((n, m))
+    fgrads = np.empty((n, m))
+    P = np.empty(n)
+    H = np.empty((m, m))
+    Hs = np.empty((m, m))
+    Hinv = np.empty((m, m))
+    Ginv = np.zeros((dim, dim))
+    c = np.zeros(dim)
+    c[m] = 1.0
+    C = np.zeros((nc, dim))
+    b = np.empty(nc)
+    x = np.empty(dim)
+    u = np.empty(nc)
+    k_try = np.empty(m)
+    gmean = np.empty(m)
+    Ginv[m, m] = 1.0
+    penalty = 1.0
+    for it in range(max_iter):
+        tmax = merit(k, a0, al, tau0, T, inf, 0.0, R, a, tau, rho, theta)
+        H[:, :] = 0.0
+        for i in range(n):
+            if not R[i]:
+                finger_derivatives(hmode, 0.0, i, lam[i], a, tau, rho, al, T, grads[i], H)
+            if has_f:
+                P[i] = force_derivatives(i, nu[i], a, tau, al, T, fgrads[i], H)
+        big = 1e-8
+        for j in range(m):
+            big = max(big, abs(H[j, j]))
+        # The Lagrangian Hessian is positive definite only on the tangent space of the active
+        # angles; lam_i (g_i - g_mean)(g_i - g_mean)' is constant on the QP's manifold of
+        # equal linearised angles, so adding it convexifies without moving the QP solution.
+        for j in range(m):
+            gmean[j] = 0.0
+            for i in range(n):
+                gmean[j] += lam[i] * grads[i, j]
+        shift = 1e-9 * big
+        ok = False
+        for attempt in range(16):
+            aug = 0.0 if attempt == 0 else big * 10.0 ** (attempt - 1)
+            if attempt > 4:
+                aug = big * 1e3
+                shift *= 10.0
+            for p in range(m):
+                for q in range(m):
+                    s = H[p, q]
+                    for i in range(n):
+                        s += aug * lam[i] * (grads[i, p] - gmean[p]) * (grads[i, q] - gmean[q])
+                    Hs[p, q] = s
+                Hs[p, p] += shift
+            if cholesky_inverse(Hs, m, Hinv):
+                ok = True
+                break
+        if not ok:
+            return -1
+        for p in range(m):
+            for q in range(m):
+                Ginv[p, q] = Hinv[p, q]
+        row = 0
+        for i in range(n):
+            if R[i]:
+                for cc in range(3):
+                    for j in range(m):
+                        C[row, j] = al[i, j] if cc == 0 else T[i, cc - 1, j]
+                    C[row, m] = 0.0
+                    b[row] = release - a[i] if cc == 0 else -tau[i, cc - 1]
+                    row += 1
+        for i in range(n):
+            if not R[i]:
+                for j in range(m):
+                    C[row, j] = -grads[i, j]
+                C[row, m] = 1.0
+                b[row] = theta[i] - tmax
+                row += 1
+        for j in range(m):
+            C[row, :] = 0.0
+            C[row, j] = -1.0
+            b[row] = k[j] - K
+            row += 1
+            C[row, :] = 0.0
+            C[row, j] = 1.0
+            b[row] = -K - k[j]
+            row += 1
+        if has_f:
+            for i in range(n):
+                for j in range(m):
+                    C[row, j] = -fgrads[i, j]
+                C[row, m] = 0.0
+                b[row] = P[i] - f
+                row += 1
+        code = quadprog(Ginv, c, C, b, nc, meq, dim, x, u)
+        if code != 0:
+            return -10 - code
+        total = 0.0
+        row = meq
+        for i in range(n):
+            if not R[i]:
+                total += u[row]
+                row += 1
+        if total <= 0.0:
+            return -3
+        row = meq
+        for i in range(n):
+            lam[i] = 0.0
+            if not R[i]:
+                lam[i] = u[row] / total
+                row += 1
+            if has_f:
+                nu[i] = u[meq + (n - nr) + 2 * m + i] / total
+        # predicted change of the merit
+        model = -inf
+        for i in range(n):
+            if not R[i]:
+                s = theta[i]
+                for j in range(m):
+                    s += grads[i, j] * x[j]
+                model = max(model, s)
+        now = tmax
+        if has_f:
+            for i in range(n):
+                penalty = max(penalty, 2.0 * nu[i])
+            for i in range(n):
+                if P[i] > f:
+                    now += penalty * (P[i] - f)
+        pred = model - now
+        if pred > -tol:
+            return it
+        alpha = 1.0
+        accepted = False
+        for _ in range(40):
+            for j in range(m):
+                k_try[j] = min(K, max(-K, k[j] + alpha * x[j]))
+            value = merit(k_try, a0, al, tau0, T, f, penalty, R, a, tau, rho, theta)
+            if value <= now + 1e-4 * alpha * pred:
+                accepted = True
+                break
+            alpha *= 0.5
+        if not accepted:
+            return it
+        for j in range(m):
+            k[j] = k_try[j]
+    return max_iter
+
+
+@_jit
+def polish(a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu, release, max_iter):
+    """Newton's method on the KKT system of the minimax for fixed active sets; returns t.
+
+    S: fingers with theta_i = t (multipliers lam, summing to 1); R: released fingers,
+    P_i = release * n_i (the cone's apex, nudged inside; multipliers eta, 3 each, finger
+    frame); Q: fingers at |P_i| = f (nu); fixed: -1/0/+1 per k_j for k_j = -K / free / +K.
+    Returns -1 when the Newton matrix is singular or the iteration does not settle.
+    """
+    n, m = al.shape
+    a = np.empty(n)
+    tau = np.empty((n, 2))
+    rho = np.empty(n)
+    theta = np.empty(n)
+    grads = np.empty((n, m))
+    fgrads = np.empty((n, m))
+    P = np.empty(n)
+    H = np.empty((m, m))
+    A = np.empty((24, 24))
+    rhs = np.empty(24)
+    free = np.empty(m, dtype=np.int64)
+    for j in range(m):
+        if fixed[j] != 0:
+            k[j] = fixed[j] * K
+    nf = 0
+    for j in range(m):
+        if fixed[j] == 0:
+            free[nf] = j
+            nf += 1
+    ns = 0
+    nr = 0
+    nq = 0
+    for i in range(n):
+        ns += S[i]
+        nr += R[i]
+        nq += Q[i]
+    size = nf + ns + 3 * nr + nq + 1
+    evaluate(k, a0, al, tau0, T, a, tau, rho, theta)
+    t = -inf
+    for i in range(n):
+        if S[i]:
+            t = max(t, theta[i])
+    for it in range(max_iter):
+        evaluate(k, a0, al, tau0, T, a, tau, rho, theta)
+        H[:, :] = 0.0
+        for i in range(n):
+            if S[i]:
+                finger_derivatives(0, 0.0, i, lam[i], a, tau, rho, al, T, grads[i], H)
+            if Q[i]:
+                P[i] = force_derivatives(i, nu[i], a, tau, al, T, fgrads[i], H)
+        big = 1e-12
+        for j in range(m):
+            big = max(big, abs(H[j, j]))
+        if it > 0:
+            # converged: the KKT residual is at rounding level (steps may not be, along
+            # directions in which the optimum is not unique)
+            resid = 0.0
+            for i in range(n):
+                if S[i]:
+                    resid = max(resid, abs(theta[i] - t))
+                if R[i]:
+                    resid = max(resid, abs(a[i] - release), abs(tau[i, 0]), abs(tau[i, 1]))
+                if Q[i]:
+                    resid = max(resid, abs(P[i] - f))
+            for p in range(nf):
+                j = free[p]
+                g = 0.0
+                for i in range(n):
+                    if S[i]:
+                        g += lam[i] * grads[i, j]
+                    if R[i]:
+                        g += eta[i, 0] * al[i, j] + eta[i, 1] * T[i, 0, j] + eta[i, 2] * T[i, 1, j]
+                    if Q[i]:
+                        g += nu[i] * fgrads[i, j]
+                resid = max(resid, abs(g))
+            if resid <= 1e-14:
+                return t
+        A[:size, :size] = 0.0
+        for p in range(nf):
+            for q in range(nf):
+                A[p, q] = H[free[p], free[q]]
+            A[p, p] += 1e-9 * big  # flat directions (non-unique optima) stay solvable
+            rhs[p] = 0.0
+        # Each multiplier row gets -reg (new - old multiplier): the fixed point is unchanged,
+        # and multipliers the active constraints leave undetermined (more of them than free
+        # directions, e.g. every k_j on the box) stay at their previous values.
+        reg = 1e-12
+        row = nf
+        for i in range(n):
+            if S[i]:
+                for p in range(nf):
+                    A[p, row] = grads[i, free[p]]
+                    A[row, p] = grads[i, free[p]]
+                A[row, size - 1] = -1.0
+                A[size - 1, row] = 1.0
+                A[row, row] = -reg
+                rhs[row] = t - theta[i] - reg * lam[i]
+                row += 1
+        for i in range(n):
+            if R[i]:
+                for c in range(3):
+                    for p in range(nf):
+                        j = free[p]
+                        v = al[i, j] if c == 0 else T[i, c - 1, j]
+                        A[p, row] = v
+                        A[row, p] = v
+                    A[row, row] = -reg
+                    if c == 0:
+                        rhs[row] = release - a[i] - reg * eta[i, c]
+                    else:
+                        rhs[row] = -tau[i, c - 1] - reg * eta[i, c]
+                    row += 1
+        for i in range(n):
+            if Q[i]:
+                for p in range(nf):
+                    A[p, row] = fgrads[i, free[p]]
+                    A[row, p] = fgrads[i, free[p]]
+                A[row, row] = -reg
+                rhs[row] = f - P[i] - reg * nu[i]
+                row += 1
+        rhs[size - 1] = 1.0
+        if not lu_solve(A, rhs, size):
+            return -1.0
+        step = 0.0
+        for p in range(nf):
+            k[free[p]] += rhs[p]
+            step = max(step, abs(rhs[p]))
+        t += rhs[size - 1]
+        row = nf
+        for i in range(n):
+            lam[i] = 0.0
+            if S[i]:
+                lam[i] = rhs[row]
+                row += 1
+        for i in range(n):
+            if R[i]:
+                for c in range(3):
+                    eta[i, c] = rhs[row]
+                    row += 1
+        for i in range(n):
+            nu[i] = 0.0
+            if Q[i]:
+                nu[i] = rhs[row]
+                row += 1
+        if step <= 1e-15 * (1.0 + K) and it > 0:
+            return t
+    return -1.0
+
+
+@_jit
+def dual_vectors(al, T, S, R, Q, ct, st, lg, phi, z, nuc, vf, w):
+    """Smooth fingers' dual vectors at the angle (ct, st) into z; w = sum A_i' (z_i + nu_i v_i)."""
+    n, m = al.shape
+    for i in range(n):
+        if S[i]:
+            z[i, 0] = -lg[i] * st
+            z[i, 1] = lg[i] * ct * cos(phi[i])
+            z[i, 2] = lg[i] * ct * sin(phi[i])
+    for j in range(m):
+        s = 0.0
+        for i in range(n):
+            if S[i] or R[i]:
+                s += z[i, 0] * al[i, j] + z[i, 1] * T[i, 0, j] + z[i, 2] * T[i, 1, j]
+            if Q[i]:
+                s += nuc[i] * (vf[i, 0] * al[i, j] + vf[i, 1] * T[i, 0, j] + vf[i, 2] * T[i, 1, j])
+        w[j] = s
+
+
+@_jit
+def certify(a0, al, tau0, T, K, f, k, t_low, S, R, Q, fixed, lam, eta, nu):
+    """Evaluate the weak-duality certificate L(t_low) from the KKT multipliers at k.
+
+    For any z_i in the polar cone of {P : theta(P) <= t} (z = l (cos t y b - sin t n),
+    l >= 0, |y| <= 1) and nu_i >= 0, |v_i| = 1: every k in the box with all theta_i <= t
+    and |P_i| <= f satisfies sum z_i.P_i(k) + sum nu_i (v_i.P_i(k) - f) <= 0, so
+        L(t) = sum z_i.F_i + sum nu_i (v_i.F_i - f) - K ||sum A_i' z_i + nu_i A_i' v_i||_1 > 0
+    proves that no such k exists, i.e. the optimum is > t (>= t for L = 0).
+    The KKT multipliers at the optimum t* give L(t*) = 0 only up to rounding, so the dual
+    point is moved to t_low < t*: the cone directions rotate to t_low and a minimum-norm
+    correction of (l_i, angle of y_i, eta_i, nu_i) zeroes the free components of the L1
+    term again; what remains is about (t* - t_low) sum l_i |P_i| > 0.
+    Returns (L, box_share) where box_share is the box term's share of the certificate.
+    """
+    n, m = al.shape
+    a = np.empty(n)
+    tau = np.empty((n, 2))
+    rho = np.empty(n)
+    theta = np.empty(n)
+    evaluate(k, a0, al, tau0, T, a, tau, rho, theta)
+    ct, st = cos(t_low), sin(t_low)
+    z = np.zeros((n, 3))  # dual vectors in the finger frames (normal, b, c)
+    lg = np.zeros(n)
+    phi = np.zeros(n)
+    vf = np.zeros((n, 3))
+    nuc = np.zeros(n)
+    for i in range(n):
+        Pn = sqrt(a[i] ** 2 + rho[i] ** 2)
+        if S[i]:
+            lg[i] = max(0.0, lam[i]) / Pn
+            phi[i] = atan2(tau[i, 1], tau[i, 0])
+        if Q[i]:
+            vf[i, 0] = a[i] / Pn
+            vf[i, 1] = tau[i, 0] / Pn
+            vf[i, 2] = tau[i, 1] / Pn
+            nuc[i] = max(0.0, nu[i])
+        if R[i]:
+            for c in range(3):
+                z[i, c] = eta[i, c]
+    w = np.zeros(m)
+    dual_vectors(al, T, S, R, Q, ct, st, lg, phi, z, nuc, vf, w)
+    free = np.empty(m, dtype=np.int64)
+    nf = 0
+    for j in range(m):
+        if fixed[j] == 0:
+            free[nf] = j
+            nf += 1
+    ncols = 0
+    for i in range(n):
+        ncols += 2 * S[i] + 3 * R[i] + Q[i]
+    if nf > 0 and ncols > 0:
+        # minimum-norm correction J dc = -w_free
+        J = np.zeros((m, 16))
+        col = 0
+        for i in range(n):
+            if S[i]:
+                cp, sp = cos(phi[i]), sin(phi[i])
+                for p in range(nf):
+                    j = free[p]
+                    J[p, col] = -st * al[i, j] + ct * (cp * T[i, 0, j] + sp * T[i, 1, j])
+                    J[p, col + 1] = lg[i] * ct * (cp * T[i, 1, j] - sp * T[i, 0, j])
+                col += 2
+            if R[i]:
+                for c in range(3):
+                    for p in range(nf):
+                        j = free[p]
+                        J[p, col] = al[i, j] if c == 0 else T[i, c - 1, j]
+                    col += 1
+            if Q[i]:
+                for p in range(nf):
+                    j = free[p]
+                    J[p, col] = vf[i, 0] * al[i, j] + vf[i, 1] * T[i, 0, j] + vf[i, 2] * T[i, 1, j]
+                col += 1
+        G = np.empty((nf, nf))
+        y = np.empty(nf)
+        big = 0.0
+        for p in range(nf):
+            for q in range(nf):
+                s = 0.0
+                for c in range(ncols):
+                    s += J[p, c] * J[q, c]
+                G[p, q] = s
+            big = max(big, G[p, p])
+            y[p] = -w[free[p]]
+        for p in range(nf):
+            G[p, p] += 1e-12 * big
+        if lu_solve(G, y, nf):
+            col = 0
+            for i in range(n):
+                if S[i]:
+                    d_l = 0.0
+                    d_p = 0.0
+                    for p in range(nf):
+                        d_l += J[p, col] * y[p]
+                        d_p += J[p, col + 1] * y[p]
+                    lg[i] = max(0.0, lg[i] + d_l)
+                    phi[i] += d_p
+                    col += 2
+                if R[i]:
+                    for c in range(3):
+                        for p in range(nf):
+                            z[i, c] += J[p, col] * y[p]
+                        col += 1
+                if Q[i]:
+                    for p in range(nf):
+                        nuc[i] += J[p, col] * y[p]
+                    nuc[i] = max(0.0, nuc[i])
+                    col += 1
+    # released fingers' duals must lie in the polar cone |z_b,c| <= cot(t) (-z_n)
+    kappa = ct / max(st, 1e-300)
+    for i in range(n):
+        if R[i]:
+            x0 = -z[i, 0]
+            r = sqrt(z[i, 1] ** 2 + z[i, 2] ** 2)
+            if r > kappa * x0:
+                if kappa * r <= -x0:
+                    z[i, 0] = 0.0
+                    z[i, 1] = 0.0
+                    z[i, 2] = 0.0
+                else:  # nearest point of the boundary ray (1, kappa) in (-z_n, |z_bc|)
+                    s = (x0 + kappa * r) / (1.0 + kappa * kappa)
+                    z[i, 0] = -s
+                    z[i, 1] *= kappa * s / r
+                    z[i, 2] *= kappa * s / r
+    dual_vectors(al, T, S, R, Q, ct, st, lg, phi, z, nuc, vf, w)
+    value = 0.0
+    size = 0.0  # the terms' magnitudes, for the box share
+    for i in range(n):
+        if S[i] or R[i]:
+            term = z[i, 0] * a0[i] + z[i, 1] * tau0[i, 0] + z[i, 2] * tau0[i, 1]
+            value += term
+            size += abs(term)
+        if Q[i]:
+            term = nuc[i] * (vf[i, 0] * a0[i] + vf[i, 1] * tau0[i, 0] + vf[i, 2] * tau0[i, 1] - f)
+            value += term
+            size += abs(term)
+    box = 0.0
+    for j in range(m):
+        box += K * abs(w[j])
+    return value - box, box / max(size + box, 1e-300)
+
+
+@_jit
+def apex_start(a0, al, tau0, T, k):
+    """k minimising sum_i |tau_i(k)|^2 (normal equations); False if they are singular."""
+    n, m = al.shape
+    M = np.zeros((m, m))
+    r = np.zeros(m)
+    for i in range(n):
+        for c in range(2):
+            for p in range(m):
+                r[p] -= T[i, c, p] * tau0[i, c]
+                for q in range(m):
+                    M[p, q] += T[i, c, p] * T[i, c, q]
+    ok = lu_solve(M, r, m)
+    for j in range(m):
+        k[j] = r[j] if ok else 0.0
+    return ok
+
+
+@_jit
+def release_start(a0, al, tau0, T, K, i, release, k_from, k):
+    """k = k_from moved (minimum norm) so that P_i = release * n_i; False if it leaves the box."""
+    m = al.shape[1]
+    M = np.empty((3, 3))
+    y = np.empty(3)
+    for r in range(3):
+        s = a0[i] if r == 0 else tau0[i, r - 1]
+        for j in range(m):
+            s += (al[i, j] if r == 0 else T[i, r - 1, j]) * k_from[j]
+        y[r] = (release if r == 0 else 0.0) - s
+        for c in range(3):
+            s = 0.0
+            for j in range(m):
+                s += (al[i, j] if r == 0 else T[i, r - 1, j]) * (
+                    al[i, j] if c == 0 else T[i, c - 1, j]
+                )
+            M[r, c] = s
+    if not lu_solve(M, y, 3):
+        return False
+    for j in range(m):
+        k[j] = k_from[j] + y[0] * al[i, j] + y[1] * T[i, 0, j] + y[2] * T[i, 1, j]
+        if abs(k[j]) > K:
+            return False
+    return True
+
+
+@_jit
+def finish(a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu):
+    """Polish the KKT point for the given sets, repairing them, then certify it.
+
+    Returns (t_up, lower, box_share); lower < 0 when no certificate was found.
+    """
+    n, m = al.shape
+    a = np.empty(n)
+    tau = np.empty((n, 2))
+    rho = np.empty(n)
+    theta = np.empty(n)
+    grads = np.empty((n, m))
+    fg = np.empty(m)
+    Hd = np.zeros((m, m))
+    k_in = k.copy()
+    for _ in range(6):
+        t = polish(a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu, RELEASE, 12)
+        if t < 0.0:
+            for j in range(m):
+                k[j] = k_in[j]
+            return -1.0, -1.0, 0.0
+        evaluate(k, a0, al, tau0, T, a, tau, rho, theta)
+        changed = False
+        # a free k_j beyond the box: fix it at the bound
+        for j in range(m):
+            if fixed[j] == 0 and abs(k[j]) > K:
+                fixed[j] = 1 if k[j] > 0 else -1
+                changed = True
+        # a finger below t that the sets hold equal (negative multiplier): drop it
+        worst = -1
+        value = -1e-12
+        for i in range(n):
+            if S[i] and lam[i] < value:
+                value = lam[i]
+                worst = i
+        if worst >= 0:
+            S[worst] = False
+            changed = True
+        for i in range(n):
+            if Q[i] and nu[i] < -1e-12:
+                Q[i] = False
+                changed = True
+        # a fixed k_j whose multiplier pulls inwards: free it
+        if not changed:
+            g = np.zeros(m)
+            for i in range(n):
+                if S[i]:
+                    finger_derivatives(0, 0.0, i, 0.0, a, tau, rho, al, T, grads[i], Hd)
+                    for j in range(m):
+                        g[j] += lam[i] * grads[i, j]
+                if R[i]:
+                    for j in range(m):
+                        g[j] += (
+                            eta[i, 0] * al[i, j] + eta[i, 1] * T[i, 0, j] + eta[i, 2] * T[i, 1, j]
+                        )
+                if Q[i]:
+                    force_derivatives(i, 0.0, a, tau, al, T, fg, Hd)
+                    for j in range(m):
+                        g[j] += nu[i] * fg[j]
+            worst = -1
+            value = -1e-12
+            for j in range(m):
+                if fixed[j] != 0:
+                    mu = -fixed[j] * g[j]
+                    if mu < value:
+                        value = mu
+                        worst = j
+            if worst >= 0:
+                fixed[worst] = 0
+                changed = True
+        # a finger outside the sets above t: add it
+        for i in range(n):
+            if not S[i] and not R[i] and theta[i] > t + 1e-12:
+                S[i] = True
+                changed = True
+            if f < inf and not Q[i] and sqrt(a[i] ** 2 + rho[i] ** 2) > f * (1.0 + 1e-12):
+                Q[i] = True
+                changed = True
+        if not changed:
+            break
+    else:
+        return -1.0, -1.0, 0.0
+    t_up = -1.0
+    for i in range(n):
+        if not R[i]:
+            t_up = max(t_up, theta[i])
+    for i in range(n):
+        if R[i]:
+            t_up = max(t_up, theta[i])
+    if t_up >= pi / 2:
+        # beyond 90 deg the cones are not convex and this certificate does not hold
+        return t_up, -1.0, 0.0
+    for delta in (1e-11, 1e-10, 1e-9):
+        t_low = t_up - delta
+        if t_low <= 0.0:
+            return t_up, 0.0, 0.0
+        L, share = certify(a0, al, tau0, T, K, f, k, t_low, S, R, Q, fixed, lam, eta, nu)
+        if L >= 0.0:
+            return t_up, t_low, share
+    return t_up, -1.0, 0.0
+
+
+@_jit
+def dual_value(a0, al, tau0, T, K, f, t, z, nuv, nus):
+    """The certificate L(t) of :func:`certify` for explicit dual vectors (finger frames).
+
+    z_i is first projected onto the polar cone of {theta <= t} and nuv_i onto the ball
+    |nuv_i| <= nus_i, so the value is a valid bound whatever the input.
+    """
+    n, m = al.shape
+    ct, st = cos(t), sin(t)
+    zz = np.empty((n, 3))
+    vv = np.empty((n, 3))
+    for i in range(n):
+        # polar cone of {|tau| <= tan(t) a}: |z_bc| <= cot(t) (-z_n), in coordinates
+        # (x0, r) = (-z_n, |z_bc|) the cone r <= kappa x0 with kappa = cot t
+        x0 = -z[i, 0]
+        r = sqrt(z[i, 1] ** 2 + z[i, 2] ** 2)
+        zz[i, 0], zz[i, 1], zz[i, 2] = z[i, 0], z[i, 1], z[i, 2]
+        if r * st > ct * x0:
+            if ct * r <= -st * x0:
+                zz[i, 0] = zz[i, 1] = zz[i, 2] = 0.0
+            else:
+                # nearest point of the boundary ray (st, ct) of the (x0, r) plane
+                s = x0 * st + r * ct
+                zz[i, 0] = -s * st
+                zz[i, 1] = z[i, 1] * (s * ct / r)
+                zz[i, 2] = z[i, 2] * (s * ct / r)
+        r = sqrt(nuv[i, 0] ** 2 + nuv[i, 1] ** 2 + nuv[i, 2] ** 2)
+        shrink = 1.0 if r <= nus[i] else nus[i] / r
+        for c in range(3):
+            vv[i, c] = nuv[i, c] * shrink
+    value = 0.0
+    size = 0.0
+    for i in range(n):
+        term = zz[i, 0] * a0[i] + zz[i, 1] * tau0[i, 0] + zz[i, 2] * tau0[i, 1]
+        if f < inf:
+            term += vv[i, 0] * a0[i] + vv[i, 1] * tau0[i, 0] + vv[i, 2] * tau0[i, 1]
+            term -= nus[i] * f
+        value += term
+        size += abs(term)
+    box = 0.0
+    for j in range(m):
+        w = 0.0
+        for i in range(n):
+            w += zz[i, 0] * al[i, j] + zz[i, 1] * T[i, 0, j] + zz[i, 2] * T[i, 1, j]
+            if f < inf:
+                w += vv[i, 0] * al[i, j] + vv[i, 1] * T[i, 0, j] + vv[i, 2] * T[i, 1, j]
+        box += K * abs(w)
+    return value - box, box / max(size + box, 1e-300)
+
+
+@_jit
+def barrier_terms(x, a0, al, tau0, T, K, f, ct, st, wts, cones, g, H, tb, derivatives):
+    """Value, gradient g and Hessian H of  tb * s + barrier  at x = (k, s); inf if outside.
+
+    Without ``derivatives`` only the value is computed (line searches).
+    cones: 1 = the finger cones ct |tau_i| <= st a_i + wts_i s with the forces hard,
+    0 = phase I, the force balls |P_i| <= f + s only.
+    """
+    n, m = al.shape
+    dim = m + 1
+    s = x[m]
+    val = tb * s
+    if derivatives:
+        for p in range(dim):
+            g[p] = 0.0
+            for q in range(dim):
+                H[p, q] = 0.0
+        g[m] = tb
+    for j in range(m):
+        up, lo = K - x[j], K + x[j]
+        if up <= 0.0 or lo <= 0.0:
+            return inf
+        val -= log(up) + log(lo)
+        if not derivatives:
+            continue
+        g[j] += 1.0 / up - 1.0 / lo
+        H[j, j] += 1.0 / (up * up) + 1.0 / (lo * lo)
+    dsig = np.empty(dim)
+    jv = np.empty((3, dim))
+    v = np.empty(3)
+    for i in range(n):
+        a = a0[i]
+        t0 = tau0[i, 0]
+        t1 = tau0[i, 1]
+        for j in range(m):
+            a += al[i, j] * x[j]
+            t0 += T[i, 0, j] * x[j]
+            t1 += T[i, 1, j] * x[j]
+        for kind in range(2):
+            # kind 0: finger cone (when cones == 1); kind 1: force ball (if a limit is set)
+            if kind == 0 and cones == 1:
+                sig = st * a + wts[i] * s
+                nv = 2
+                v[0], v[1] = ct * t0, ct * t1
+                for j in range(m):
+                    dsig[j] = st * al[i, j]
+                    jv[0, j] = ct * T[i, 0, j]
+                    jv[1, j] = ct * T[i, 1, j]
+                dsig[m] = wts[i]
+                jv[0, m] = 0.0
+                jv[1, m] = 0.0
+            elif kind == 1 and f < inf:
+                sig = f + (s if cones == 0 else 0.0)
+                nv = 3
+                v[0], v[1], v[2] = a, t0, t1
+                for j in range(m):
+                    dsig[j] = 0.0
+                    jv[0, j] = al[i, j]
+                    jv[1, j] = T[i, 0, j]
+                    jv[2, j] = T[i, 1, j]
+                dsig[m] = 1.0 if cones == 0 else 0.0
+                jv[0, m] = 0.0
+                jv[1, m] = 0.0
+                jv[2, m] = 0.0
+            else:
+                continue
+            vv = 0.0
+            for c in range(nv):
+                vv += v[c] * v[c]
+            D = sig * sig - vv
+            if sig <= 0.0 or D <= 0.0:
+                return inf
+            val -= log(D)
+            if not derivatives:
+                continue
+            # grad(-log D) = -(2 sig dsig - 2 Jv' v) / D
+            for p in range(dim):
+                jtv = 0.0
+                for c in range(nv):
+                    jtv += jv[c, p] * v[c]
+                gd = 2.0 * (sig * dsig[p] - jtv)
+                g[p] -= gd / D
+                for q in range(p + 1):
+                    jtv_q = 0.0
+                    jj = 0.0
+                    for c in range(nv):
+                        jtv_q += jv[c, q] * v[c]
+                        jj += jv[c, p] * jv[c, q]
+                    gq = 2.0 * (sig * dsig[q] - jtv_q)
+                    h = 2.0 * (jj - dsig[p] * dsig[q]) / D + gd * gq / (D * D)
+                    H[p, q] += h
+                    if q != p:
+                        H[q, p] += h
+    return val
+
+
+@_jit
+def barrier_solve(a0, al, tau0, T, K, f, t, wts, cones, x, gap, stop_below):
+    """Path-following log-barrier method for  min s  over the cone problem at a fixed t.
+
+    x = (k, s) must be strictly feasible on entry; on exit it is the final iterate and the
+    returned tb is the last barrier weight (duality gap about nu / tb). Stops early once
+    s < stop_below (phase I: a strictly feasible point is all that is needed).
+    """
+    n, m = al.shape
+    dim = m + 1
+    ct, st = cos(t), sin(t)
+    g = np.empty(dim)
+    H = np.empty((dim, dim))
+    Hinv = np.empty((dim, dim))
+    dx = np.empty(dim)
+    xt = np.empty(dim)
+    nu_b = 2.0 * m + 2.0 * n * (1 + (f < inf))
+    tb = 1.0
+    for _ in range(60):
+        for _ in range(50):
+            val = barrier_terms(x, a0, al, tau0, T, K, f, ct, st, wts, cones, g, H, tb, True)
+            if not cholesky_inverse(H, dim, Hinv):
+                for p in range(dim):
+                    H[p, p] += 1e-12 * (1.0 + abs(H[p, p]))
+                if not cholesky_inverse(H, dim, Hinv):
+                    return tb
+            dec = 0.0
+            for p in range(dim):
+                s = 0.0
+                for q in range(dim):
+                    s -= Hinv[p, q] * g[q]
+                dx[p] = s
+                dec -= s * g[p]
+            if dec < 1e-10 or (dec < 1e-2 and nu_b / tb > gap):
+                break
+            alpha = 1.0
+            for _ in range(60):
+                for p in range(dim):
+                    xt[p] = x[p] + alpha * dx[p]
+                vt = barrier_terms(xt, a0, al, tau0, T, K, f, ct, st, wts, cones, g, H, tb, False)
+                if vt <= val - 0.25 * alpha * dec:
+                    break
+                alpha *= 0.5
+            else:
+                break
+            for p in range(dim):
+                x[p] = xt[p]
+            if x[m] < stop_below:
+                return tb
+        if nu_b / tb < gap:
+            return tb
+        tb *= 10.0
+    return tb
+
+
+@_jit
+def barrier_duals(x, a0, al, tau0, T, K, f, t, wts, tb, z, nuv, nus):
+    """Dual vectors of the centred barrier point x (phase II) for :func:`dual_value`.
+
+    The barrier -log(sig^2 - |v|^2) of a cone |v| <= sig has the dual pair
+    (2 sig, -2 v) / (tb (sig^2 - |v|^2)); in the finger frame that is
+    z_i = (-l st, -ct l_v) for the finger cones and (nus, -l_v) for the force balls.
+    """
+    n, m = al.shape
+    ct, st = cos(t), sin(t)
+    s = x[m]
+    for i in range(n):
+        a = a0[i]
+        t0 = tau0[i, 0]
+        t1 = tau0[i, 1]
+        for j in range(m):
+            a += al[i, j] * x[j]
+            t0 += T[i, 0, j] * x[j]
+            t1 += T[i, 1, j] * x[j]
+        sig = st * a + wts[i] * s
+        v0, v1 = ct * t0, ct * t1
+        D = sig * sig - v0 * v0 - v1 * v1
+        lsig = 2.0 * sig / (tb * D)
+        z[i, 0] = -lsig * st
+        z[i, 1] = ct * 2.0 * v0 / (tb * D)
+        z[i, 2] = ct * 2.0 * v1 / (tb * D)
+        nus[i] = 0.0
+        nuv[i, 0] = nuv[i, 1] = nuv[i, 2] = 0.0
+        if f < inf:
+            D = f * f - a * a - t0 * t0 - t1 * t1
+            nus[i] = 2.0 * f / (tb * D)
+            nuv[i, 0] = 2.0 * a / (tb * D)
+            nuv[i, 1] = 2.0 * t0 / (tb * D)
+            nuv[i, 2] = 2.0 * t1 / (tb * D)
+
+
+@_jit
+def fallback(a0, al, tau0, T, K, f, k, gap):
+    """Robust certified minimax: Dinkelbach iterations on t over the convex cone problem.
+
+    At a fixed t < 90 deg, v(t) = min over (k, s) of s subject to ct |tau_i| <= st a_i + w_i s
+    (box, force limits) is negative exactly when some k has every theta_i < t; each v(t) is
+    solved by the barrier method. From above, t <- max_i theta_i(k_t) with the weights
+    w_i = |P_i(k)| of the previous point (Crouzeix-Ferland-Schaible) converges
+    superlinearly; the barrier dual at t slightly below the result certifies it.
+    k (in/out) starts inside the box. Returns (t_up, lower, status, box_share).
+    """
+    n, m = al.shape
+    dim = m + 1
+    x = np.empty(dim)
+    wts = np.ones(n)
+    z = np.empty((n, 3))
+    nuv = np.empty((n, 3))
+    nus = np.empty(n)
+    a = np.empty(n)
+    tau = np.empty((n, 2))
+    rho = np.empty(n)
+    theta = np.empty(n)
+    inner = 1.0 - 1e-9
+    for j in range(m):
+        k[j] = min(K * inner, max(-K * inner, k[j]))
+    evaluate(k, a0, al, tau0, T, a, tau, rho, theta)
+    if f < inf:
+        excess = -inf
+        for i in range(n):
+            excess = max(excess, sqrt(a[i] ** 2 + rho[i] ** 2) - f)
+        if excess > -1e-9 * f:
+            # phase I: a point strictly inside the force limits
+            for j in range(m):
+                x[j] = k[j]
+            x[m] = excess + 1.0
+            tb = barrier_solve(a0, al, tau0, T, K, f, 0.0, wts, 0, x, 1e-14, -1e-6 * f)
+            for j in range(m):
+                k[j] = x[j]
+            if x[m] >= -1e-6 * f:
+                barrier_duals(x, a0, al, tau0, T, K, f, 0.0, wts, tb, z, nuv, nus)
+                z[:, :] = 0.0
+                L, share = dual_value(a0, al, tau0, T, K, f, 0.0, z, nuv, nus)
+                # L > 0 proves that no k meets the force limits at all
+                return pi, (pi / 2 if L > 0.0 else 0.0), NOT_PUSHING, 0.0
+    t_best = evaluate(k, a0, al, tau0, T, a, tau, rho, theta)
+    k_best = k.copy()
+    if t_best >= pi / 2:
+        # can every finger push? v(pi/2) < 0 iff some k has all a_i > 0
+        for j in range(m):
+            x[j] = k[j]
+        s0 = -inf
+        for i in range(n):
+            s0 = max(s0, -a[i])
+        x[m] = s0 + 1.0
+        tb = barrier_solve(a0, al, tau0, T, K, f, pi / 2, wts, 1, x, 1e-13, -inf)
+        t_try = evaluate(x[:m], a0, al, tau0, T, a, tau, rho, theta)
+        if t_try < pi / 2:
+            t_best = t_try
+            k_best[:] = x[:m]
+        else:
+            barrier_duals(x, a0, al, tau0, T, K, f, pi / 2, wts, tb, z, nuv, nus)
+            L, share = dual_value(a0, al, tau0, T, K, f, pi / 2, z, nuv, nus)
+            k[:] = x[:m]
+            if t_try < t_best:
+                t_best = t_try
+            else:
+                k[:] = k_best
+            return t_best, (pi / 2 if L >= 0.0 else 0.0), NOT_PUSHING, share
+    t = t_best
+    for _ in range(40):
+        evaluate(k_best, a0, al, tau0, T, a, tau, rho, theta)
+        big = 0.0
+        for i in range(n):
+            wts[i] = sqrt(a[i] ** 2 + rho[i] ** 2)
+            big = max(big, wts[i])
+        ct, st = cos(t), sin(t)
+        s0 = -inf
+        for i in range(n):
+            wts[i] = max(wts[i], 1e-3 * big)
+            s0 = max(s0, (ct * rho[i] - st * a[i]) / wts[i])
+        for j in range(m):
+            x[j] = min(K * inner, max(-K * inner, k_best[j]))
+        x[m] = s0 + 1e-3
+        barrier_solve(a0, al, tau0, T, K, f, t, wts, 1, x, gap, -inf)
+        t_new = evaluate(x[:m], a0, al, tau0, T, a, tau, rho, theta)
+        if t_new < t_best:
+            t_best = t_new
+            k_best[:] = x[:m]
+        if not (t_new < t - 0.1 * gap):
+            break
+        t = t_new
+    k[:] = k_best
+    evaluate(k_best, a0, al, tau0, T, a, tau, rho, theta)
+    for i in range(n):
+        wts[i] = max(sqrt(a[i] ** 2 + rho[i] ** 2), 1e-300)
+    for delta in (1e-8, 1e-6, 1e-4, 1e-2):
+        t_low = t_best - delta
+        if t_low <= 0.0:
+            return t_best, 0.0, INTERIOR, 0.0
+        ct, st = cos(t_low), sin(t_low)
+        s0 = -inf
+        for i in range(n):
+            s0 = max(s0, (ct * rho[i] - st * a[i]) / wts[i])
+        for j in range(m):
+            x[j] = min(K * inner, max(-K * inner, k_best[j]))
+        x[m] = s0 + 1e-3
+        tb = barrier_solve(a0, al, tau0, T, K, f, t_low, wts, 1, x, 0.1 * delta, -inf)
+        barrier_duals(x, a0, al, tau0, T, K, f, t_low, wts, tb, z, nuv, nus)
+        L, share = dual_value(a0, al, tau0, T, K, f, t_low, z, nuv, nus)
+        if L >= 0.0:
+            return t_best, t_low, (BOUNDARY if share > 1e-6 else INTERIOR), share
+    return t_best, 0.0, INTERIOR, 0.0
+
+
+@_jit
+def finish_from(a0, al, tau0, T, K, f, k, lam, tol):
+    """Read the active sets off a near-optimal point k (within ``tol``), then :func:`finish`."""
+    n, m = al.shape
+    a = np.empty(n)
+    tau = np.empty((n, 2))
+    rho = np.empty(n)
+    theta = np.empty(n)
+    S = np.zeros(n, dtype=np.bool_)
+    R = np.zeros(n, dtype=np.bool_)
+    Q = np.zeros(n, dtype=np.bool_)
+    fixed = np.zeros(m, dtype=np.int64)
+    eta = np.zeros((n, 3))
+    nu = np.zeros(n)
+    evaluate(k, a0, al, tau0, T, a, tau, rho, theta)
+    big = 0.0
+    for i in range(n):
+        big = max(big, sqrt(a[i] ** 2 + rho[i] ** 2))
+    t_up = -1.0
+    for i in range(n):
+        R[i] = sqrt(a[i] ** 2 + rho[i] ** 2) < 10.0 * tol * big
+        if not R[i]:
+            t_up = max(t_up, theta[i])
+    for i in range(n):
+        S[i] = not R[i] and theta[i] >= t_up - tol
+        if f < inf:
+            Q[i] = sqrt(a[i] ** 2 + rho[i] ** 2) >= f * (1.0 - tol)
+    for j in range(m):
+        if k[j] >= K * (1.0 - tol):
+            fixed[j] = 1
+        elif k[j] <= -K * (1.0 - tol):
+            fixed[j] = -1
+    total = 0.0
+    for i in range(n):
+        if not S[i]:
+            lam[i] = 0.0
+        total += lam[i]
+    for i in range(n):
+        lam[i] = lam[i] / total if total > 0.0 else (1.0 / n if S[i] else 0.0)
+    return finish(a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu)
+
+
+@_jit
+def solve_one(F, E, N, K_in, f_in, k, theta):
+    """Certified minimax for one grasp; fills k and theta, returns (lower, status, path).
+
+    path: 0 apex, 1 SQP, 2 SQP with a released finger, 3 fallback, 4 uncertified.
+    """
+    n = F.shape[0]
+    m = E.shape[0]
+    a0 = np.empty(n)
+    al = np.empty((n, m))
+    tau0 = np.empty((n, 2))
+    T = np.empty((n, 2, m))
+    scale = setup(F, E, N, a0, al, tau0, T)
+    K = K_in / scale
+    f = f_in / scale
+    a = np.empty(n)
+    tau = np.empty((n, 2))
+    rho = np.empty(n)
+    lam = np.empty(n)
+    nu = np.zeros(n)
+    R = np.zeros(n, dtype=np.bool_)
+    apex_start(a0, al, tau0, T, k)
+    inside = True
+    for j in range(m):
+        if abs(k[j]) > K:
+            inside = False
+            k[j] = K if k[j] > 0 else -K
+    t_up = evaluate(k, a0, al, tau0, T, a, tau, rho, theta)
+    if f < inf:
+        for i in range(n):
+            if sqrt(a[i] ** 2 + rho[i] ** 2) > f:
+                inside = False
+    if inside and t_up <= GAP_TOL:
+        # every finger (nearly) along its normal: the optimum 0 is attained
+        for j in range(m):
+            k[j] *= scale
+        return 0.0, INTERIOR, 0
+    # best point and best certificate over the attempts (each is valid on its own)
+    k_best = k.copy()
+    t_best = t_up if (f == inf) else inf
+    lower = 0.0
+    status = INTERIOR
+    path = 4
+    k_start = k.copy()
+    for i in range(n):
+        lam[i] = 1.0 / n
+    steps = sqp(a0, al, tau0, T, K, f, R, 0.0, k, lam, nu, 60, 1e-13, 2)
+    k_sqp = k.copy()
+    if steps >= 0 or n == 4:
+        t_up, low, share = finish_from(a0, al, tau0, T, K, f, k, lam, 1e-6)
+        if low >= 0.0:
+            path = 1
+    else:
+        low = -1.0
+    if low >= 0.0 and t_up < t_best:
+        t_best = t_up
+        k_best[:] = k
+    if low > lower:
+        lower = low
+        status = BOUNDARY if share > 1e-9 else INTERIOR
+    if t_best - lower > GAP_TOL and n == 4:
+        # a finger whose force vanishes at the optimum (the cone's apex): release it
+        evaluate(k_sqp, a0, al, tau0, T, a, tau, rho, theta)
+        order = np.argsort(a * a + rho * rho)
+        for attempt in range(n):
+            i = order[attempt]
+            for q in range(n):
+                R[q] = q == i
+                lam[q] = 1.0 / (n - 1) if q != i else 0.0
+                nu[q] = 0.0
+            if not release_start(a0, al, tau0, T, K, i, RELEASE, k_sqp, k):
+                continue
+            steps = sqp(a0, al, tau0, T, K, f, R, RELEASE, k, lam, nu, 60, 1e-13, 2)
+            if steps < 0:
+                continue
+            t_up, low, share = finish_from(a0, al, tau0, T, K, f, k, lam, 1e-6)
+            if low >= 0.0 and t_up < t_best:
+                t_best = t_up
+                k_best[:] = k
+            if low > lower:
+                lower = low
+                status = BOUNDARY if share > 1e-9 else INTERIOR
+            if t_best - lower <= GAP_TOL:
+                path = 2
+                break
+    if t_best - lower > GAP_TOL:
+        for j in range(m):
+            k[j] = k_start[j]
+        t_up, low, status_fb, share = fallback(a0, al, tau0, T, K, f, k, 1e-10)
+        if t_up < t_best:
+            t_best = t_up
+            k_best[:] = k
+        if status_fb == NOT_PUSHING:
+            if low > lower:
+                lower = low
+                status = NOT_PUSHING
+        else:
+            if low > lower:
+                lower = low
+                status = BOUNDARY if share > 1e-6 else INTERIOR
+            for i in range(n):
+                lam[i] = 1.0 / n
+            t_up, low, share = finish_from(a0, al, tau0, T, K, f, k, lam, 1e-6)
+            if t_up >= 0.0 and low >= 0.0 and t_up < t_best:
+                t_best = t_up
+                k_best[:] = k
+            if low > lower:
+                lower = low
+                status = BOUNDARY if share > 1e-9 else INTERIOR
+        if t_best - lower <= GAP_TOL:
+            path = 3
+    for j in range(m):
+        k[j] = k_best[j] * scale
+    evaluate(k_best, a0, al, tau0, T, a, tau, rho, theta)
+    return lower, status, path
+
+
+@njit(cache=True, nogil=True, parallel=True, error_model="numpy")
+def solve_batch(F, E, N, K, f, k, theta, lower, status, path):
+    """:func:`solve_one` over a flat batch (B, ...) of grasps, in parallel."""
+    for b in prange(F.shape[0]):
+        lo, st, p = solve_one(F[b], E[b], N[b], K[b], f[b], k[b], theta[b])
+        lower[b] = lo
+        status[b] = st
+        path[b] = p
+
+
+@_jit
+def weighted_start(a0, al, tau0, T, k, sweeps):
+    """k minimising sum_i |tau_i(k)|^2 / a_i^2, the a_i frozen at the previous k (IRLS).
+
+    sum tan^2 theta_i is a smooth stand-in for max theta_i; a few sweeps start the
+    Newton iteration close to the all-equal optimum.
+    """
+    n, m = al.shape
+    M = np.empty((m, m))
+    r = np.empty(m)
+    w = np.empty(n)
+    for _ in range(sweeps):
+        for i in range(n):
+            s = a0[i]
+            for j in range(m):
+                s += al[i, j] * k[j]
+            w[i] = 1.0 / max(s * s, 1e-4)
+        M[:, :] = 0.0
+        r[:] = 0.0
+        for i in range(n):
+            for c in range(2):
+                for p in range(m):
+                    r[p] -= w[i] * T[i, c, p] * tau0[i, c]
+                    for q in range(m):
+                        M[p, q] += w[i] * T[i, c, p] * T[i, c, q]
+        if not lu_solve(M, r, m):
+            return False
+        for j in range(m):
+            k[j] = r[j]
+    return True

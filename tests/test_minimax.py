@@ -1,0 +1,233 @@
+"""The certified minimax optimiser against an independent conic reference, and its properties."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from reference_solver import ConeBisection
+
+from grasp_env.mechanics import (
+    FOUR_FINGER_FACES,
+    PAPER_AXIS,
+    PAPER_FACES,
+    PHI,
+    START_ROTATION,
+    Scene,
+    Status,
+    Trajectory,
+    grasp,
+    load_wrench,
+    pose_rotation,
+    scene_grasp,
+    solve_minimax,
+)
+
+DEG = np.pi / 180
+TOLERANCE = 1e-6 * DEG  # the issue's accuracy requirement
+GAP = 1e-9  # radians: the certificate the solver promises
+
+
+def random_scene(rng: np.random.Generator, n: int) -> tuple[Scene, float]:
+    """A scene as the issue specifies, and alpha (radians) on the paper's trajectory."""
+    faces = PAPER_FACES if n == 3 else FOUR_FINGER_FACES
+    scene = Scene.on_faces(
+        faces,
+        offsets=rng.uniform(-0.35, 0.35, (n, 2)),
+        weight=rng.uniform(1.0, 20.0),
+        cg_offset=rng.uniform(-0.12, 0.12, 3),
+    )
+    return scene, np.deg2rad(rng.uniform(-15.0, 15.0))
+
+
+@pytest.fixture(scope="module")
+def references() -> dict[tuple[int, bool], ConeBisection]:
+    return {(n, limit): ConeBisection(n, limit) for n in (3, 4) for limit in (False, True)}
+
+
+@pytest.mark.parametrize(("n", "count", "seed"), [(3, 100, 1), (4, 60, 2)])
+def test_matches_conic_reference(references, n: int, count: int, seed: int) -> None:
+    """Optimal max angle within 1e-6 deg of bisection over cone feasibility (Clarabel)."""
+    rng = np.random.default_rng(seed)
+    scenes = [random_scene(rng, n) for _ in range(count)]
+    rotations = pose_rotation(PAPER_AXIS, np.array([alpha for _, alpha in scenes]))
+    grasps = [scene_grasp(scene, r) for (scene, _), r in zip(scenes, rotations, strict=True)]
+    errors = []
+    for (scene, _), g in zip(scenes, grasps, strict=True):
+        result = solve_minimax(g, 2 * scene.weight)
+        ref = references[n, False].solve(g.equilibrating, g.basis, g.normals, 2 * scene.weight)
+        assert not ref.not_pushing and result.status != Status.NOT_PUSHING
+        errors.append(result.max_angle - ref.upper)
+        # both certificates are consistent: neither bound crosses the other solver's bracket
+        assert result.lower_bound <= ref.upper + 1e-12
+        assert result.max_angle >= ref.lower - 1e-12
+        assert 0 <= result.gap <= GAP
+        # k attains the optimum (a finger released at the optimum carries 1e-10 of the load
+        # along its normal: its small angle is rounding-sensitive, the maximum is not)
+        assert abs(g.angles(result.k).max() - result.max_angle) <= 1e-12
+        np.testing.assert_allclose(result.angles, g.angles(result.k), atol=1e-4)
+        assert np.all(np.abs(result.k) <= 2 * scene.weight * (1 + 1e-12))
+    assert np.max(np.abs(errors)) <= TOLERANCE
+
+
+@pytest.mark.parametrize(("n", "count", "seed"), [(3, 12, 3), (4, 8, 4)])
+def test_force_limit_matches_reference(references, n: int, count: int, seed: int) -> None:
+    """With |P_i| <= f_max binding, the optimum still matches the reference."""
+    rng = np.random.default_rng(seed)
+    for _ in range(count):
+        scene, alpha = random_scene(rng, n)
+        g = scene_grasp(scene, pose_rotation(PAPER_AXIS, alpha))
+        k_max = 2 * scene.weight
+        free = solve_minimax(g, k_max)
+        f_max = 0.9 * np.linalg.norm(g.forces(free.k), axis=-1).max()
+        result = solve_minimax(g, k_max, f_max)
+        ref = references[n, True].solve(g.equilibrating, g.basis, g.normals, k_max, f_max)
+        assert abs(result.max_angle - ref.upper) <= TOLERANCE
+        assert result.max_angle >= free.max_angle - 1e-12  # a tighter limit cannot help
+        assert np.linalg.norm(g.forces(result.k), axis=-1).max() <= f_max * (1 + 1e-9)
+        assert 0 <= result.gap <= GAP
+
+
+def test_not_pushing_is_certified(references) -> None:
+    """A load lifting the cube cannot be held by pushing fingers with small interaction."""
+    scene = Scene(extra_force=(0.0, 0.0, 3 * 5.0))
+    g = scene_grasp(scene, START_ROTATION)
+    result = solve_minimax(g, 0.01)
+    assert result.status == Status.NOT_PUSHING
+    assert result.lower_bound == np.pi / 2 and result.max_angle >= np.pi / 2
+    assert references[3, False].solve(g.equilibrating, g.basis, g.normals, 0.01).not_pushing
+    # with room to squeeze, the fingers push again
+    result = solve_minimax(g, 10.0)
+    ref = references[3, False].solve(g.equilibrating, g.basis, g.normals, 10.0)
+    assert result.status == Status.BOUNDARY and abs(result.max_angle - ref.upper) <= TOLERANCE
+
+
+def test_force_limit_below_the_load() -> None:
+    """No k can hold 5 N with three fingers of 0.5 N each: reported as not pushing."""
+    g = scene_grasp(Scene(), START_ROTATION)
+    result = solve_minimax(g, 10.0, f_max=0.5)
+    assert result.status == Status.NOT_PUSHING
+    assert np.all(np.isfinite(result.angles)) and np.all(np.isfinite(result.k))
+
+
+def test_paper_scene_zero_angle_and_eq8() -> None:
+    """The paper's scene: 0 along the trajectory, and eq. 8's k = w tan(phi) / (3 sqrt 3)."""
+    g = scene_grasp(Scene(), Trajectory().rotations())
+    result = solve_minimax(g, 10.0)
+    assert np.all(result.max_angle <= 1e-9) and np.all(result.status == Status.INTERIOR)
+    np.testing.assert_allclose(result.k[15], 1.3608, atol=5e-5)  # alpha = 0
+
+
+@settings(max_examples=25, deadline=None)
+@given(weight=st.floats(0.1, 100.0))
+def test_eq8_for_any_weight(weight: float) -> None:
+    result = solve_minimax(scene_grasp(Scene(weight=weight), START_ROTATION), 2 * weight)
+    np.testing.assert_allclose(result.k, weight * np.tan(PHI) / (3 * np.sqrt(3)), rtol=1e-9)
+    assert result.max_angle <= 1e-9
+
+
+def test_box_limits_the_paper_scene() -> None:
+    """Below eq. 8's k the box binds: the optimum sits on it with a positive angle."""
+    result = solve_minimax(scene_grasp(Scene(), START_ROTATION), 0.5)
+    assert result.status == Status.BOUNDARY
+    np.testing.assert_allclose(result.k, 0.5)
+    assert result.max_angle > 1e-3 and 0 <= result.gap <= GAP
+
+
+scene_parameters = {
+    "n": st.sampled_from([3, 4]),
+    "offsets": st.lists(st.floats(-0.35, 0.35), min_size=8, max_size=8),
+    "cg": st.lists(st.floats(-0.12, 0.12), min_size=3, max_size=3),
+    "weight": st.floats(1.0, 20.0),
+    "alpha": st.floats(-15.0, 15.0),
+}
+
+
+def hypothesis_scene(n, offsets, cg, weight, alpha):
+    faces = PAPER_FACES if n == 3 else FOUR_FINGER_FACES
+    scene = Scene.on_faces(
+        faces, offsets=np.reshape(offsets, (4, 2))[:n], weight=weight, cg_offset=cg
+    )
+    return scene, scene_grasp(scene, pose_rotation(PAPER_AXIS, np.deg2rad(alpha)))
+
+
+@settings(max_examples=40, deadline=None)
+@given(**scene_parameters, seed=st.integers(0, 2**32 - 1))
+def test_no_sampled_k_beats_the_certificate(n, offsets, cg, weight, alpha, seed) -> None:
+    _, g = hypothesis_scene(n, offsets, cg, weight, alpha)
+    k_max = 2 * weight
+    result = solve_minimax(g, k_max)
+    assert 0 <= result.gap <= GAP
+    rng = np.random.default_rng(seed)
+    m = result.k.shape[-1]
+    uniform = rng.uniform(-k_max, k_max, (2000, m))
+    near = np.clip(result.k + rng.normal(0, 1e-3 * k_max, (2000, m)), -k_max, k_max)
+    sampled = g.angles(np.concatenate([uniform, near])).max(axis=-1)
+    assert sampled.min() >= result.lower_bound
+
+
+@settings(max_examples=25, deadline=None)
+@given(**scene_parameters, factor=st.floats(0.1, 10.0))
+def test_weight_scales_k_and_keeps_angles(n, offsets, cg, weight, alpha, factor) -> None:
+    _, g = hypothesis_scene(n, offsets, cg, weight, alpha)
+    _, g2 = hypothesis_scene(n, offsets, cg, weight * factor, alpha)
+    one = solve_minimax(g, 2 * weight)
+    two = solve_minimax(g2, 2 * weight * factor)
+    assert abs(two.max_angle - one.max_angle) <= 2 * GAP
+    # the optimal k is unique up to flat directions of the optimum, which are rare
+    np.testing.assert_allclose(g.angles(two.k / factor).max(), one.max_angle, atol=2 * GAP)
+    np.testing.assert_allclose(two.k, factor * one.k, rtol=1e-6, atol=1e-6 * weight * factor)
+
+
+def test_batched_equals_single() -> None:
+    rng = np.random.default_rng(5)
+    scene, _ = random_scene(rng, 3)
+    rotations = pose_rotation(PAPER_AXIS, np.deg2rad(np.linspace(-15, 15, 6))).reshape(2, 3, 3, 3)
+    g = scene_grasp(scene, rotations)
+    batch = solve_minimax(g, 2 * scene.weight)
+    assert batch.k.shape == (2, 3, 3) and batch.angles.shape == (2, 3, 3)
+    assert batch.lower_bound.shape == batch.status.shape == (2, 3)
+    for index in np.ndindex(2, 3):
+        single = solve_minimax(scene_grasp(scene, rotations[index]), 2 * scene.weight)
+        np.testing.assert_array_equal(single.k, batch.k[index])
+        assert single.status == batch.status[index]
+    # k_max broadcasts against the batch
+    per_pose = solve_minimax(g, np.full((2, 3), 2 * scene.weight))
+    np.testing.assert_array_equal(per_pose.k, batch.k)
+
+
+def test_zero_load_is_finite() -> None:
+    """No load at all: zero forces are optimal, and nothing is NaN."""
+    scene = Scene()
+    g = grasp(scene.relative_contacts(), scene.normals, START_ROTATION, load_wrench(0.0), 0.5)
+    result = solve_minimax(g, 1.0)
+    for array in (result.k, result.angles, result.lower_bound):
+        assert np.all(np.isfinite(array))
+    assert result.max_angle <= 1e-9
+
+
+@pytest.mark.parametrize("k_max", [0.0, -1.0, np.nan, np.inf])
+def test_bad_k_max(k_max: float) -> None:
+    g = scene_grasp(Scene(), START_ROTATION)
+    with pytest.raises(ValueError, match="k_max must be finite and > 0"):
+        solve_minimax(g, k_max)
+
+
+@pytest.mark.parametrize("f_max", [0.0, -2.0, np.nan, np.inf])
+def test_bad_f_max(f_max: float) -> None:
+    g = scene_grasp(Scene(), START_ROTATION)
+    with pytest.raises(ValueError, match="f_max must be finite and > 0"):
+        solve_minimax(g, 10.0, f_max)
+
+
+def test_bad_shapes_and_values() -> None:
+    g = scene_grasp(Scene(), Trajectory().rotations())
+    with pytest.raises(ValueError, match="must broadcast to the grasp's batch shape"):
+        solve_minimax(g, np.ones(5))
+    bad = type(g)(g.positions, g.normals, g.equilibrating * np.nan, g.basis, g.friction_limit)
+    with pytest.raises(ValueError, match="NaN or inf"):
+        solve_minimax(bad, 10.0)
+    bad = type(g)(g.positions, g.normals, g.equilibrating[..., :2, :], g.basis, g.friction_limit)
+    with pytest.raises(ValueError, match="shape"):
+        solve_minimax(bad, 10.0)
