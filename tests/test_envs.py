@@ -26,17 +26,6 @@ MUJOCO_IDS = [i for i in grasp_env.ENV_IDS if "Mujoco" in i]
 LIMIT = float(np.arctan(0.5))
 
 
-def _has_physics() -> bool:
-    try:
-        from grasp_env.physics import GraspView, StabilityChecker  # noqa: F401
-    except ImportError:
-        return False
-    return True
-
-
-HAS_PHYSICS = _has_physics()
-
-
 def make(env_id: str, **kwargs):
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # e.g. the passive checker's complaints
@@ -469,6 +458,7 @@ def test_vector_env_equals_single_envs(env_id):
     np.testing.assert_array_equal(obs, [e.reset(seed=40 + i)[0] for i, e in enumerate(envs)])
     rng = np.random.default_rng(0)
     autoreset = np.zeros(count, bool)
+    restarts = 0
     for _ in range(120):
         # Small grips slip less often: long episodes and short ones both occur.
         actions = rng.uniform(-0.3, 0.3, venv.action_space.shape).astype(np.float32)
@@ -483,7 +473,8 @@ def test_vector_env_equals_single_envs(env_id):
                     assert info[f"_{key}"][i]
                     np.testing.assert_array_equal(info[key][i], value)
         autoreset = terminated | truncated
-    assert autoreset.any() or True
+        restarts += autoreset.sum()
+    assert restarts >= count  # every sub-environment has at least one 31-step episode ended
 
 
 def test_vector_env_same_step_autoreset():
@@ -579,10 +570,6 @@ def test_sb3_vec_env_trains():
 # ------------------------------------------------------------------------- physics, rendering
 
 
-needs_physics = pytest.mark.skipif(not HAS_PHYSICS, reason="grasp_env.physics not available yet")
-
-
-@needs_physics
 def test_mujoco_env_checks_every_step():
     env = make("grasp_env/CubeGraspMujoco-v0")
     expert = MinimaxExpert()
@@ -596,7 +583,6 @@ def test_mujoco_env_checks_every_step():
     env.close()
 
 
-@needs_physics
 def test_rgb_array_render():
     env = make("grasp_env/CubeGrasp-v0", render_mode="rgb_array", terminate_on_slip=False)
     env.reset(seed=0)

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, fields
 from typing import Any
 
 import numba
@@ -101,12 +101,19 @@ def _read_only(*arrays: np.ndarray) -> None:
         array.flags.writeable = False
 
 
-_SCENE_ARRAYS = ("contacts", "cg_offset", "weight", "mu", "extra_force", "extra_torque", "axis")
+_SCENE_ARRAYS = (
+    "contacts", "cg_offset", "weight", "mu", "extra_force", "extra_torque",
+    "axis", "alpha_start", "alpha_step", "length",
+)  # fmt: skip
 
 
 @dataclass(frozen=True)
 class SceneBatch:
-    """E scenes with their trajectories, as arrays (the unit cube, object frame)."""
+    """E scenes with their trajectories, as arrays (the unit cube, object frame).
+
+    Trajectory e has poses alpha_start[e] + alpha_step[e] t, t < length[e] (degrees), about
+    ``axis[e]`` (the same values as :attr:`grasp_env.mechanics.Trajectory.alphas_deg`).
+    """
 
     contacts: np.ndarray  # (E, n, 3)
     cg_offset: np.ndarray  # (E, 3)
@@ -115,7 +122,9 @@ class SceneBatch:
     extra_force: np.ndarray  # (E, 3)
     extra_torque: np.ndarray  # (E, 3)
     axis: np.ndarray  # (E, 3) unit vectors
-    alphas_deg: tuple[np.ndarray, ...]  # E arrays of poses
+    alpha_start: np.ndarray  # (E,) degrees
+    alpha_step: np.ndarray  # (E,) degrees
+    length: np.ndarray  # (E,) poses
 
     def __len__(self) -> int:
         return len(self.weight)
@@ -123,35 +132,18 @@ class SceneBatch:
     @property
     def normals(self) -> np.ndarray:
         """Inward unit normals (E, n, 3) of the faces the contacts lie on."""
-        axis = np.argmax(np.abs(self.contacts), axis=-1)
+        axis = np.argmax(np.abs(self.contacts), axis=-1)[..., None]
         normals = np.zeros_like(self.contacts)
-        np.put_along_axis(
-            normals,
-            axis[..., None],
-            -np.sign(np.take_along_axis(self.contacts, axis[..., None], -1)),
-            -1,
-        )
+        np.put_along_axis(normals, axis, -np.sign(np.take_along_axis(self.contacts, axis, -1)), -1)
         return normals
+
+    def alphas_deg(self, index: int) -> np.ndarray:
+        """Trajectory ``index``'s alphas, degrees."""
+        return self.alpha_start[index] + self.alpha_step[index] * np.arange(self.length[index])
 
     def take(self, index: Sequence[int] | np.ndarray) -> SceneBatch:
         index = np.asarray(index, dtype=np.intp)
-        return SceneBatch(
-            self.contacts[index],
-            self.cg_offset[index],
-            self.weight[index],
-            self.mu[index],
-            self.extra_force[index],
-            self.extra_torque[index],
-            self.axis[index],
-            tuple(self.alphas_deg[i] for i in index),
-        )
-
-    @staticmethod
-    def concatenate(batches: Sequence[SceneBatch]) -> SceneBatch:
-        return SceneBatch(
-            *(np.concatenate([getattr(b, name) for b in batches]) for name in _SCENE_ARRAYS),
-            alphas_deg=tuple(a for b in batches for a in b.alphas_deg),
-        )
+        return SceneBatch(*(getattr(self, name)[index] for name in _SCENE_ARRAYS))
 
     @staticmethod
     def single(scene: Scene, trajectory: Trajectory) -> SceneBatch:
@@ -163,7 +155,9 @@ class SceneBatch:
             scene.extra_force[None].copy(),
             scene.extra_torque[None].copy(),
             np.array([trajectory.axis]),
-            (trajectory.alphas_deg,),
+            np.array([float(trajectory.alpha_start_deg)]),
+            np.array([float(trajectory.alpha_step_deg)]),
+            np.array([len(trajectory)]),
         )
 
     def scene(self, index: int) -> Scene:
@@ -188,27 +182,28 @@ class Poses:
     directions: np.ndarray  # (P, m, 3) u_ij
     normals: np.ndarray  # (P, n, 3)
     observations: np.ndarray  # (P, size) float32
+    alphas: np.ndarray  # (P,) degrees
     limit: np.ndarray  # (P,) theta_lim
     k_max: np.ndarray  # (P,)
-    expert_k: np.ndarray = field(default=None)  # type: ignore[assignment]  # (P, m)
-    expert_reward: np.ndarray = field(default=None)  # type: ignore[assignment]  # (P,)
+    expert_k: np.ndarray  # (P, m)
+    expert_reward: np.ndarray  # (P,)
+
+    def take(self, rows: np.ndarray) -> Poses:
+        return Poses(*(np.take(getattr(self, f.name), rows, axis=0) for f in fields(Poses)))
 
 
 def build_poses(
-    scenes: SceneBatch,
-    episode: np.ndarray,
-    alphas_deg: np.ndarray,
-    phase: np.ndarray,
-    expert: MinimaxExpert,
+    scenes: SceneBatch, episode: np.ndarray, step: np.ndarray, expert: MinimaxExpert
 ) -> Poses:
-    """Grasp data, observations and the expert's grip at poses of the batch's episodes.
+    """Grasp data, observations and the expert's grip at poses of the batch's trajectories.
 
-    ``episode`` (P,) says which scene each pose belongs to, at ``alphas_deg`` (P,) along that
-    scene's trajectory axis; ``phase`` (P,) goes into the observation.
+    ``episode`` (P,) says which scene each pose belongs to and ``step`` (P,) which pose t of
+    its trajectory it is; the observation's phase is t / length.
     """
     n = scenes.contacts.shape[1]
     layout = ObservationLayout(n)
-    rotations = pose_rotation(scenes.axis[episode], np.deg2rad(alphas_deg))
+    alphas = scenes.alpha_start[episode] + scenes.alpha_step[episode] * step
+    rotations = pose_rotation(scenes.axis[episode], np.deg2rad(alphas))
     weight = scenes.weight[episode]
     limit = np.arctan(scenes.mu[episode])
     wrench = load_wrench(weight, scenes.extra_force[episode], scenes.extra_torque[episode])
@@ -223,27 +218,102 @@ def build_poses(
         wrench[:, :3] / weight[:, None],
         wrench[:, 3:] / (weight[:, None] * EDGE),
         limit,
-        phase,
+        step / scenes.length[episode],
     )
     k_max = expert.k_max_ratio * weight
-    poses = Poses(rotations, g.equilibrating, directions, g.normals, observations, limit, k_max)
-    if len(episode) == 0:
-        return poses
     actions = expert.actions(observations).astype(np.float64)
     # The expert's grip scored exactly as an agent's action is (same kernel, same clipping).
     _, k, _, _, _, reward = evaluate(
-        poses.forces,
-        poses.directions,
-        poses.normals,
+        g.equilibrating,
+        directions,
+        g.normals,
         pairs,
         np.arange(len(episode)),
         actions,
         k_max,
         limit,
     )
-    object.__setattr__(poses, "expert_k", k)
-    object.__setattr__(poses, "expert_reward", reward)
-    return poses
+    return Poses(
+        rotations,
+        g.equilibrating,
+        directions,
+        g.normals,
+        observations,
+        alphas,
+        limit,
+        k_max,
+        k,
+        reward,
+    )
+
+
+@dataclass(frozen=True)
+class EpisodeBatch:
+    """E episodes: their scenes and the poses of all their trajectories, one after the other."""
+
+    scenes: SceneBatch
+    poses: Poses
+
+    def __len__(self) -> int:
+        return len(self.scenes)
+
+    @property
+    def starts(self) -> np.ndarray:
+        """First pose row of every episode."""
+        return np.cumsum(self.scenes.length) - self.scenes.length
+
+    def worst_expert_reward(self) -> np.ndarray:
+        """min over its trajectory of the expert's reward, per episode (E,)."""
+        return np.minimum.reduceat(self.poses.expert_reward, self.starts)
+
+    def take(self, index: Sequence[int] | np.ndarray) -> EpisodeBatch:
+        index = np.asarray(index, dtype=np.intp)
+        lengths = self.scenes.length[index]
+        rows = np.repeat(self.starts[index] - np.cumsum(lengths) + lengths, lengths)
+        return EpisodeBatch(self.scenes.take(index), self.poses.take(rows + np.arange(len(rows))))
+
+    @staticmethod
+    def concatenate(batches: Sequence[EpisodeBatch]) -> EpisodeBatch:
+        return EpisodeBatch(
+            SceneBatch(
+                *(np.concatenate([getattr(b.scenes, f) for b in batches]) for f in _SCENE_ARRAYS)
+            ),
+            Poses(
+                *(
+                    np.concatenate([getattr(b.poses, f.name) for b in batches])
+                    for f in fields(Poses)
+                )
+            ),
+        )
+
+    def final_observations(self) -> np.ndarray:
+        """The observation after each episode's last step: its last pose with phase 1 (E, size)."""
+        final = self.poses.observations[self.starts + self.scenes.length - 1]
+        final[:, ObservationLayout(self.scenes.contacts.shape[1]).phase] = 1.0
+        return final
+
+    def episode(self, index: int) -> Episode:
+        """Episode ``index`` as read-only arrays of its own."""
+        start, length = int(self.starts[index]), int(self.scenes.length[index])
+        part = self.poses.take(np.arange(start, start + length))
+        scene = self.scenes.take([index])
+        observations = np.vstack([part.observations, self.final_observations()[index : index + 1]])
+        episode = Episode(
+            scene,
+            part.rotations,
+            part.forces,
+            part.directions,
+            part.normals,
+            observations,
+            part.alphas,
+            part.expert_k,
+            part.expert_reward,
+            limit=float(part.limit[0]),
+            k_max=float(part.k_max[0]),
+        )
+        _read_only(*(getattr(scene, name) for name in _SCENE_ARRAYS))
+        _read_only(*(getattr(episode, f.name) for f in fields(Episode)[1:-2]))
+        return episode
 
 
 @dataclass(frozen=True)
@@ -260,6 +330,7 @@ class Episode:
     directions: np.ndarray  # (T, m, 3)
     normals: np.ndarray  # (T, n, 3)
     observations: np.ndarray  # (T + 1, size) float32
+    alphas: np.ndarray  # (T,) degrees
     expert_k: np.ndarray  # (T, m)
     expert_reward: np.ndarray  # (T,)
     limit: float
@@ -273,39 +344,12 @@ class Episode:
         return self.scenes.scene(0)
 
 
-def build_episodes(scenes: SceneBatch, expert: MinimaxExpert) -> list[Episode]:
+def build_episodes(scenes: SceneBatch, expert: MinimaxExpert) -> EpisodeBatch:
     """The episodes of a batch of scenes, with every pose of every trajectory in one batch."""
-    lengths = np.array([len(a) for a in scenes.alphas_deg])
+    lengths = scenes.length
     episode = np.repeat(np.arange(len(scenes)), lengths)
-    step = np.concatenate([np.arange(t) for t in lengths]) if len(lengths) else np.zeros(0, int)
-    alphas = np.concatenate(scenes.alphas_deg) if len(lengths) else np.zeros(0)
-    poses = build_poses(scenes, episode, alphas, step / lengths[episode], expert)
-    ends = np.cumsum(lengths)
-    episodes = []
-    for e, (start, end) in enumerate(zip(ends - lengths, ends, strict=True)):
-        part = slice(start, end)
-        final = poses.observations[end - 1].copy()
-        final[ObservationLayout(scenes.contacts.shape[1]).phase] = 1.0
-        arrays = (
-            poses.rotations[part].copy(),
-            poses.forces[part].copy(),
-            poses.directions[part].copy(),
-            poses.normals[part].copy(),
-            np.vstack([poses.observations[part], final[None]]),
-            poses.expert_k[part].copy(),
-            poses.expert_reward[part].copy(),
-        )
-        scene = scenes.take([e])
-        _read_only(*arrays, *(getattr(scene, name) for name in _SCENE_ARRAYS), *scene.alphas_deg)
-        episodes.append(
-            Episode(
-                scene,
-                *arrays,
-                limit=float(poses.limit[start]),
-                k_max=float(poses.k_max[start]),
-            )
-        )
-    return episodes
+    step = np.arange(len(episode)) - np.repeat(np.cumsum(lengths) - lengths, lengths)
+    return EpisodeBatch(scenes, build_poses(scenes, episode, step, expert))
 
 
 _EPISODE_CACHE: dict[tuple, Episode] = {}
@@ -313,17 +357,13 @@ _EPISODE_CACHE_SIZE = 32
 
 
 def cached_episode(scenes: SceneBatch, expert: MinimaxExpert) -> Episode:
-    """:func:`build_episodes` of one scene, remembered: environments made with the same scene
-    (every ``gym.make("grasp_env/CubeGrasp-v0")``) share one read-only episode."""
-    key = (
-        expert.k_max_ratio,
-        *(getattr(scenes, name).tobytes() for name in _SCENE_ARRAYS),
-        scenes.alphas_deg[0].tobytes(),
-    )
+    """The episode of one scene, remembered: environments made with the same scene (every
+    ``gym.make("grasp_env/CubeGrasp-v0")``) share one read-only episode."""
+    key = (expert.k_max_ratio, *(getattr(scenes, name).tobytes() for name in _SCENE_ARRAYS))
     if key not in _EPISODE_CACHE:
         if len(_EPISODE_CACHE) >= _EPISODE_CACHE_SIZE:
             _EPISODE_CACHE.pop(next(iter(_EPISODE_CACHE)))
-        _EPISODE_CACHE[key] = build_episodes(scenes, expert)[0]
+        _EPISODE_CACHE[key] = build_episodes(scenes, expert).episode(0)
     return _EPISODE_CACHE[key]
 
 
@@ -504,38 +544,53 @@ class SceneSampler:
         span = self.alpha_end_range_deg[1] - self.alpha_start_range_deg[0]
         return int(np.floor(span / self.alpha_step_deg + 1e-9)) + 1
 
-    def draw(self, rng: np.random.Generator, count: int) -> SceneBatch:
-        """``count`` scenes from ``rng``; the draw order is fixed (same seed, same scenes)."""
-        n = len(self.faces)
-        offsets = rng.uniform(-self.contact_offset, self.contact_offset, (count, n, 2))
+    def raw(self, rng: np.random.Generator, count: int) -> np.ndarray:
+        """The random numbers of ``count`` scenes, (count, 4 n + 18): two calls to ``rng``,
+        so that drawing for many generators is cheap; :meth:`scenes` maps them to scenes."""
+        uniform = rng.random((count, 2 * len(self.faces) + 12))
+        return np.concatenate([uniform, rng.standard_normal((count, 3))], axis=1)
+
+    def scenes(self, raw: np.ndarray) -> SceneBatch:
+        """The scenes of :meth:`raw` numbers (any number of rows, from any generators)."""
+        count, n = raw.shape[0], len(self.faces)
+
+        def uniform(columns: slice, low: Any, high: Any) -> np.ndarray:
+            return low + (high - low) * raw[:, columns]
+
+        offsets = uniform(slice(0, 2 * n), -self.contact_offset, self.contact_offset)
+        u = raw[:, 2 * n :]
         half = EDGE / 2
-        cg = rng.uniform(-self.cg_offset, self.cg_offset, (count, 3)) * half
-        weight = rng.uniform(*self.weight_range, count)
-        mu = rng.uniform(*self.mu_range, count)
-        axis = rng.normal(size=(count, 3))
-        axis /= np.linalg.norm(axis, axis=1, keepdims=True)
-        start = rng.uniform(*self.alpha_start_range_deg, count)
-        end = rng.uniform(*self.alpha_end_range_deg, count)
-        extra_force = rng.uniform(-self.extra_force, self.extra_force, (count, 3))
-        extra_torque = rng.uniform(-self.extra_torque, self.extra_torque, (count, 3))
+        cg = (2 * u[:, 0:3] - 1) * self.cg_offset * half
+        (w0, w1), (m0, m1) = self.weight_range, self.mu_range
+        weight = w0 + (w1 - w0) * u[:, 3]
+        mu = m0 + (m1 - m0) * u[:, 4]
+        (s0, s1), (e0, e1) = self.alpha_start_range_deg, self.alpha_end_range_deg
+        start = s0 + (s1 - s0) * u[:, 5]
+        end = e0 + (e1 - e0) * u[:, 6]
+        extra_force = (2 * u[:, 7:10] - 1) * self.extra_force * weight[:, None]
+        extra_torque = (2 * u[:, 10:13] - 1) * self.extra_torque * (weight * EDGE)[:, None]
+        axis = raw[:, -3:] / np.linalg.norm(raw[:, -3:], axis=1, keepdims=True)
         contacts = np.empty((count, n, 3))
         for i, face in enumerate(self.faces):
             index, sign = FACES[face]
-            others = [a for a in range(3) if a != index]
             contacts[:, i, index] = sign * half
-            contacts[:, i, others] = offsets[:, i] * half
-        lengths = np.floor((end - start) / self.alpha_step_deg + 1e-9).astype(int) + 1
+            contacts[:, i, [a for a in range(3) if a != index]] = (
+                offsets[:, 2 * i : 2 * i + 2] * half
+            )
         step = self.alpha_step_deg
-        alphas = tuple(s + step * np.arange(t) for s, t in zip(start, lengths, strict=True))
+        # The pose count of Trajectory.alphas_deg.
+        length = np.floor((end - start) / step + 1e-9).astype(np.int64) + 1
         return SceneBatch(
             contacts,
             cg,
             weight,
             mu,
-            extra_force * weight[:, None],
-            extra_torque * (weight * EDGE)[:, None],
+            extra_force,
+            extra_torque,
             axis,
-            alphas,
+            start,
+            np.full(count, step),
+            length,
         )
 
 
@@ -550,7 +605,7 @@ def sample_episodes(
     sampler: SceneSampler,
     expert: MinimaxExpert,
     min_margin: float,
-) -> list[Episode]:
+) -> EpisodeBatch:
     """One random episode per generator whose expert keeps every margin >= ``min_margin``.
 
     Each generator draws :data:`DRAWS_PER_ROUND` candidates per round; a cheap screen solves
@@ -559,38 +614,44 @@ def sample_episodes(
     generator yields depends on that generator alone, so a vector of environments gets the
     same episodes as single environments with the same seeds; all solves are batched.
     """
-    result: list[Episode | None] = [None] * len(rngs)
-    pending = list(range(len(rngs)))
+    chosen: list[EpisodeBatch] = []
+    owners: list[np.ndarray] = []
+    pending = np.arange(len(rngs))
     rounds = 0
-    while pending:
+    while len(pending):
         rounds += 1
         if rounds * DRAWS_PER_ROUND > MAX_DRAWS:
             raise RuntimeError(
                 f"no scene in {MAX_DRAWS} draws lets the expert hold the whole trajectory;"
                 " widen mu_range or narrow the offset and trajectory ranges"
             )
-        drafts = SceneBatch.concatenate([sampler.draw(rngs[e], DRAWS_PER_ROUND) for e in pending])
+        drafts = sampler.scenes(
+            np.concatenate([sampler.raw(rngs[e], DRAWS_PER_ROUND) for e in pending])
+        )
         # Screen: the two ends and the middle of every candidate's trajectory.
-        picks = [a[[0, len(a) // 2, -1]] for a in drafts.alphas_deg]
+        last = drafts.length - 1
         screen = build_poses(
             drafts,
             np.repeat(np.arange(len(drafts)), 3),
-            np.concatenate(picks),
-            np.zeros(3 * len(drafts)),
+            np.stack([np.zeros_like(last), last // 2 + last % 2, last], axis=1).ravel(),
             expert,
         )
-        passed = screen.expert_reward.reshape(len(pending), DRAWS_PER_ROUND, 3).min(-1)
-        queues = {
-            e: list(np.flatnonzero(passed[slot] >= min_margin) + slot * DRAWS_PER_ROUND)
-            for slot, e in enumerate(pending)
-        }
-        while active := [e for e in pending if queues[e] and result[e] is None]:
-            heads = [queues[e].pop(0) for e in active]
-            for e, episode in zip(active, build_episodes(drafts.take(heads), expert), strict=True):
-                if episode.expert_reward.min() >= min_margin:
-                    result[e] = episode
-        pending = [e for e in pending if result[e] is None]
-    return result  # type: ignore[return-value]
+        passed = (
+            screen.expert_reward.reshape(len(pending), DRAWS_PER_ROUND, 3).min(-1) >= min_margin
+        )
+        open_ = np.ones(len(pending), bool)
+        for d in range(DRAWS_PER_ROUND):  # candidates in their draw order
+            slots = np.flatnonzero(open_ & passed[:, d])
+            if len(slots) == 0:
+                continue
+            full = build_episodes(drafts.take(slots * DRAWS_PER_ROUND + d), expert)
+            holds = full.worst_expert_reward() >= min_margin
+            chosen.append(full.take(np.flatnonzero(holds)))
+            owners.append(pending[slots[holds]])
+            open_[slots[holds]] = False
+        pending = pending[open_]
+    batch = EpisodeBatch.concatenate(chosen)
+    return batch.take(np.argsort(np.concatenate(owners)))
 
 
 def check_margin(value: Any) -> float:

@@ -13,6 +13,7 @@ from ..expert import MinimaxExpert
 from ..mechanics import FOUR_FINGER_FACES, PAPER_FACES, Scene, contact_pairs, n_pairs
 from .core import (
     Episode,
+    SceneBatch,
     SceneSampler,
     build_episodes,
     cached_episode,
@@ -86,6 +87,10 @@ class _CubeGraspEnv(gym.Env[np.ndarray, np.ndarray]):
     def _next_episode(self, scene: Mapping[str, Any] | None) -> Episode:
         raise NotImplementedError
 
+    def scene_batch(self, scene: Mapping[str, Any]) -> SceneBatch:
+        """The validated scene of a ``reset(options={"scene": scene})``."""
+        return parse_scene(scene, self._defaults)
+
     @property
     def episode(self) -> Episode:
         """The current episode's precomputed arrays (after :meth:`reset`)."""
@@ -101,7 +106,7 @@ class _CubeGraspEnv(gym.Env[np.ndarray, np.ndarray]):
     @property
     def alphas_deg(self) -> np.ndarray:
         """The current trajectory's alpha values, degrees."""
-        return self.episode.scenes.alphas_deg[0]
+        return self.episode.alphas
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
@@ -145,7 +150,7 @@ class _CubeGraspEnv(gym.Env[np.ndarray, np.ndarray]):
         reward = float(reward[0])
         expert_reward = float(episode.expert_reward[t])
         info = {
-            "alpha_deg": float(episode.scenes.alphas_deg[0][t]),
+            "alpha_deg": float(episode.alphas[t]),
             "theta": theta[0],
             "margin": margin[0],
             "k": k[0],
@@ -343,7 +348,7 @@ class CubeGraspEnv(_CubeGraspEnv):
     def _next_episode(self, scene: Mapping[str, Any] | None) -> Episode:
         if scene is None:
             return self._default_episode
-        return build_episodes(parse_scene(scene, self._defaults), self.expert)[0]
+        return build_episodes(self.scene_batch(scene), self.expert).episode(0)
 
 
 class CubeGraspRandomEnv(_CubeGraspEnv):
@@ -430,10 +435,9 @@ class CubeGraspRandomEnv(_CubeGraspEnv):
 
     def _next_episode(self, scene: Mapping[str, Any] | None) -> Episode:
         if scene is not None:
-            return build_episodes(parse_scene(scene, self._defaults), self.expert)[0]
-        return sample_episodes([self.np_random], self.sampler, self.expert, self.min_expert_margin)[
-            0
-        ]
+            return build_episodes(self.scene_batch(scene), self.expert).episode(0)
+        rng = [self.np_random]
+        return sample_episodes(rng, self.sampler, self.expert, self.min_expert_margin).episode(0)
 
 
 __all__ = ["FOUR_FINGER_FACES", "CubeGraspEnv", "CubeGraspRandomEnv"]

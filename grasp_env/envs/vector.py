@@ -16,11 +16,14 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from ..mechanics import contact_pairs
-from .core import Episode, evaluate, parse_options, sample_episodes
+from ..mechanics import Scene, contact_pairs
+from .core import Episode, EpisodeBatch, build_episodes, evaluate, parse_options, sample_episodes
 from .cube_grasp import CubeGraspEnv, CubeGraspRandomEnv, _CubeGraspEnv
 
 _MODES = (AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP)
+
+
+_STORED = ("forces", "directions", "normals", "observations", "alphas", "expert_k", "expert_reward")
 
 
 class _PoseStore:
@@ -36,34 +39,22 @@ class _PoseStore:
         self.num_envs = num_envs
         self.default = default
         self.capacity = 0
-        self.offset = 0 if default is None else len(default) + 1
+        self.offset = 0
         self.arrays: dict[str, np.ndarray] = {}
         if default is not None:
-            self.arrays = {name: value for name, value in self._rows(default).items()}
-
-    @staticmethod
-    def _rows(episode: Episode) -> dict[str, np.ndarray]:
-        """An episode's arrays padded to T + 1 rows (the last pose repeated)."""
-
-        def pad(array: np.ndarray) -> np.ndarray:
-            return np.concatenate([array, array[-1:]])
-
-        return {
-            "forces": pad(episode.forces),
-            "directions": pad(episode.directions),
-            "normals": pad(episode.normals),
-            "observations": episode.observations,
-            "expert_k": pad(episode.expert_k),
-            "expert_reward": pad(episode.expert_reward),
-            "alphas": pad(episode.scenes.alphas_deg[0]),
-        }
+            # Pose arrays padded to T + 1 rows like the observations (the last pose repeated).
+            self.arrays = {
+                name: np.concatenate([value, value[-1:]]) if name != "observations" else value
+                for name in _STORED
+                for value in [getattr(default, name)]
+            }
+            self.offset = len(default) + 1
 
     def _grow(self, capacity: int, template: dict[str, np.ndarray]) -> None:
         grown = {}
         for name, sample in template.items():
-            array = np.zeros(
-                (self.offset + self.num_envs * capacity, *sample.shape[1:]), sample.dtype
-            )
+            shape = (self.offset + self.num_envs * capacity, *sample.shape[1:])
+            array = np.zeros(shape, sample.dtype)
             if name in self.arrays:
                 old = self.arrays[name]
                 array[: self.offset] = old[: self.offset]
@@ -75,17 +66,17 @@ class _PoseStore:
         self.arrays = grown
         self.capacity = capacity
 
-    def put(self, env: int, episode: Episode) -> bool:
-        """Store ``episode`` for sub-environment ``env``; True if it went into the env's slot."""
-        if episode is self.default:
-            return False
-        rows = self._rows(episode)
-        if len(episode) + 1 > self.capacity:
-            self._grow(max(len(episode) + 1, 2 * self.capacity), rows)
-        base = self.offset + env * self.capacity
-        for name, value in rows.items():
-            self.arrays[name][base : base + len(value)] = value
-        return True
+    def write(self, envs: np.ndarray, batch: EpisodeBatch) -> None:
+        """Store episode j of ``batch`` in the slot of sub-environment ``envs[j]``."""
+        lengths = batch.scenes.length
+        if lengths.max() + 1 > self.capacity:
+            template = {name: getattr(batch.poses, name) for name in _STORED}
+            self._grow(max(int(lengths.max()) + 1, 2 * self.capacity), template)
+        bases = self.offset + envs * self.capacity
+        rows = np.repeat(bases - batch.starts, lengths) + np.arange(lengths.sum())
+        for name in _STORED:
+            self.arrays[name][rows] = getattr(batch.poses, name)
+        self.arrays["observations"][bases + lengths] = batch.final_observations()
 
     def bases(self, in_slot: np.ndarray) -> np.ndarray:
         """First rows of the sub-environments' episodes (slots move when the store grows)."""
@@ -146,7 +137,8 @@ class _CubeGraspVectorEnv(VectorEnv):
         self._n = n
         self._store = _PoseStore(self.num_envs, getattr(self.template, "_default_episode", None))
         self._rngs: list[np.random.Generator | None] = [None] * self.num_envs
-        self._episodes: list[Episode | None] = [None] * self.num_envs
+        # (scene batch, index) of every sub-environment's episode; None: the default scene
+        self._scenes = np.full(self.num_envs, None, dtype=object)
         self._base = np.zeros(self.num_envs, dtype=np.int64)
         self._in_slot = np.zeros(self.num_envs, dtype=bool)
         self._length = np.zeros(self.num_envs, dtype=np.int64)
@@ -167,30 +159,44 @@ class _CubeGraspVectorEnv(VectorEnv):
         """New episodes for sub-environments ``envs`` (from their own generators)."""
         if len(envs) == 0:
             return
-        if scene is None and isinstance(self.template, CubeGraspRandomEnv):
-            episodes = sample_episodes(
-                [self._rng(e) for e in envs],
-                self.template.sampler,
-                self.template.expert,
-                self.template.min_expert_margin,
-            )
+        template = self.template
+        default = self._store.default
+        if scene is None and default is not None:
+            self._in_slot[envs] = False
+            self._length[envs] = len(default)
+            self._k_max[envs] = default.k_max
+            self._limit[envs] = default.limit
+            self._scenes[envs] = None
         else:
-            episodes = [self.template._next_episode(scene)] * len(envs)
-        for e, episode in zip(envs, episodes, strict=True):
-            self._episodes[e] = episode
-            self._in_slot[e] = self._store.put(e, episode)
-            self._length[e] = len(episode)
-            self._k_max[e] = episode.k_max
-            self._limit[e] = episode.limit
+            if scene is None:
+                batch = sample_episodes(
+                    [self._rng(e) for e in envs],
+                    template.sampler,
+                    template.expert,
+                    template.min_expert_margin,
+                )
+            else:  # one explicit scene for all of them
+                one = build_episodes(template.scene_batch(scene), template.expert)
+                batch = one.take(np.zeros(len(envs), np.intp))
+            self._store.write(envs, batch)
+            starts = batch.starts
+            self._in_slot[envs] = True
+            self._length[envs] = batch.scenes.length
+            self._k_max[envs] = batch.poses.k_max[starts]
+            self._limit[envs] = batch.poses.limit[starts]
+            for j, e in enumerate(envs):
+                self._scenes[e] = (batch.scenes, j)
         self._base = self._store.bases(self._in_slot)
         self._t[envs] = 0
 
-    def episode(self, env: int) -> Episode:
-        """Sub-environment ``env``'s current episode."""
-        episode = self._episodes[env]
-        if episode is None:
+    def scene(self, env: int) -> Scene:
+        """Sub-environment ``env``'s current :class:`~grasp_env.mechanics.Scene`."""
+        if not self._started:
             raise RuntimeError("call reset() first")
-        return episode
+        if self._scenes[env] is None:
+            return self._store.default.scene
+        scenes, index = self._scenes[env]
+        return scenes.scene(index)
 
     def reset(
         self,
