@@ -23,6 +23,7 @@ from grasp_env.mechanics import FOUR_FINGER_FACES, Scene, scene_grasp, solve_min
 
 FAST_IDS = ["grasp_env/CubeGrasp-v0", "grasp_env/CubeGraspRandom-v0", "grasp_env/CubeGrasp4-v0"]
 MUJOCO_IDS = [i for i in grasp_env.ENV_IDS if "Mujoco" in i]
+ALL_IDS = FAST_IDS + MUJOCO_IDS  # MuJoCo checks take ~10 ms a step: shorter runs for those
 LIMIT = float(np.arctan(0.5))
 
 
@@ -73,7 +74,7 @@ def test_registration():
     assert env.unwrapped.spec.id == "grasp_env/CubeGrasp-v0"
 
 
-@pytest.mark.parametrize("env_id", FAST_IDS)
+@pytest.mark.parametrize("env_id", ALL_IDS)
 def test_gymnasium_check_env(env_id):
     env = gym.make(env_id)
     with warnings.catch_warnings():
@@ -82,7 +83,7 @@ def test_gymnasium_check_env(env_id):
         check_env(env.unwrapped, skip_render_check=True)
 
 
-@pytest.mark.parametrize("env_id", FAST_IDS)
+@pytest.mark.parametrize("env_id", ALL_IDS)
 def test_sb3_check_env(env_id):
     from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
@@ -92,7 +93,7 @@ def test_sb3_check_env(env_id):
         sb3_check_env(env, warn=True, skip_render_check=True)
 
 
-@pytest.mark.parametrize("env_id", FAST_IDS)
+@pytest.mark.parametrize("env_id", ALL_IDS)
 def test_spaces(env_id):
     env = make(env_id)
     n = 4 if "4" in env_id else 3
@@ -102,10 +103,11 @@ def test_spaces(env_id):
     assert np.all(np.isfinite(space.low)) and np.all(np.isfinite(space.high))
 
 
-@pytest.mark.parametrize("env_id", FAST_IDS)
+@pytest.mark.parametrize("env_id", ALL_IDS)
 def test_same_seed_same_rollout(env_id):
-    first = rollout(make(env_id), seed=7, steps=80)
-    second = rollout(make(env_id), seed=7, steps=80)
+    steps = 12 if "Mujoco" in env_id else 80
+    first = rollout(make(env_id), seed=7, steps=steps)
+    second = rollout(make(env_id), seed=7, steps=steps)
     assert_same(first, second)
 
 
@@ -116,7 +118,7 @@ def test_random_env_seeds_differ():
     assert not np.array_equal(a, b)
 
 
-@pytest.mark.parametrize("env_id", FAST_IDS)
+@pytest.mark.parametrize("env_id", ALL_IDS)
 def test_pickle(env_id):
     env = make(env_id)
     expert = MinimaxExpert()
@@ -125,7 +127,8 @@ def test_pickle(env_id):
     clone = pickle.loads(pickle.dumps(env))
     action = expert.predict(obs)[0]
     assert_same(env.step(action), clone.step(action))
-    assert_same(rollout(env, 5, 40), rollout(clone, 5, 40))
+    steps = 6 if "Mujoco" in env_id else 40
+    assert_same(rollout(env, 5, steps), rollout(clone, 5, steps))
 
 
 @pytest.mark.parametrize("env_id", FAST_IDS)

@@ -219,10 +219,15 @@ class _CubeGraspEnv(gym.Env[np.ndarray, np.ndarray]):
         super().close()
 
     def __getstate__(self) -> dict[str, Any]:
-        # The MuJoCo checker and view hold native resources: rebuilt on the next reset.
+        # The MuJoCo checker and view hold native resources: not pickled, rebuilt on loading.
         state = self.__dict__.copy()
         state.update(_checker=None, _view=None, _world_episode=None)
         return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        if self._episode is not None and (self.physics is not None or self.render_mode):
+            self._update_world()
 
 
 _DOC_SPACES = """
