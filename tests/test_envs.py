@@ -521,6 +521,9 @@ def test_vector_env_bad_input():
         venv.step(np.zeros((2, 3)))
     with pytest.raises(ValueError, match=r"finite; sub-environments \[1\]"):
         venv.step(np.array([[0, 0, 0], [0, np.nan, 0], [0, 0, 0]], float))
+    # Nothing moved: the next valid step is the first step of the episode.
+    _, _, _, _, info = venv.step(np.zeros((3, 3)))
+    np.testing.assert_array_equal(info["alpha_deg"], [-15.0, -15.0, -15.0])
     with pytest.raises(ValueError, match="unknown scene key 'mass'"):
         venv.reset(options={"scene": {"mass": 1}})
     with pytest.raises(ValueError, match="physics nor render_mode"):

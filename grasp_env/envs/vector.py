@@ -247,15 +247,18 @@ class _CubeGraspVectorEnv(VectorEnv):
             raise RuntimeError("call reset() before step()")
         a = self._actions(actions)
         count = self.num_envs
-        arrays = self._store.arrays
         restarting = np.flatnonzero(self._autoreset)
+        active = ~self._autoreset
+        if not np.isfinite(a).all():  # checked before any state changes
+            bad = np.flatnonzero(~np.isfinite(a).all(axis=1) & active)
+            if bad.size:
+                raise ValueError(f"actions must be finite; sub-environments {bad.tolist()} are not")
         if restarting.size:  # NEXT_STEP: these sub-environments reset and ignore their action
             self._start(restarting, None)
-            arrays = self._store.arrays
-            active = ~self._autoreset
             a = np.where(active[:, None], a, 0.0)
+        arrays = self._store.arrays
         rows = self._base + self._t
-        ok, k, forces, theta, margin, reward = evaluate(
+        _, k, forces, theta, margin, reward = evaluate(
             arrays["forces"],
             arrays["directions"],
             arrays["normals"],
@@ -265,9 +268,6 @@ class _CubeGraspVectorEnv(VectorEnv):
             self._k_max,
             self._limit,
         )
-        if not ok:
-            bad = np.flatnonzero(~np.isfinite(a).all(axis=1))
-            raise ValueError(f"actions must be finite; sub-environments {bad.tolist()} are not")
         # theta_i > theta_lim exactly when the rounded margin is negative (and the minimum).
         slip = margin < 0.0
         terminated = reward < 0.0 if self.terminate_on_slip else np.zeros(count, bool)
