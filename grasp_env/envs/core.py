@@ -185,6 +185,7 @@ class Poses:
     alphas: np.ndarray  # (P,) degrees
     limit: np.ndarray  # (P,) theta_lim
     k_max: np.ndarray  # (P,)
+    expert_action: np.ndarray  # (P, m) the expert's actions (float32 values)
     expert_k: np.ndarray  # (P, m)
     expert_reward: np.ndarray  # (P,)
 
@@ -193,12 +194,17 @@ class Poses:
 
 
 def build_poses(
-    scenes: SceneBatch, episode: np.ndarray, step: np.ndarray, expert: MinimaxExpert
+    scenes: SceneBatch,
+    episode: np.ndarray,
+    step: np.ndarray,
+    expert: MinimaxExpert,
+    known: np.ndarray | None = None,
 ) -> Poses:
     """Grasp data, observations and the expert's grip at poses of the batch's trajectories.
 
     ``episode`` (P,) says which scene each pose belongs to and ``step`` (P,) which pose t of
-    its trajectory it is; the observation's phase is t / length.
+    its trajectory it is; the observation's phase is t / length. ``known`` (P, m) holds the
+    expert's actions where already solved (NaN elsewhere).
     """
     n = scenes.contacts.shape[1]
     layout = ObservationLayout(n)
@@ -221,7 +227,12 @@ def build_poses(
         step / scenes.length[episode],
     )
     k_max = expert.k_max_ratio * weight
-    actions = expert.actions(observations).astype(np.float64)
+    if known is None:
+        actions = expert.actions(observations).astype(np.float64)
+    else:
+        todo = np.isnan(known[:, 0])
+        actions = known.copy()
+        actions[todo] = expert.actions(observations[todo])
     # The expert's grip scored exactly as an agent's action is (same kernel, same clipping).
     _, k, _, _, _, reward = evaluate(
         g.equilibrating,
@@ -242,6 +253,7 @@ def build_poses(
         alphas,
         limit,
         k_max,
+        actions,
         k,
         reward,
     )
@@ -344,12 +356,15 @@ class Episode:
         return self.scenes.scene(0)
 
 
-def build_episodes(scenes: SceneBatch, expert: MinimaxExpert) -> EpisodeBatch:
-    """The episodes of a batch of scenes, with every pose of every trajectory in one batch."""
+def build_episodes(
+    scenes: SceneBatch, expert: MinimaxExpert, known: np.ndarray | None = None
+) -> EpisodeBatch:
+    """The episodes of a batch of scenes, with every pose of every trajectory in one batch
+    (``known``: the expert's actions at some of these poses, see :func:`build_poses`)."""
     lengths = scenes.length
     episode = np.repeat(np.arange(len(scenes)), lengths)
     step = np.arange(len(episode)) - np.repeat(np.cumsum(lengths) - lengths, lengths)
-    return EpisodeBatch(scenes, build_poses(scenes, episode, step, expert))
+    return EpisodeBatch(scenes, build_poses(scenes, episode, step, expert, known))
 
 
 _EPISODE_CACHE: dict[tuple, Episode] = {}
@@ -630,12 +645,9 @@ def sample_episodes(
         )
         # Screen: the two ends and the middle of every candidate's trajectory.
         last = drafts.length - 1
-        screen = build_poses(
-            drafts,
-            np.repeat(np.arange(len(drafts)), 3),
-            np.stack([np.zeros_like(last), last // 2 + last % 2, last], axis=1).ravel(),
-            expert,
-        )
+        picks = np.stack([np.zeros_like(last), last // 2 + last % 2, last], axis=1)
+        screen = build_poses(drafts, np.repeat(np.arange(len(drafts)), 3), picks.ravel(), expert)
+        screened = screen.expert_action.reshape(len(drafts), 3, -1)
         passed = (
             screen.expert_reward.reshape(len(pending), DRAWS_PER_ROUND, 3).min(-1) >= min_margin
         )
@@ -644,7 +656,16 @@ def sample_episodes(
             slots = np.flatnonzero(open_ & passed[:, d])
             if len(slots) == 0:
                 continue
-            full = build_episodes(drafts.take(slots * DRAWS_PER_ROUND + d), expert)
+            candidates = slots * DRAWS_PER_ROUND + d
+            scenes = drafts.take(candidates)
+            # The screened poses are solved already (the expert ignores the phase).
+            m = screened.shape[2]
+            known = np.full((scenes.length.sum(), m), np.nan)
+            starts = np.cumsum(scenes.length) - scenes.length
+            known[(starts[:, None] + picks[candidates]).ravel()] = screened[candidates].reshape(
+                -1, m
+            )
+            full = build_episodes(scenes, expert, known)
             holds = full.worst_expert_reward() >= min_margin
             chosen.append(full.take(np.flatnonzero(holds)))
             owners.append(pending[slots[holds]])
