@@ -30,7 +30,6 @@ from ..mechanics import (
     face_point,
     grasp,
     load_wrench,
-    n_pairs,
     pose_rotation,
 )
 from .observation import ObservationLayout
@@ -96,7 +95,7 @@ def evaluate(forces, directions, normals, pairs, rows, actions, k_max, limit):
 
 
 def _read_only(*arrays: np.ndarray) -> None:
-    # Episode arrays are shared with every info dict: views of them must not be writable.
+    # Episodes are shared (between environments, through the cache): keep them unchangeable.
     for array in arrays:
         array.flags.writeable = False
 
@@ -695,12 +694,13 @@ __all__ = [
     "SCENE_KEYS",
     "TRAJECTORY_KEYS",
     "Episode",
+    "EpisodeBatch",
     "SceneBatch",
     "SceneSampler",
     "build_episodes",
+    "cached_episode",
     "default_scene",
     "evaluate",
-    "n_pairs",
     "parse_options",
     "parse_scene",
     "sample_episodes",
