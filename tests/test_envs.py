@@ -612,3 +612,15 @@ def test_sampled_episodes_equal_fresh_builds():
     fresh = core.build_episodes(sampled.scenes, expert)
     assert_same(vars(sampled.poses), vars(fresh.poses))
     assert np.all(sampled.worst_expert_reward() >= np.deg2rad(1.0))
+
+
+def test_expert_bad_input_raises():
+    expert = MinimaxExpert()
+    with pytest.raises(ValueError, match=r"32 \(3 fingers\) or 38"):
+        expert.predict(np.zeros(30, np.float32))
+    with pytest.raises(ValueError, match="finite"):
+        expert.predict(np.full(32, np.nan, np.float32))
+    with pytest.raises(ValueError, match=r"\(size,\) or \(batch, size\)"):
+        expert.predict(np.zeros((2, 2, 32), np.float32))
+    with pytest.raises(ValueError, match="k_max_ratio"):
+        MinimaxExpert(k_max_ratio=-1.0)
