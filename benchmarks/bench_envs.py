@@ -97,7 +97,7 @@ def main() -> int:
         failed |= not ok
         print(
             f"{env_id.split('/')[1]:<30} {mode:<7} {rate:>12,.0f} {target:>11,}"
-            f" {rate / cartpole[mode]:>10.2f}x  {'ok' if ok else 'MISSED'}"
+            f" {rate / cartpole[mode]:>10.3g}x  {'ok' if ok else 'MISSED'}"
         )
     return 1 if failed else 0
 
