@@ -16,7 +16,6 @@ from pathlib import Path
 import numpy as np
 
 from grasp_env.mechanics import (
-    PAPER_FACES,
     MinimaxResult,
     Scene,
     Status,
@@ -28,26 +27,16 @@ from grasp_env.mechanics import (
 )
 from grasp_env.mechanics.forces import Grasp
 
+from .scene_args import add_scene_arguments, floats, scene_from_arguments
+
 HELP = "the paper's quasi-static sweep: optimal k_ij and friction angles, table and plots"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, default=Path("results/reproduce"), help="output dir")
-    parser.add_argument("--weight", type=float, default=5.0, help="object weight w, N (paper: 5)")
-    parser.add_argument("--mu", type=float, default=0.5, help="friction coefficient (default 0.5)")
+    add_scene_arguments(parser)
     parser.add_argument(
-        "--offsets",
-        type=_floats(6),
-        default=None,
-        metavar="U1,V1,U2,V2,U3,V3",
-        help="contact offsets from the face centres, fractions of the half-width (default 0)",
-    )
-    parser.add_argument(
-        "--cg-offset", type=_floats(3), default=(0.0, 0.0, 0.0), metavar="X,Y,Z",
-        help="centre of gravity relative to the cube's centre, m (default 0)",
-    )  # fmt: skip
-    parser.add_argument(
-        "--axis", type=_floats(3), default=(1.0, -1.0, 0.0), metavar="X,Y,Z",
+        "--axis", type=floats(3), default=(1.0, -1.0, 0.0), metavar="X,Y,Z",
         help="world-frame rotation axis of the trajectory (paper: 1,-1,0)",
     )  # fmt: skip
     parser.add_argument("--alpha-start", type=float, default=-15.0, help="first alpha, deg")
@@ -57,19 +46,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--k-max", type=float, default=None, help="bound on |k_ij|, N (default 2 x weight)"
     )
     parser.add_argument("--no-plots", action="store_true", help="write the CSV only")
-
-
-def _floats(count: int):
-    def parse(text: str) -> tuple[float, ...]:
-        try:
-            values = tuple(float(v) for v in text.split(","))
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected {count} comma-separated numbers") from None
-        if len(values) != count:
-            raise argparse.ArgumentTypeError(f"expected {count} comma-separated numbers")
-        return values
-
-    return parse
 
 
 @dataclass(frozen=True)
@@ -215,10 +191,7 @@ def plot_theta1_grid(sweep: Sweep, path: Path) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    offsets = None if args.offsets is None else np.reshape(args.offsets, (3, 2))
-    scene = Scene.on_faces(
-        PAPER_FACES, offsets=offsets, weight=args.weight, mu=args.mu, cg_offset=args.cg_offset
-    )
+    scene = scene_from_arguments(args)
     trajectory = Trajectory(args.axis, args.alpha_start, args.alpha_end, args.alpha_step)
     if args.k_max is not None and not (np.isfinite(args.k_max) and args.k_max > 0):
         raise ValueError(f"--k-max must be a finite number > 0, got {args.k_max}")

@@ -24,8 +24,6 @@ from pathlib import Path
 import numpy as np
 
 from grasp_env.mechanics import (
-    DEFAULT_MU,
-    DEFAULT_WEIGHT,
     PAPER_FACES,
     PHI,
     Scene,
@@ -46,6 +44,8 @@ from grasp_env.physics.agreement import (
     summarise,
 )
 
+from .scene_args import add_scene_arguments, scene_from_arguments
+
 HELP = "check grip forces in MuJoCo physics along a trajectory (or --agreement)"
 
 
@@ -62,23 +62,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default="grasp_env/CubeGrasp-v0",
         help="environment that drives a saved model (default grasp_env/CubeGrasp-v0)",
     )
-    parser.add_argument(
-        "--weight", type=float, default=DEFAULT_WEIGHT, help=f"weight, N (default {DEFAULT_WEIGHT})"
-    )
-    parser.add_argument(
-        "--mu", type=float, default=DEFAULT_MU, help=f"friction coefficient (default {DEFAULT_MU})"
-    )
-    parser.add_argument(
-        "--offsets",
-        type=_floats(6),
-        default=None,
-        metavar="U1,V1,U2,V2,U3,V3",
-        help="contact offsets from the face centres, fractions of the half-width (default 0)",
-    )
-    parser.add_argument(
-        "--cg-offset", type=_floats(3), default=(0.0, 0.0, 0.0), metavar="X,Y,Z",
-        help="centre of gravity relative to the cube's centre, m (default 0)",
-    )  # fmt: skip
+    add_scene_arguments(parser)
     parser.add_argument(
         "--agreement", action="store_true", help="run the analytic-vs-MuJoCo agreement study"
     )
@@ -86,30 +70,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, default=Path("results/verify"), help="output dir")
 
 
-def _floats(count: int):
-    def parse(text: str) -> tuple[float, ...]:
-        try:
-            values = tuple(float(v) for v in text.split(","))
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected {count} comma-separated numbers") from None
-        if len(values) != count:
-            raise argparse.ArgumentTypeError(f"expected {count} comma-separated numbers")
-        return values
-
-    return parse
-
-
 def run(args: argparse.Namespace) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     if args.agreement:
         return run_agreement(args.seed, args.out)
-    scene = Scene.on_faces(
-        PAPER_FACES,
-        None if args.offsets is None else np.reshape(args.offsets, (3, 2)),
-        weight=args.weight,
-        mu=args.mu,
-        cg_offset=args.cg_offset,
-    )
+    scene = scene_from_arguments(args)
     trajectory = Trajectory()
     if args.policy == "expert":
         forces = expert_forces(scene, trajectory)
