@@ -624,3 +624,34 @@ def test_expert_bad_input_raises():
         expert.predict(np.zeros((2, 2, 32), np.float32))
     with pytest.raises(ValueError, match="k_max_ratio"):
         MinimaxExpert(k_max_ratio=-1.0)
+
+
+def test_step_kernel_matches_the_mechanics():
+    """The compiled step (eq. 4 and eq. 2) against grasp_env.mechanics, edge cases included."""
+    from grasp_env.envs.core import evaluate
+    from grasp_env.mechanics import friction_angles, interaction_basis, net_forces
+
+    rng = np.random.default_rng(0)
+    count, n = 2000, 4
+    positions = rng.normal(size=(count, n, 3))
+    basis = interaction_basis(positions)
+    pairs = np.array([[0, 1], [0, 2], [1, 2], [0, 3], [1, 3], [2, 3]])
+    directions = basis[:, np.arange(6), pairs[:, 0], :]
+    normals = rng.normal(size=(count, n, 3))
+    normals /= np.linalg.norm(normals, axis=-1, keepdims=True)
+    forces = rng.normal(size=(count, n, 3))
+    actions = rng.uniform(-1.5, 1.5, (count, 6))
+    actions[:3] = 0.0
+    forces[0], forces[1], forces[2] = 2 * normals[0], -3 * normals[1], 0.0  # 0, pi, P = 0
+    k_max = rng.uniform(0.5, 3.0, count)
+    limit = np.full(count, 0.4)
+    ok, k, net, theta, margin, reward = evaluate(
+        forces, directions, normals, pairs, np.arange(count), actions, k_max, limit
+    )
+    assert ok
+    np.testing.assert_array_equal(k, np.clip(actions, -1, 1) * k_max[:, None])
+    np.testing.assert_allclose(net, net_forces(forces, basis, k), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(theta, friction_angles(net, normals), rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(theta[:3], [[0.0] * n, [np.pi] * n, [0.0] * n])
+    np.testing.assert_array_equal(margin, 0.4 - theta)
+    np.testing.assert_array_equal(reward, margin.min(axis=1))

@@ -85,8 +85,16 @@ def evaluate(forces, directions, normals, pairs, rows, actions, k_max, limit):
             cx = py * nz - pz * ny
             cy = pz * nx - px * nz
             cz = px * ny - py * nx
-            # eq. 2 as atan2(|P x n|, P . n): accurate near 0, where acos is not
-            t = math.atan2(math.sqrt(cx * cx + cy * cy + cz * cz), px * nx + py * ny + pz * nz)
+            # eq. 2 as atan2(|P x n|, P . n), accurate near 0 where acos is not; written with
+            # atan, which costs half as much as atan2 here (the step's largest cost)
+            tangential = math.sqrt(cx * cx + cy * cy + cz * cz)
+            normal = px * nx + py * ny + pz * nz
+            if normal > 0.0:
+                t = math.atan(tangential / normal)
+            elif tangential > 0.0:
+                t = 0.5 * math.pi + math.atan(-normal / tangential)
+            else:
+                t = math.pi if normal < 0.0 else 0.0
             theta[b, i] = t
             margin[b, i] = limit[b] - t
             worst = min(worst, limit[b] - t)
