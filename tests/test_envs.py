@@ -629,13 +629,13 @@ def test_expert_bad_input_raises():
 def test_step_kernel_matches_the_mechanics():
     """The compiled step (eq. 4 and eq. 2) against grasp_env.mechanics, edge cases included."""
     from grasp_env.envs.core import evaluate
-    from grasp_env.mechanics import friction_angles, interaction_basis, net_forces
+    from grasp_env.mechanics import contact_pairs, friction_angles, interaction_basis, net_forces
 
     rng = np.random.default_rng(0)
     count, n = 2000, 4
     positions = rng.normal(size=(count, n, 3))
     basis = interaction_basis(positions)
-    pairs = np.array([[0, 1], [0, 2], [1, 2], [0, 3], [1, 3], [2, 3]])
+    pairs = contact_pairs(n)
     directions = basis[:, np.arange(6), pairs[:, 0], :]
     normals = rng.normal(size=(count, n, 3))
     normals /= np.linalg.norm(normals, axis=-1, keepdims=True)

@@ -233,7 +233,8 @@ class _CubeGraspEnv(gym.Env[np.ndarray, np.ndarray]):
 _DOC_SPACES = """
     ## Action Space
     `Box(-1, 1, (m,), float32)`, m = n (n - 1) / 2 interaction scalars, one per finger pair in
-    the order (1, 2), (1, 3), (2, 3)[, (1, 4), (2, 4), (3, 4)]. The grip is
+    the order (1, 2), (1, 3), (2, 3) for three fingers and (1, 2), (1, 3), (1, 4), (2, 3),
+    (2, 4), (3, 4) for four (`grasp_env.mechanics.contact_pairs`). The grip is
     k_ij = a_ij x k_max with k_max = `k_max_ratio` x w; k_ij > 0 squeezes the pair together
     (paper eq. 4). Actions outside [-1, 1] are clipped; a wrong shape or a non-finite entry
     raises `ValueError`.
