@@ -16,13 +16,14 @@ from __future__ import annotations
 from math import atan2, cos, inf, log, pi, sin, sqrt
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 #: Accepted certificate gap, radians (1e-6 deg is 1.7e-8 rad).
 GAP_TOL = 1e-9
 #: Offsets below the primal value at which the dual certificate is tried, radians.
 _DELTAS = (1e-11, 1e-10, 1e-9)
 INTERIOR, BOUNDARY, NOT_PUSHING = 0, 1, 2
+APEX, UNCERTIFIED = 0, 6  # solve_one's first and last diagnostic paths
 #: A released finger (zero force at the optimum) is held at this normal force (normalised),
 #: inside its cone, so that its friction angle is well defined.
 RELEASE = 1e-10
@@ -66,6 +67,19 @@ def setup(F, E, N, a0, al, tau0, T):
             T[i, 0, j] = bx * e0 + by * e1 + bz * e2
             T[i, 1, j] = cx * e0 + cy * e1 + cz * e2
     return scale
+
+
+@_jit
+def zero(A):
+    for p in range(A.shape[0]):
+        for q in range(A.shape[1]):
+            A[p, q] = 0.0
+
+
+@_jit
+def copy_into(dst, src, count):
+    for j in range(count):
+        dst[j] = src[j]
 
 
 @_jit
@@ -127,9 +141,13 @@ def lu_solve(A, b, size):
 
 
 @_jit
-def cholesky_inverse(H, size, out):
-    """out <- H^-1 for symmetric H via Cholesky; False unless H is positive definite."""
-    L = np.zeros((size, size))
+def cholesky_inverse(H, size, out, L, Li):
+    """out <- H^-1 for symmetric H via Cholesky (L, Li scratch); False unless H is positive
+    definite."""
+    for r in range(size):
+        for c in range(size):
+            L[r, c] = 0.0
+            Li[r, c] = 0.0
     for j in range(size):
         s = H[j, j]
         for q in range(j):
@@ -143,7 +161,6 @@ def cholesky_inverse(H, size, out):
                 s -= L[r, q] * L[j, q]
             L[r, j] = s / L[j, j]
     # invert L (lower triangular), then out = L^-T L^-1
-    Li = np.zeros((size, size))
     for j in range(size):
         Li[j, j] = 1.0 / L[j, j]
         for r in range(j + 1, size):
@@ -161,14 +178,15 @@ def cholesky_inverse(H, size, out):
 
 
 @_jit
-def quadprog(Ginv, c, C, b, nc, meq, dim, x, u):
+def quadprog(Ginv, c, C, b, nc, meq, dim, x, u, GN, M, vec, active, is_active):
     """Goldfarb-Idnani dual active-set method: min 1/2 x'Gx + c'x subject to C x >= b.
 
     The first ``meq`` rows are equalities C x = b (their rows may be negated in place).
     ``Ginv`` is G^-1 (G positive definite). Fills x and the multipliers u (nc). The active
     set is kept explicitly and the projections are recomputed from it at each step, which
     at these sizes (dim <= 7) is as cheap as updating factorisations and simpler.
-    Returns False if the constraints are infeasible (or the iteration limit is hit).
+    Scratch: GN, M (dim, dim), vec (6, >= max(dim, nc)), active (dim), is_active (nc).
+    Returns 0, or a positive code if the constraints are infeasible (or a limit is hit).
     """
     for i in range(dim):
         s = 0.0
@@ -177,17 +195,16 @@ def quadprog(Ginv, c, C, b, nc, meq, dim, x, u):
         x[i] = s
     for i in range(nc):
         u[i] = 0.0
-    active = np.empty(dim, dtype=np.int64)
-    ua = np.empty(dim)
-    is_active = np.zeros(nc, dtype=np.bool_)
-    sign = np.ones(nc)
-    GN = np.empty((dim, dim))
-    M = np.empty((dim, dim))
-    r = np.empty(dim)
-    y = np.empty(dim)
-    z = np.empty(dim)
+    ua = vec[0]
+    r = vec[1]
+    y = vec[2]
+    z = vec[3]
+    cnorm = vec[4]
+    sign = vec[5]
+    for i in range(nc):
+        is_active[i] = False
+        sign[i] = 1.0
     q = 0
-    cnorm = np.empty(nc)
     for i in range(nc):
         s = 0.0
         for j in range(dim):
@@ -298,11 +315,12 @@ def quadprog(Ginv, c, C, b, nc, meq, dim, x, u):
 
 
 @_jit
-def finger_derivatives(mode, t, i, w, a, tau, rho, al, T, grad, H):
-    """Value, gradient (into grad) and w x Hessian (added to H) of finger i's angle function.
+def finger_derivatives(exact, i, w, a, tau, rho, al, T, grad, H):
+    """theta_i(k) (paper eq. 2), its gradient (into grad) and w x its Hessian (added to H).
 
-    mode 0: theta_i(k) (paper eq. 2).  mode 1: g_i(k) = cos t |tau_i| - sin t a_i, the cone
-    form at a fixed t (convex in k); theta_i <= t  <=>  g_i <= 0.
+    With exact = 0.0 only the convex, circumferential part of the Hessian is added (the
+    curvature of the cone |tau| <= tan(t) a), a positive semidefinite stand-in that the SQP
+    uses far from the optimum; exact = 1.0 gives the true Hessian for Newton's method.
     """
     m = al.shape[1]
     ai, ri = a[i], rho[i]
@@ -310,48 +328,25 @@ def finger_derivatives(mode, t, i, w, a, tau, rho, al, T, grad, H):
         u0, u1 = tau[i, 0] / ri, tau[i, 1] / ri
     else:
         u0, u1 = 1.0, 0.0
-    if mode == 2:
-        # theta with only its convex, circumferential curvature (the cone form's Hessian)
-        r2 = ri * ri + ai * ai
-        for j in range(m):
-            grad[j] = (ai * (T[i, 0, j] * u0 + T[i, 1, j] * u1) - ri * al[i, j]) / r2
-        if w != 0.0:
-            c1 = w * abs(ai) / (r2 * max(ri, 1e-300))
-            for p in range(m):
-                gv_p = T[i, 1, p] * u0 - T[i, 0, p] * u1
-                for q in range(m):
-                    H[p, q] += c1 * gv_p * (T[i, 1, q] * u0 - T[i, 0, q] * u1)
-        return atan2(ri, ai)
-    if mode == 0:
-        r2 = ri * ri + ai * ai
-        for j in range(m):
-            grad[j] = (ai * (T[i, 0, j] * u0 + T[i, 1, j] * u1) - ri * al[i, j]) / r2
-        if w != 0.0:
-            c1 = w * ai / (r2 * max(ri, 1e-300))
-            c2 = w * (ri * ri - ai * ai) / (r2 * r2)
-            c3 = w * 2.0 * ai * ri / (r2 * r2)
-            for p in range(m):
-                gr_p = T[i, 0, p] * u0 + T[i, 1, p] * u1
-                gv_p = T[i, 1, p] * u0 - T[i, 0, p] * u1
-                for q in range(m):
-                    gr_q = T[i, 0, q] * u0 + T[i, 1, q] * u1
-                    gv_q = T[i, 1, q] * u0 - T[i, 0, q] * u1
-                    H[p, q] += (
-                        c1 * gv_p * gv_q
-                        + c2 * (gr_p * al[i, q] + al[i, p] * gr_q)
-                        + c3 * (al[i, p] * al[i, q] - gr_p * gr_q)
-                    )
-        return atan2(ri, ai)
-    ct, st = cos(t), sin(t)
+    r2 = ri * ri + ai * ai
     for j in range(m):
-        grad[j] = ct * (T[i, 0, j] * u0 + T[i, 1, j] * u1) - st * al[i, j]
+        grad[j] = (ai * (T[i, 0, j] * u0 + T[i, 1, j] * u1) - ri * al[i, j]) / r2
     if w != 0.0:
-        c1 = w * ct / max(ri, 1e-300)
+        c1 = w * (ai if exact > 0.0 else abs(ai)) / (r2 * max(ri, 1e-300))
+        c2 = exact * w * (ri * ri - ai * ai) / (r2 * r2)
+        c3 = exact * w * 2.0 * ai * ri / (r2 * r2)
         for p in range(m):
+            gr_p = T[i, 0, p] * u0 + T[i, 1, p] * u1
             gv_p = T[i, 1, p] * u0 - T[i, 0, p] * u1
             for q in range(m):
-                H[p, q] += c1 * gv_p * (T[i, 1, q] * u0 - T[i, 0, q] * u1)
-    return ct * ri - st * ai
+                gr_q = T[i, 0, q] * u0 + T[i, 1, q] * u1
+                gv_q = T[i, 1, q] * u0 - T[i, 0, q] * u1
+                H[p, q] += (
+                    c1 * gv_p * gv_q
+                    + c2 * (gr_p * al[i, q] + al[i, p] * gr_q)
+                    + c3 * (al[i, p] * al[i, q] - gr_p * gr_q)
+                )
+    return atan2(ri, ai)
 
 
 @_jit
@@ -387,7 +382,7 @@ def merit(k, a0, al, tau0, T, f, penalty, R, a, tau, rho, theta):
 
 
 @_jit
-def sqp(a0, al, tau0, T, K, f, R, release, k, lam, nu, max_iter, tol, hmode):
+def sqp(a0, al, tau0, T, K, f, R, release, k, lam, nu, max_iter, tol):
     """SQP for min t s.t. theta_i(k) <= t, |k_j| <= K, |P_i| <= f, from k inside the box.
 
     Released fingers (R) are held at P_i = release * n_i (k must satisfy this on entry).
@@ -424,14 +419,21 @@ def sqp(a0, al, tau0, T, K, f, R, release, k, lam, nu, max_iter, tol, hmode):
     u = np.empty(nc)
     k_try = np.empty(m)
     gmean = np.empty(m)
+    Lc = np.empty((m, m))
+    Lic = np.empty((m, m))
+    GN = np.empty((dim, dim))
+    M = np.empty((dim, dim))
+    vec = np.empty((6, max(dim, nc)))
+    active = np.empty(dim, dtype=np.int64)
+    is_active = np.empty(nc, dtype=np.bool_)
     Ginv[m, m] = 1.0
     penalty = 1.0
     for it in range(max_iter):
         tmax = merit(k, a0, al, tau0, T, inf, 0.0, R, a, tau, rho, theta)
-        H[:, :] = 0.0
+        zero(H)
         for i in range(n):
             if not R[i]:
-                finger_derivatives(hmode, 0.0, i, lam[i], a, tau, rho, al, T, grads[i], H)
+                finger_derivatives(0.0, i, lam[i], a, tau, rho, al, T, grads[i], H)
             if has_f:
                 P[i] = force_derivatives(i, nu[i], a, tau, al, T, fgrads[i], H)
         big = 1e-8
@@ -458,7 +460,7 @@ def sqp(a0, al, tau0, T, K, f, R, release, k, lam, nu, max_iter, tol, hmode):
                         s += aug * lam[i] * (grads[i, p] - gmean[p]) * (grads[i, q] - gmean[q])
                     Hs[p, q] = s
                 Hs[p, p] += shift
-            if cholesky_inverse(Hs, m, Hinv):
+            if cholesky_inverse(Hs, m, Hinv, Lc, Lic):
                 ok = True
                 break
         if not ok:
@@ -498,7 +500,7 @@ def sqp(a0, al, tau0, T, K, f, R, release, k, lam, nu, max_iter, tol, hmode):
                 C[row, m] = 0.0
                 b[row] = P[i] - f
                 row += 1
-        code = quadprog(Ginv, c, C, b, nc, meq, dim, x, u)
+        code = quadprog(Ginv, c, C, b, nc, meq, dim, x, u, GN, M, vec, active, is_active)
         if code != 0:
             return -10 - code
         total = 0.0
@@ -596,10 +598,10 @@ def polish(a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu, release, max_
             t = max(t, theta[i])
     for it in range(max_iter):
         evaluate(k, a0, al, tau0, T, a, tau, rho, theta)
-        H[:, :] = 0.0
+        zero(H)
         for i in range(n):
             if S[i]:
-                finger_derivatives(0, 0.0, i, lam[i], a, tau, rho, al, T, grads[i], H)
+                finger_derivatives(1.0, i, lam[i], a, tau, rho, al, T, grads[i], H)
             if Q[i]:
                 P[i] = force_derivatives(i, nu[i], a, tau, al, T, fgrads[i], H)
         big = 1e-12
@@ -629,7 +631,9 @@ def polish(a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu, release, max_
                 resid = max(resid, abs(g))
             if resid <= 1e-14:
                 return t
-        A[:size, :size] = 0.0
+        for p in range(size):
+            for q in range(size):
+                A[p, q] = 0.0
         for p in range(nf):
             for q in range(nf):
                 A[p, q] = H[free[p], free[q]]
@@ -760,8 +764,23 @@ def certify(a0, al, tau0, T, K, f, k, t_low, S, R, Q, fixed, lam, eta, nu):
         if R[i]:
             for c in range(3):
                 z[i, c] = eta[i, c]
+    # A released finger whose dual lies on the polar cone's boundary (released and at the
+    # maximum angle at once) is corrected like the smooth fingers, along that boundary, so
+    # that the correction cannot push it out of the cone.
+    Sm = S.copy()
+    Rm = R.copy()
+    cot = ct / max(st, 1e-300)
+    for i in range(n):
+        if R[i]:
+            x0 = -z[i, 0]
+            r = sqrt(z[i, 1] ** 2 + z[i, 2] ** 2)
+            if x0 > 0.0 and r >= cot * x0 * (1.0 - 1e-6):
+                Sm[i] = True
+                Rm[i] = False
+                lg[i] = x0 / st
+                phi[i] = atan2(z[i, 2], z[i, 1])
     w = np.zeros(m)
-    dual_vectors(al, T, S, R, Q, ct, st, lg, phi, z, nuc, vf, w)
+    dual_vectors(al, T, Sm, Rm, Q, ct, st, lg, phi, z, nuc, vf, w)
     free = np.empty(m, dtype=np.int64)
     nf = 0
     for j in range(m):
@@ -770,20 +789,20 @@ def certify(a0, al, tau0, T, K, f, k, t_low, S, R, Q, fixed, lam, eta, nu):
             nf += 1
     ncols = 0
     for i in range(n):
-        ncols += 2 * S[i] + 3 * R[i] + Q[i]
+        ncols += 2 * Sm[i] + 3 * Rm[i] + Q[i]
     if nf > 0 and ncols > 0:
         # minimum-norm correction J dc = -w_free
         J = np.zeros((m, 16))
         col = 0
         for i in range(n):
-            if S[i]:
+            if Sm[i]:
                 cp, sp = cos(phi[i]), sin(phi[i])
                 for p in range(nf):
                     j = free[p]
                     J[p, col] = -st * al[i, j] + ct * (cp * T[i, 0, j] + sp * T[i, 1, j])
                     J[p, col + 1] = lg[i] * ct * (cp * T[i, 1, j] - sp * T[i, 0, j])
                 col += 2
-            if R[i]:
+            if Rm[i]:
                 for c in range(3):
                     for p in range(nf):
                         j = free[p]
@@ -810,7 +829,7 @@ def certify(a0, al, tau0, T, K, f, k, t_low, S, R, Q, fixed, lam, eta, nu):
         if lu_solve(G, y, nf):
             col = 0
             for i in range(n):
-                if S[i]:
+                if Sm[i]:
                     d_l = 0.0
                     d_p = 0.0
                     for p in range(nf):
@@ -819,7 +838,7 @@ def certify(a0, al, tau0, T, K, f, k, t_low, S, R, Q, fixed, lam, eta, nu):
                     lg[i] = max(0.0, lg[i] + d_l)
                     phi[i] += d_p
                     col += 2
-                if R[i]:
+                if Rm[i]:
                     for c in range(3):
                         for p in range(nf):
                             z[i, c] += J[p, col] * y[p]
@@ -832,7 +851,7 @@ def certify(a0, al, tau0, T, K, f, k, t_low, S, R, Q, fixed, lam, eta, nu):
     # released fingers' duals must lie in the polar cone |z_b,c| <= cot(t) (-z_n)
     kappa = ct / max(st, 1e-300)
     for i in range(n):
-        if R[i]:
+        if Rm[i]:
             x0 = -z[i, 0]
             r = sqrt(z[i, 1] ** 2 + z[i, 2] ** 2)
             if r > kappa * x0:
@@ -845,11 +864,11 @@ def certify(a0, al, tau0, T, K, f, k, t_low, S, R, Q, fixed, lam, eta, nu):
                     z[i, 0] = -s
                     z[i, 1] *= kappa * s / r
                     z[i, 2] *= kappa * s / r
-    dual_vectors(al, T, S, R, Q, ct, st, lg, phi, z, nuc, vf, w)
+    dual_vectors(al, T, Sm, Rm, Q, ct, st, lg, phi, z, nuc, vf, w)
     value = 0.0
     size = 0.0  # the terms' magnitudes, for the box share
     for i in range(n):
-        if S[i] or R[i]:
+        if Sm[i] or Rm[i]:
             term = z[i, 0] * a0[i] + z[i, 1] * tau0[i, 0] + z[i, 2] * tau0[i, 1]
             value += term
             size += abs(term)
@@ -882,8 +901,8 @@ def apex_start(a0, al, tau0, T, k):
 
 
 @_jit
-def release_start(a0, al, tau0, T, K, i, release, k_from, k):
-    """k = k_from moved (minimum norm) so that P_i = release * n_i; False if it leaves the box."""
+def move_force(a0, al, tau0, T, i, t0, t1, t2, k_from, k):
+    """k = k_from moved (minimum norm) so that P_i = (t0, t1, t2) in finger i's frame."""
     m = al.shape[1]
     M = np.empty((3, 3))
     y = np.empty(3)
@@ -891,7 +910,7 @@ def release_start(a0, al, tau0, T, K, i, release, k_from, k):
         s = a0[i] if r == 0 else tau0[i, r - 1]
         for j in range(m):
             s += (al[i, j] if r == 0 else T[i, r - 1, j]) * k_from[j]
-        y[r] = (release if r == 0 else 0.0) - s
+        y[r] = (t0 if r == 0 else (t1 if r == 1 else t2)) - s
         for c in range(3):
             s = 0.0
             for j in range(m):
@@ -899,10 +918,19 @@ def release_start(a0, al, tau0, T, K, i, release, k_from, k):
                     al[i, j] if c == 0 else T[i, c - 1, j]
                 )
             M[r, c] = s
-    if not lu_solve(M, y, 3):
+    if not lu_solve(M, y, M.shape[0]):
         return False
     for j in range(m):
         k[j] = k_from[j] + y[0] * al[i, j] + y[1] * T[i, 0, j] + y[2] * T[i, 1, j]
+    return True
+
+
+@_jit
+def release_start(a0, al, tau0, T, K, i, release, k_from, k):
+    """k = k_from moved (minimum norm) so that P_i = release * n_i; False if it leaves the box."""
+    if not move_force(a0, al, tau0, T, i, release, 0.0, 0.0, k_from, k):
+        return False
+    for j in range(al.shape[1]):
         if abs(k[j]) > K:
             return False
     return True
@@ -955,7 +983,7 @@ def finish(a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu):
             g = np.zeros(m)
             for i in range(n):
                 if S[i]:
-                    finger_derivatives(0, 0.0, i, 0.0, a, tau, rho, al, T, grads[i], Hd)
+                    finger_derivatives(1.0, i, 0.0, a, tau, rho, al, T, grads[i], Hd)
                     for j in range(m):
                         g[j] += lam[i] * grads[i, j]
                 if R[i]:
@@ -1064,15 +1092,16 @@ def dual_value(a0, al, tau0, T, K, f, t, z, nuv, nus):
 def barrier_terms(x, a0, al, tau0, T, K, f, ct, st, wts, cones, g, H, tb, derivatives):
     """Value, gradient g and Hessian H of  tb * s + barrier  at x = (k, s); inf if outside.
 
-    Without ``derivatives`` only the value is computed (line searches).
-    cones: 1 = the finger cones ct |tau_i| <= st a_i + wts_i s with the forces hard,
-    0 = phase I, the force balls |P_i| <= f + s only.
+    With derivatives = 0.0 only the value is computed (line searches).
+    cones: 1.0 = the finger cones ct |tau_i| <= st a_i + wts_i s with the forces hard,
+    0.0 = phase I, the force balls |P_i| <= f + s only. (Flags are floats: numba compiles
+    a function once per literal integer or boolean it is called with.)
     """
     n, m = al.shape
     dim = m + 1
     s = x[m]
     val = tb * s
-    if derivatives:
+    if derivatives != 0.0:
         for p in range(dim):
             g[p] = 0.0
             for q in range(dim):
@@ -1083,7 +1112,7 @@ def barrier_terms(x, a0, al, tau0, T, K, f, ct, st, wts, cones, g, H, tb, deriva
         if up <= 0.0 or lo <= 0.0:
             return inf
         val -= log(up) + log(lo)
-        if not derivatives:
+        if derivatives == 0.0:
             continue
         g[j] += 1.0 / up - 1.0 / lo
         H[j, j] += 1.0 / (up * up) + 1.0 / (lo * lo)
@@ -1100,7 +1129,7 @@ def barrier_terms(x, a0, al, tau0, T, K, f, ct, st, wts, cones, g, H, tb, deriva
             t1 += T[i, 1, j] * x[j]
         for kind in range(2):
             # kind 0: finger cone (when cones == 1); kind 1: force ball (if a limit is set)
-            if kind == 0 and cones == 1:
+            if kind == 0 and cones != 0.0:
                 sig = st * a + wts[i] * s
                 nv = 2
                 v[0], v[1] = ct * t0, ct * t1
@@ -1112,7 +1141,7 @@ def barrier_terms(x, a0, al, tau0, T, K, f, ct, st, wts, cones, g, H, tb, deriva
                 jv[0, m] = 0.0
                 jv[1, m] = 0.0
             elif kind == 1 and f < inf:
-                sig = f + (s if cones == 0 else 0.0)
+                sig = f + (s if cones == 0.0 else 0.0)
                 nv = 3
                 v[0], v[1], v[2] = a, t0, t1
                 for j in range(m):
@@ -1120,7 +1149,7 @@ def barrier_terms(x, a0, al, tau0, T, K, f, ct, st, wts, cones, g, H, tb, deriva
                     jv[0, j] = al[i, j]
                     jv[1, j] = T[i, 0, j]
                     jv[2, j] = T[i, 1, j]
-                dsig[m] = 1.0 if cones == 0 else 0.0
+                dsig[m] = 1.0 if cones == 0.0 else 0.0
                 jv[0, m] = 0.0
                 jv[1, m] = 0.0
                 jv[2, m] = 0.0
@@ -1133,7 +1162,7 @@ def barrier_terms(x, a0, al, tau0, T, K, f, ct, st, wts, cones, g, H, tb, deriva
             if sig <= 0.0 or D <= 0.0:
                 return inf
             val -= log(D)
-            if not derivatives:
+            if derivatives == 0.0:
                 continue
             # grad(-log D) = -(2 sig dsig - 2 Jv' v) / D
             for p in range(dim):
@@ -1157,12 +1186,13 @@ def barrier_terms(x, a0, al, tau0, T, K, f, ct, st, wts, cones, g, H, tb, deriva
 
 
 @_jit
-def barrier_solve(a0, al, tau0, T, K, f, t, wts, cones, x, gap, stop_below):
+def barrier_solve(a0, al, tau0, T, K, f, t, wts, cones, x, gap, stop_below, tb0):
     """Path-following log-barrier method for  min s  over the cone problem at a fixed t.
 
     x = (k, s) must be strictly feasible on entry; on exit it is the final iterate and the
-    returned tb is the last barrier weight (duality gap about nu / tb). Stops early once
-    s < stop_below (phase I: a strictly feasible point is all that is needed).
+    returned tb is the last barrier weight (duality gap about nu / tb). The weight starts
+    at tb0 (large when x is a warm start near the optimum). Stops early once s < stop_below
+    (phase I: a strictly feasible point is all that is needed).
     """
     n, m = al.shape
     dim = m + 1
@@ -1172,15 +1202,17 @@ def barrier_solve(a0, al, tau0, T, K, f, t, wts, cones, x, gap, stop_below):
     Hinv = np.empty((dim, dim))
     dx = np.empty(dim)
     xt = np.empty(dim)
+    Lc = np.empty((dim, dim))
+    Lic = np.empty((dim, dim))
     nu_b = 2.0 * m + 2.0 * n * (1 + (f < inf))
-    tb = 1.0
+    tb = tb0
     for _ in range(60):
         for _ in range(50):
-            val = barrier_terms(x, a0, al, tau0, T, K, f, ct, st, wts, cones, g, H, tb, True)
-            if not cholesky_inverse(H, dim, Hinv):
+            val = barrier_terms(x, a0, al, tau0, T, K, f, ct, st, wts, cones, g, H, tb, 1.0)
+            if not cholesky_inverse(H, dim, Hinv, Lc, Lic):
                 for p in range(dim):
                     H[p, p] += 1e-12 * (1.0 + abs(H[p, p]))
-                if not cholesky_inverse(H, dim, Hinv):
+                if not cholesky_inverse(H, dim, Hinv, Lc, Lic):
                     return tb
             dec = 0.0
             for p in range(dim):
@@ -1189,14 +1221,18 @@ def barrier_solve(a0, al, tau0, T, K, f, t, wts, cones, x, gap, stop_below):
                     s -= Hinv[p, q] * g[q]
                 dx[p] = s
                 dec -= s * g[p]
+            # dec = lambda^2, the squared Newton decrement: centred enough at 1e-10 (or 1e-2
+            # while the barrier weight is still growing)
             if dec < 1e-10 or (dec < 1e-2 and nu_b / tb > gap):
                 break
             alpha = 1.0
-            for _ in range(60):
+            for _ in range(40):
                 for p in range(dim):
                     xt[p] = x[p] + alpha * dx[p]
-                vt = barrier_terms(xt, a0, al, tau0, T, K, f, ct, st, wts, cones, g, H, tb, False)
-                if vt <= val - 0.25 * alpha * dec:
+                vt = barrier_terms(xt, a0, al, tau0, T, K, f, ct, st, wts, cones, g, H, tb, 0.0)
+                # in the quadratic region (lambda < 0.01) any feasible full step is taken:
+                # the value's rounding there exceeds the predicted decrease
+                if vt <= val - 0.25 * alpha * dec or (dec < 1e-4 and vt < inf):
                     break
                 alpha *= 0.5
             else:
@@ -1282,12 +1318,12 @@ def fallback(a0, al, tau0, T, K, f, k, gap):
             for j in range(m):
                 x[j] = k[j]
             x[m] = excess + 1.0
-            tb = barrier_solve(a0, al, tau0, T, K, f, 0.0, wts, 0, x, 1e-14, -1e-6 * f)
+            tb = barrier_solve(a0, al, tau0, T, K, f, 0.0, wts, 0.0, x, 1e-14, -1e-6 * f, 1.0)
             for j in range(m):
                 k[j] = x[j]
             if x[m] >= -1e-6 * f:
                 barrier_duals(x, a0, al, tau0, T, K, f, 0.0, wts, tb, z, nuv, nus)
-                z[:, :] = 0.0
+                zero(z)
                 L, share = dual_value(a0, al, tau0, T, K, f, 0.0, z, nuv, nus)
                 # L > 0 proves that no k meets the force limits at all
                 return pi, (pi / 2 if L > 0.0 else 0.0), NOT_PUSHING, 0.0
@@ -1301,19 +1337,19 @@ def fallback(a0, al, tau0, T, K, f, k, gap):
         for i in range(n):
             s0 = max(s0, -a[i])
         x[m] = s0 + 1.0
-        tb = barrier_solve(a0, al, tau0, T, K, f, pi / 2, wts, 1, x, 1e-13, -inf)
-        t_try = evaluate(x[:m], a0, al, tau0, T, a, tau, rho, theta)
+        tb = barrier_solve(a0, al, tau0, T, K, f, pi / 2, wts, 1.0, x, 1e-13, -inf, 1.0)
+        t_try = evaluate(x, a0, al, tau0, T, a, tau, rho, theta)
         if t_try < pi / 2:
             t_best = t_try
-            k_best[:] = x[:m]
+            copy_into(k_best, x, m)
         else:
             barrier_duals(x, a0, al, tau0, T, K, f, pi / 2, wts, tb, z, nuv, nus)
             L, share = dual_value(a0, al, tau0, T, K, f, pi / 2, z, nuv, nus)
-            k[:] = x[:m]
+            copy_into(k, x, m)
             if t_try < t_best:
                 t_best = t_try
             else:
-                k[:] = k_best
+                copy_into(k, k_best, m)
             return t_best, (pi / 2 if L >= 0.0 else 0.0), NOT_PUSHING, share
     t = t_best
     for _ in range(40):
@@ -1330,39 +1366,62 @@ def fallback(a0, al, tau0, T, K, f, k, gap):
         for j in range(m):
             x[j] = min(K * inner, max(-K * inner, k_best[j]))
         x[m] = s0 + 1e-3
-        barrier_solve(a0, al, tau0, T, K, f, t, wts, 1, x, gap, -inf)
-        t_new = evaluate(x[:m], a0, al, tau0, T, a, tau, rho, theta)
+        barrier_solve(a0, al, tau0, T, K, f, t, wts, 1.0, x, gap, -inf, 1e3)
+        t_new = evaluate(x, a0, al, tau0, T, a, tau, rho, theta)
         if t_new < t_best:
             t_best = t_new
-            k_best[:] = x[:m]
+            copy_into(k_best, x, m)
         if not (t_new < t - 0.1 * gap):
             break
         t = t_new
-    k[:] = k_best
-    evaluate(k_best, a0, al, tau0, T, a, tau, rho, theta)
+    copy_into(k, k_best, m)
+    return t_best, -1.0, INTERIOR, 0.0
+
+
+@_jit
+def barrier_certificate(a0, al, tau0, T, K, f, k, t_up):
+    """Last resort: the barrier dual at t_up - delta for growing delta; (lower, box share).
+
+    Valid but looser than :func:`certify`; used only where the KKT polish fails.
+    """
+    n, m = al.shape
+    x = np.empty(m + 1)
+    wts = np.empty(n)
+    z = np.empty((n, 3))
+    nuv = np.empty((n, 3))
+    nus = np.empty(n)
+    a = np.empty(n)
+    tau = np.empty((n, 2))
+    rho = np.empty(n)
+    theta = np.empty(n)
+    evaluate(k, a0, al, tau0, T, a, tau, rho, theta)
     for i in range(n):
         wts[i] = max(sqrt(a[i] ** 2 + rho[i] ** 2), 1e-300)
-    for delta in (1e-8, 1e-6, 1e-4, 1e-2):
-        t_low = t_best - delta
-        if t_low <= 0.0:
-            return t_best, 0.0, INTERIOR, 0.0
+    inner = 1.0 - 1e-9
+    fixed = np.zeros(m, dtype=np.int64)
+    for delta in (1e-10, 1e-9, 1e-8, 1e-6, 1e-4, 1e-2):
+        t_low = t_up - delta
+        if t_low <= 0.0 or t_up >= pi / 2:
+            return 0.0, 0.0
         ct, st = cos(t_low), sin(t_low)
         s0 = -inf
         for i in range(n):
             s0 = max(s0, (ct * rho[i] - st * a[i]) / wts[i])
         for j in range(m):
-            x[j] = min(K * inner, max(-K * inner, k_best[j]))
+            x[j] = min(K * inner, max(-K * inner, k[j]))
         x[m] = s0 + 1e-3
-        tb = barrier_solve(a0, al, tau0, T, K, f, t_low, wts, 1, x, 0.1 * delta, -inf)
+        tb = barrier_solve(a0, al, tau0, T, K, f, t_low, wts, 1.0, x, 0.01 * delta, -inf, 1e3)
         barrier_duals(x, a0, al, tau0, T, K, f, t_low, wts, tb, z, nuv, nus)
-        L, share = dual_value(a0, al, tau0, T, K, f, t_low, z, nuv, nus)
+        for j in range(m):
+            fixed[j] = 1 if x[j] >= K * (1.0 - 1e-6) else (-1 if x[j] <= -K * (1.0 - 1e-6) else 0)
+        L, share = certify_vectors(a0, al, tau0, T, K, f, t_low, z, nuv, nus, fixed)
         if L >= 0.0:
-            return t_best, t_low, (BOUNDARY if share > 1e-6 else INTERIOR), share
-    return t_best, 0.0, INTERIOR, 0.0
+            return t_low, share
+    return 0.0, 0.0
 
 
 @_jit
-def finish_from(a0, al, tau0, T, K, f, k, lam, tol):
+def finish_from(a0, al, tau0, T, K, f, k, lam, eta, tol):
     """Read the active sets off a near-optimal point k (within ``tol``), then :func:`finish`."""
     n, m = al.shape
     a = np.empty(n)
@@ -1373,7 +1432,7 @@ def finish_from(a0, al, tau0, T, K, f, k, lam, tol):
     R = np.zeros(n, dtype=np.bool_)
     Q = np.zeros(n, dtype=np.bool_)
     fixed = np.zeros(m, dtype=np.int64)
-    eta = np.zeros((n, 3))
+    zero(eta)
     nu = np.zeros(n)
     evaluate(k, a0, al, tau0, T, a, tau, rho, theta)
     big = 0.0
@@ -1404,10 +1463,162 @@ def finish_from(a0, al, tau0, T, K, f, k, lam, tol):
 
 
 @_jit
+def fold(state, k_best, k, t_up, low, status, path):
+    """Fold one attempt into the best point and the best certificate so far.
+
+    state = (t_best, lower, status, path); each attempt's certified bound is valid on its
+    own, and only certified attempts' points are kept. Returns True once the gap is closed.
+    """
+    if low >= 0.0 and t_up < state[0]:
+        state[0] = t_up
+        copy_into(k_best, k, k.shape[0])
+    if low > state[1]:
+        state[1] = low
+        state[2] = status
+    done = state[0] - state[1] <= GAP_TOL
+    if done and state[3] == UNCERTIFIED:
+        state[3] = path
+    return done
+
+
+@_jit
+def sets_from_point(K, f, k, a, rho, Q, fixed):
+    """The force-limit and box sets that a near-optimal point k touches (within 1e-6)."""
+    for q in range(a.shape[0]):
+        Q[q] = f < inf and sqrt(a[q] ** 2 + rho[q] ** 2) >= f * (1.0 - 1e-6)
+    for j in range(k.shape[0]):
+        k[j] = min(K, max(-K, k[j]))
+        fixed[j] = 1 if k[j] >= K * (1.0 - 1e-6) else (-1 if k[j] <= -K * (1.0 - 1e-6) else 0)
+
+
+@_jit
+def try_releases(a0, al, tau0, T, K, f, k_sqp, state, k_best):
+    """Four fingers: one of them may let go at the optimum (P_i = 0, the cone's apex),
+    where theta_i is singular and the SQP stalls. Try releasing each finger, weakest first;
+    where the release is almost but not quite optimal (released and at the maximum angle
+    at once, its dual just outside the polar cone), give it the small force its dual asks
+    for and solve with every finger active."""
+    n, m = al.shape
+    a = np.empty(n)
+    tau = np.empty((n, 2))
+    rho = np.empty(n)
+    theta = np.empty(n)
+    lam = np.empty(n)
+    nu = np.zeros(n)
+    eta = np.zeros((n, 3))
+    S = np.zeros(n, dtype=np.bool_)
+    R = np.zeros(n, dtype=np.bool_)
+    Q = np.zeros(n, dtype=np.bool_)
+    fixed = np.zeros(m, dtype=np.int64)
+    k = np.empty(m)
+    k_rel = np.empty(m)
+    evaluate(k_sqp, a0, al, tau0, T, a, tau, rho, theta)
+    order = np.empty(n, dtype=np.int64)  # fingers by |P_i|, smallest first
+    for q in range(n):
+        order[q] = q
+        size_q = a[q] ** 2 + rho[q] ** 2
+        p = q
+        while p > 0 and a[order[p - 1]] ** 2 + rho[order[p - 1]] ** 2 > size_q:
+            order[p] = order[p - 1]
+            p -= 1
+        order[p] = q
+    for attempt in range(n):
+        i = order[attempt]
+        for q in range(n):
+            R[q] = q == i
+            lam[q] = 1.0 / (n - 1) if q != i else 0.0
+            nu[q] = 0.0
+        if not release_start(a0, al, tau0, T, K, i, RELEASE, k_sqp, k):
+            continue
+        if sqp(a0, al, tau0, T, K, f, R, RELEASE, k, lam, nu, 60, 1e-8) < 0:
+            continue
+        t_up, low, share = finish_from(a0, al, tau0, T, K, f, k, lam, eta, 1e-6)
+        if fold(state, k_best, k, t_up, low, BOUNDARY if share > 1e-9 else INTERIOR, 3):
+            return
+        if t_up < 0.0 or t_up >= pi / 2:
+            continue
+        copy_into(k_rel, k, m)
+        evaluate(k_rel, a0, al, tau0, T, a, tau, rho, theta)
+        typical = 0.0
+        for q in range(n):
+            typical += sqrt(a[q] ** 2 + rho[q] ** 2) / n
+        er = sqrt(eta[i, 1] ** 2 + eta[i, 2] ** 2)
+        y0 = eta[i, 1] / er if er > 0.0 else 1.0
+        y1 = eta[i, 2] / er if er > 0.0 else 0.0
+        ct, st = cos(t_up), sin(t_up)
+        for eps in (1e-3, 1e-2):
+            size = eps * typical
+            move_force(a0, al, tau0, T, i, size * ct, size * st * y0, size * st * y1, k_rel, k)
+            for q in range(n):
+                S[q] = True
+                R[q] = False
+                lam[q] = 1.0 / n
+            evaluate(k, a0, al, tau0, T, a, tau, rho, theta)
+            sets_from_point(K, f, k, a, rho, Q, fixed)
+            t_up, low, share = finish(a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu)
+            if fold(state, k_best, k, t_up, low, BOUNDARY if share > 1e-9 else INTERIOR, 3):
+                return
+
+
+@_jit
+def try_push(a0, al, tau0, T, K, f, k_sqp, state, k_best):
+    """Four fingers: the SQP may stall where a finger's force vanishes without that being
+    optimal; restart it with the weakest finger pushing along its normal."""
+    n, m = al.shape
+    a = np.empty(n)
+    tau = np.empty((n, 2))
+    rho = np.empty(n)
+    theta = np.empty(n)
+    lam = np.empty(n)
+    nu = np.zeros(n)
+    eta = np.zeros((n, 3))
+    R = np.zeros(n, dtype=np.bool_)
+    k = np.empty(m)
+    evaluate(k_sqp, a0, al, tau0, T, a, tau, rho, theta)
+    typical = 0.0
+    weakest = 0
+    for q in range(n):
+        size_q = sqrt(a[q] ** 2 + rho[q] ** 2)
+        typical += size_q / n
+        if size_q < sqrt(a[weakest] ** 2 + rho[weakest] ** 2):
+            weakest = q
+    for push in (1.0, 4.0):
+        for q in range(n):
+            lam[q] = 1.0 / n
+            nu[q] = 0.0
+        move_force(a0, al, tau0, T, weakest, push * typical, 0.0, 0.0, k_sqp, k)
+        for j in range(m):
+            k[j] = min(K, max(-K, k[j]))
+        if sqp(a0, al, tau0, T, K, f, R, 0.0, k, lam, nu, 60, 1e-8) < 0:
+            continue
+        t_up, low, share = finish_from(a0, al, tau0, T, K, f, k, lam, eta, 1e-6)
+        if fold(state, k_best, k, t_up, low, BOUNDARY if share > 1e-9 else INTERIOR, 4):
+            return
+
+
+@_jit
+def try_fallback(a0, al, tau0, T, K, f, k_start, state, k_best):
+    """The robust primal of :func:`fallback`, then the KKT certificate, then the barrier's."""
+    n = al.shape[0]
+    k = k_start.copy()
+    lam = np.full(n, 1.0 / n)
+    eta = np.zeros((n, 3))
+    t_up, low, status, share = fallback(a0, al, tau0, T, K, f, k, 1e-8)
+    if fold(state, k_best, k, t_up, max(low, 0.0), status, 5) or status == NOT_PUSHING:
+        return
+    t_up, low, share = finish_from(a0, al, tau0, T, K, f, k, lam, eta, 1e-6)
+    if fold(state, k_best, k, t_up, low, BOUNDARY if share > 1e-9 else INTERIOR, 5):
+        return
+    low, share = barrier_certificate(a0, al, tau0, T, K, f, k_best, state[0])
+    fold(state, k_best, k_best, state[0], low, BOUNDARY if share > 1e-6 else INTERIOR, 5)
+
+
+@_jit
 def solve_one(F, E, N, K_in, f_in, k, theta):
     """Certified minimax for one grasp; fills k and theta, returns (lower, status, path).
 
-    path: 0 apex, 1 SQP, 2 SQP with a released finger, 3 fallback, 4 uncertified.
+    path (diagnostic): 0 apex, 1 direct Newton, 2 SQP, 3 released finger, 4 SQP restarted,
+    5 fallback, 6 not certified to GAP_TOL.
     """
     n = F.shape[0]
     m = E.shape[0]
@@ -1421,142 +1632,137 @@ def solve_one(F, E, N, K_in, f_in, k, theta):
     a = np.empty(n)
     tau = np.empty((n, 2))
     rho = np.empty(n)
-    lam = np.empty(n)
+    lam = np.full(n, 1.0 / n)
     nu = np.zeros(n)
+    eta = np.zeros((n, 3))
     R = np.zeros(n, dtype=np.bool_)
+    S = np.ones(n, dtype=np.bool_)
+    Q = np.zeros(n, dtype=np.bool_)
+    fixed = np.zeros(m, dtype=np.int64)
+    # start: the k that minimises the tangential forces (exact when they can all vanish)
     apex_start(a0, al, tau0, T, k)
-    inside = True
     for j in range(m):
-        if abs(k[j]) > K:
-            inside = False
-            k[j] = K if k[j] > 0 else -K
+        k[j] = min(K, max(-K, k[j]))
     t_up = evaluate(k, a0, al, tau0, T, a, tau, rho, theta)
-    if f < inf:
-        for i in range(n):
-            if sqrt(a[i] ** 2 + rho[i] ** 2) > f:
-                inside = False
-    if inside and t_up <= GAP_TOL:
-        # every finger (nearly) along its normal: the optimum 0 is attained
-        for j in range(m):
-            k[j] *= scale
-        return 0.0, INTERIOR, 0
-    # best point and best certificate over the attempts (each is valid on its own)
-    k_best = k.copy()
-    t_best = t_up if (f == inf) else inf
-    lower = 0.0
-    status = INTERIOR
-    path = 4
-    k_start = k.copy()
+    feasible = True
     for i in range(n):
-        lam[i] = 1.0 / n
-    steps = sqp(a0, al, tau0, T, K, f, R, 0.0, k, lam, nu, 60, 1e-13, 2)
-    k_sqp = k.copy()
-    if steps >= 0 or n == 4:
-        t_up, low, share = finish_from(a0, al, tau0, T, K, f, k, lam, 1e-6)
-        if low >= 0.0:
-            path = 1
-    else:
-        low = -1.0
-    if low >= 0.0 and t_up < t_best:
-        t_best = t_up
-        k_best[:] = k
-    if low > lower:
-        lower = low
-        status = BOUNDARY if share > 1e-9 else INTERIOR
-    if t_best - lower > GAP_TOL and n == 4:
-        # a finger whose force vanishes at the optimum (the cone's apex): release it
-        evaluate(k_sqp, a0, al, tau0, T, a, tau, rho, theta)
-        order = np.argsort(a * a + rho * rho)
-        for attempt in range(n):
-            i = order[attempt]
-            for q in range(n):
-                R[q] = q == i
-                lam[q] = 1.0 / (n - 1) if q != i else 0.0
-                nu[q] = 0.0
-            if not release_start(a0, al, tau0, T, K, i, RELEASE, k_sqp, k):
-                continue
-            steps = sqp(a0, al, tau0, T, K, f, R, RELEASE, k, lam, nu, 60, 1e-13, 2)
-            if steps < 0:
-                continue
-            t_up, low, share = finish_from(a0, al, tau0, T, K, f, k, lam, 1e-6)
-            if low >= 0.0 and t_up < t_best:
-                t_best = t_up
-                k_best[:] = k
-            if low > lower:
-                lower = low
-                status = BOUNDARY if share > 1e-9 else INTERIOR
-            if t_best - lower <= GAP_TOL:
-                path = 2
-                break
-    if t_best - lower > GAP_TOL:
+        feasible = feasible and sqrt(a[i] ** 2 + rho[i] ** 2) <= f
+    k_start = k.copy()
+    k_best = k.copy()
+    state = np.array([t_up if feasible else inf, 0.0, INTERIOR, UNCERTIFIED])
+    if feasible and t_up <= GAP_TOL:
+        state[3] = APEX  # every finger along its normal: 0 is attained, 0 is the bound
+    done = state[3] == APEX
+    if not done and n == 3 and f == inf:
+        # Newton on the KKT system straight from the start with every finger at the maximum
+        # (the typical optimum): cheap, and certified like any other attempt
         for j in range(m):
-            k[j] = k_start[j]
-        t_up, low, status_fb, share = fallback(a0, al, tau0, T, K, f, k, 1e-10)
-        if t_up < t_best:
-            t_best = t_up
-            k_best[:] = k
-        if status_fb == NOT_PUSHING:
-            if low > lower:
-                lower = low
-                status = NOT_PUSHING
-        else:
-            if low > lower:
-                lower = low
-                status = BOUNDARY if share > 1e-6 else INTERIOR
-            for i in range(n):
-                lam[i] = 1.0 / n
-            t_up, low, share = finish_from(a0, al, tau0, T, K, f, k, lam, 1e-6)
-            if t_up >= 0.0 and low >= 0.0 and t_up < t_best:
-                t_best = t_up
-                k_best[:] = k
-            if low > lower:
-                lower = low
-                status = BOUNDARY if share > 1e-9 else INTERIOR
-        if t_best - lower <= GAP_TOL:
-            path = 3
+            fixed[j] = 1 if k[j] >= K else (-1 if k[j] <= -K else 0)
+        t_up, low, share = finish(a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu)
+        done = fold(state, k_best, k, t_up, low, BOUNDARY if share > 1e-9 else INTERIOR, 1)
+    k_sqp = k_start.copy()
+    if not done:
+        for i in range(n):
+            lam[i] = 1.0 / n
+        steps = sqp(a0, al, tau0, T, K, f, R, 0.0, k_sqp, lam, nu, 60, 1e-8)
+        if steps >= 0 or n == 4:
+            copy_into(k, k_sqp, m)
+            t_up, low, share = finish_from(a0, al, tau0, T, K, f, k, lam, eta, 1e-6)
+            done = fold(state, k_best, k, t_up, low, BOUNDARY if share > 1e-9 else INTERIOR, 2)
+        if not done and steps >= 0:
+            # not certified from a point 1e-8 from optimal: converge further, read sets again
+            steps = sqp(a0, al, tau0, T, K, f, R, 0.0, k_sqp, lam, nu, 60, 1e-14)
+            if steps >= 0:
+                copy_into(k, k_sqp, m)
+                t_up, low, share = finish_from(a0, al, tau0, T, K, f, k, lam, eta, 1e-6)
+                done = fold(state, k_best, k, t_up, low, BOUNDARY if share > 1e-9 else INTERIOR, 2)
+    if not done and n == 4:
+        try_releases(a0, al, tau0, T, K, f, k_sqp, state, k_best)
+        done = state[0] - state[1] <= GAP_TOL
+    if not done and n == 4:
+        try_push(a0, al, tau0, T, K, f, k_sqp, state, k_best)
+        done = state[0] - state[1] <= GAP_TOL
+    if not done:
+        try_fallback(a0, al, tau0, T, K, f, k_start, state, k_best)
     for j in range(m):
         k[j] = k_best[j] * scale
-    evaluate(k_best, a0, al, tau0, T, a, tau, rho, theta)
-    return lower, status, path
-
-
-@njit(cache=True, nogil=True, parallel=True, error_model="numpy")
-def solve_batch(F, E, N, K, f, k, theta, lower, status, path):
-    """:func:`solve_one` over a flat batch (B, ...) of grasps, in parallel."""
-    for b in prange(F.shape[0]):
-        lo, st, p = solve_one(F[b], E[b], N[b], K[b], f[b], k[b], theta[b])
-        lower[b] = lo
-        status[b] = st
-        path[b] = p
+    t_best = evaluate(k_best, a0, al, tau0, T, a, tau, rho, theta)
+    status = int(state[2])
+    if t_best >= pi / 2:
+        status = NOT_PUSHING  # certified when lower == pi / 2
+    return state[1], status, int(state[3])
 
 
 @_jit
-def weighted_start(a0, al, tau0, T, k, sweeps):
-    """k minimising sum_i |tau_i(k)|^2 / a_i^2, the a_i frozen at the previous k (IRLS).
+def solve_batch(F, E, N, K, f, k, theta, lower, status, start, stop):
+    """:func:`solve_one` for grasps start..stop of a flat batch (B, ...); releases the GIL."""
+    for b in range(start, stop):
+        lo, st, _ = solve_one(F[b], E[b], N[b], K[b], f[b], k[b], theta[b])
+        lower[b] = lo
+        status[b] = st
 
-    sum tan^2 theta_i is a smooth stand-in for max theta_i; a few sweeps start the
-    Newton iteration close to the all-equal optimum.
+
+@_jit
+def certify_vectors(a0, al, tau0, T, K, f, t_low, z, nuv, nus, fixed):
+    """:func:`dual_value` after a minimum-norm correction of the dual vectors z_i and nuv_i
+    (finger frames) that zeroes the L1 term's free components (k_j with fixed_j = 0).
+
+    Interior-point duals lie strictly inside their cones but satisfy the stationarity only
+    approximately; K times that residual would spoil the bound without the correction.
     """
     n, m = al.shape
-    M = np.empty((m, m))
-    r = np.empty(m)
-    w = np.empty(n)
-    for _ in range(sweeps):
-        for i in range(n):
-            s = a0[i]
-            for j in range(m):
-                s += al[i, j] * k[j]
-            w[i] = 1.0 / max(s * s, 1e-4)
-        M[:, :] = 0.0
-        r[:] = 0.0
-        for i in range(n):
-            for c in range(2):
-                for p in range(m):
-                    r[p] -= w[i] * T[i, c, p] * tau0[i, c]
-                    for q in range(m):
-                        M[p, q] += w[i] * T[i, c, p] * T[i, c, q]
-        if not lu_solve(M, r, m):
-            return False
+    has_f = f < inf
+    free = np.empty(m, dtype=np.int64)
+    nf = 0
+    for j in range(m):
+        if fixed[j] == 0:
+            free[nf] = j
+            nf += 1
+    ncols = 3 * n * (2 if has_f else 1)
+    if nf > 0:
+        w = np.zeros(m)
         for j in range(m):
-            k[j] = r[j]
-    return True
+            s = 0.0
+            for i in range(n):
+                s += z[i, 0] * al[i, j] + z[i, 1] * T[i, 0, j] + z[i, 2] * T[i, 1, j]
+                if has_f:
+                    s += nuv[i, 0] * al[i, j] + nuv[i, 1] * T[i, 0, j] + nuv[i, 2] * T[i, 1, j]
+            w[j] = s
+        J = np.zeros((m, ncols))
+        for p in range(nf):
+            j = free[p]
+            for i in range(n):
+                for c in range(3):
+                    v = al[i, j] if c == 0 else T[i, c - 1, j]
+                    J[p, 3 * i + c] = v
+                    if has_f:
+                        J[p, 3 * n + 3 * i + c] = v
+        G = np.empty((nf, nf))
+        y = np.empty(nf)
+        big = 0.0
+        for p in range(nf):
+            for q in range(nf):
+                s = 0.0
+                for c in range(ncols):
+                    s += J[p, c] * J[q, c]
+                G[p, q] = s
+            big = max(big, G[p, p])
+            y[p] = -w[free[p]]
+        for p in range(nf):
+            G[p, p] += 1e-12 * big
+        if lu_solve(G, y, nf):
+            for i in range(n):
+                for c in range(3):
+                    dz = 0.0
+                    dv = 0.0
+                    for p in range(nf):
+                        dz += J[p, 3 * i + c] * y[p]
+                        if has_f:
+                            dv += J[p, 3 * n + 3 * i + c] * y[p]
+                    z[i, c] += dz
+                    if has_f:
+                        nuv[i, c] += dv
+            if has_f:
+                for i in range(n):
+                    nus[i] = max(nus[i], sqrt(nuv[i, 0] ** 2 + nuv[i, 1] ** 2 + nuv[i, 2] ** 2))
+    return dual_value(a0, al, tau0, T, K, f, t_low, z, nuv, nus)

@@ -30,6 +30,9 @@ mean the same for any weight.
 
 from __future__ import annotations
 
+import itertools
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from enum import IntEnum
 
@@ -38,6 +41,17 @@ from numpy.typing import ArrayLike
 
 from . import _minimax_kernels as kernels
 from .forces import Grasp, n_pairs
+
+_THREADS = max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else 1)
+_PARALLEL_FROM = 64  # smaller batches are not worth the hand-off to threads
+_executor: ThreadPoolExecutor | None = None
+
+
+def _pool() -> ThreadPoolExecutor:
+    global _executor
+    if _executor is None:
+        _executor = ThreadPoolExecutor(_THREADS, thread_name_prefix="minimax")
+    return _executor
 
 
 class Status(IntEnum):
@@ -87,6 +101,13 @@ def _positive_limit(name: str, value: ArrayLike, batch: tuple[int, ...]) -> np.n
     return np.ascontiguousarray(array, dtype=float).reshape(-1)
 
 
+def _flat(array: np.ndarray, batch: tuple[int, ...], item: tuple[int, ...]) -> np.ndarray:
+    """Broadcast to (*batch, *item) and flatten the batch; contiguous and writable, so that
+    the kernels always see the same array types (numba compiles once per type)."""
+    array = np.require(np.broadcast_to(array, (*batch, *item)), float, ("C", "W"))
+    return array.reshape(-1, *item)
+
+
 def solve_minimax(grasp: Grasp, k_max: ArrayLike, f_max: ArrayLike | None = None) -> MinimaxResult:
     """Globally minimise the largest friction angle over |k_ij| <= k_max (and |P_i| <= f_max).
 
@@ -122,20 +143,29 @@ def solve_minimax(grasp: Grasp, k_max: ArrayLike, f_max: ArrayLike | None = None
         np.full(k_lim.shape, np.inf) if f_max is None else _positive_limit("f_max", f_max, batch)
     )
     size = k_lim.size
-    F = np.ascontiguousarray(np.broadcast_to(F, (*batch, n, 3))).reshape(size, n, 3)
-    E = np.ascontiguousarray(np.broadcast_to(E, (*batch, m, n, 3))).reshape(size, m, n, 3)
-    N = np.ascontiguousarray(np.broadcast_to(N, (*batch, n, 3))).reshape(size, n, 3)
+    F = _flat(F, batch, (n, 3))
+    E = _flat(E, batch, (m, n, 3))
+    N = _flat(N, batch, (n, 3))
     k = np.empty((size, m))
     angles = np.empty((size, n))
     lower = np.empty(size)
     status = np.empty(size, dtype=np.int8)
-    if size == 1:  # one grasp: skip the parallel launch
+    arrays = (F, E, N, k_lim, f_lim, k, angles, lower, status)
+    if size == 1:  # one grasp: no thread hand-off
         lower[0], status[0], _ = kernels.solve_one(
             F[0], E[0], N[0], k_lim[0], f_lim[0], k[0], angles[0]
         )
+    elif size < _PARALLEL_FROM or _THREADS == 1:
+        kernels.solve_batch(*arrays, 0, size)
     else:
-        path = np.empty(size, dtype=np.int8)
-        kernels.solve_batch(F, E, N, k_lim, f_lim, k, angles, lower, status, path)
+        # the kernel releases the GIL: one contiguous chunk per core
+        bounds = np.linspace(0, size, _THREADS + 1).astype(int)
+        chunks = [
+            _pool().submit(kernels.solve_batch, *arrays, lo, hi)
+            for lo, hi in itertools.pairwise(bounds)
+        ]
+        for chunk in chunks:
+            chunk.result()
     angles = angles.reshape(*batch, n)
     return MinimaxResult(
         k=k.reshape(*batch, m),
