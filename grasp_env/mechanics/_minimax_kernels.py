@@ -13,7 +13,7 @@ and |P_i| = sqrt(a_i^2 + |tau_i|^2). Every routine works on these arrays.
 
 from __future__ import annotations
 
-from math import atan2, cos, inf, log, pi, sin, sqrt
+from math import atan, atan2, cos, inf, isfinite, log, pi, sin, sqrt
 
 import numpy as np
 from numba import njit
@@ -23,7 +23,7 @@ GAP_TOL = 1e-9
 #: Offsets below the primal value at which the dual certificate is tried, radians.
 _DELTAS = (1e-11, 1e-10, 1e-9)
 INTERIOR, BOUNDARY, NOT_PUSHING = 0, 1, 2
-APEX, UNCERTIFIED = 0, 6  # solve_one's first and last diagnostic paths
+APEX, UNCERTIFIED, INVALID = 0, 6, -1  # solve_one's diagnostic paths
 #: A released finger (zero force at the optimum) is held at this normal force (normalised),
 #: inside its cone, so that its friction angle is well defined.
 RELEASE = 1e-10
@@ -70,6 +70,14 @@ def setup(F, E, N, a0, al, tau0, T):
 
 
 @_jit
+def all_finite(x):
+    for value in x.ravel():
+        if not isfinite(value):
+            return False
+    return True
+
+
+@_jit
 def zero(A):
     for p in range(A.shape[0]):
         for q in range(A.shape[1]):
@@ -80,6 +88,14 @@ def zero(A):
 def copy_into(dst, src, count):
     for j in range(count):
         dst[j] = src[j]
+
+
+@_jit
+def angle(tangential, normal):
+    """atan2(tangential, normal) for tangential >= 0; atan where it agrees (twice as fast)."""
+    if normal > 0.0:
+        return atan(tangential / normal)
+    return atan2(tangential, normal)
 
 
 @_jit
@@ -97,7 +113,7 @@ def evaluate(k, a0, al, tau0, T, a, tau, rho, theta):
         tau[i, 0] = t0
         tau[i, 1] = t1
         rho[i] = sqrt(t0 * t0 + t1 * t1)
-        theta[i] = atan2(rho[i], s)
+        theta[i] = angle(rho[i], s)
         if theta[i] > worst:
             worst = theta[i]
     return worst
@@ -346,7 +362,7 @@ def finger_derivatives(exact, i, w, a, tau, rho, al, T, grad, H):
                     + c2 * (gr_p * al[i, q] + al[i, p] * gr_q)
                     + c3 * (al[i, p] * al[i, q] - gr_p * gr_q)
                 )
-    return atan2(ri, ai)
+    return angle(ri, ai)
 
 
 @_jit
@@ -1440,7 +1456,7 @@ def finish_from(a0, al, tau0, T, K, f, k, lam, eta, tol):
         big = max(big, sqrt(a[i] ** 2 + rho[i] ** 2))
     t_up = -1.0
     for i in range(n):
-        R[i] = sqrt(a[i] ** 2 + rho[i] ** 2) < 10.0 * tol * big
+        R[i] = sqrt(a[i] ** 2 + rho[i] ** 2) < min(10.0 * tol, 1e-5) * big
         if not R[i]:
             t_up = max(t_up, theta[i])
     for i in range(n):
@@ -1452,14 +1468,80 @@ def finish_from(a0, al, tau0, T, K, f, k, lam, eta, tol):
             fixed[j] = 1
         elif k[j] <= -K * (1.0 - tol):
             fixed[j] = -1
-    total = 0.0
-    for i in range(n):
-        if not S[i]:
-            lam[i] = 0.0
-        total += lam[i]
-    for i in range(n):
-        lam[i] = lam[i] / total if total > 0.0 else (1.0 / n if S[i] else 0.0)
+    multiplier_estimate(a, tau, rho, al, T, S, R, Q, fixed, lam, eta, nu)
     return finish(a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu)
+
+
+@_jit
+def multiplier_estimate(a, tau, rho, al, T, S, R, Q, fixed, lam, eta, nu):
+    """Least-squares KKT multipliers at a near-optimal point, to start Newton's method.
+
+    Minimises |sum lam_i grad theta_i + sum A_i' eta_i + sum nu_i grad |P_i||^2 over the free
+    k_j with sum lam_i = 1. Newton's method on the KKT system needs multipliers as good as
+    its point: equal weights can be far off where a finger's force is small (its angle
+    then has a large gradient and curvature)."""
+    n, m = al.shape
+    cols = np.zeros((m, 16))  # one column per unknown multiplier, free rows only
+    Hd = np.zeros((m, m))
+    g = np.empty(m)
+    nc = 0
+    for i in range(n):
+        if S[i]:
+            finger_derivatives(1.0, i, 0.0, a, tau, rho, al, T, g, Hd)
+            for j in range(m):
+                cols[j, nc] = g[j] if fixed[j] == 0 else 0.0
+            nc += 1
+    ns = nc
+    for i in range(n):
+        if R[i]:
+            for c in range(3):
+                for j in range(m):
+                    v = al[i, j] if c == 0 else T[i, c - 1, j]
+                    cols[j, nc] = v if fixed[j] == 0 else 0.0
+                nc += 1
+    for i in range(n):
+        if Q[i]:
+            force_derivatives(i, 0.0, a, tau, al, T, g, Hd)
+            for j in range(m):
+                cols[j, nc] = g[j] if fixed[j] == 0 else 0.0
+            nc += 1
+    if ns == 0:
+        return
+    # [C'C  e; e' 0] [x; mu] = [0; 1], e marking the lam entries (sum lam = 1)
+    A = np.zeros((nc + 1, nc + 1))
+    b = np.zeros(nc + 1)
+    big = 0.0
+    for p in range(nc):
+        for q in range(nc):
+            s = 0.0
+            for j in range(m):
+                s += cols[j, p] * cols[j, q]
+            A[p, q] = s
+        big = max(big, A[p, p])
+    for p in range(nc):
+        A[p, p] += 1e-12 * big + 1e-300
+    for p in range(ns):
+        A[p, nc] = 1.0
+        A[nc, p] = 1.0
+    b[nc] = 1.0
+    if not lu_solve(A, b, nc + 1):
+        return
+    p = 0
+    for i in range(n):
+        lam[i] = 0.0
+        if S[i]:
+            lam[i] = b[p]
+            p += 1
+    for i in range(n):
+        if R[i]:
+            for c in range(3):
+                eta[i, c] = b[p]
+                p += 1
+    for i in range(n):
+        nu[i] = 0.0
+        if Q[i]:
+            nu[i] = b[p]
+            p += 1
 
 
 @_jit
@@ -1606,9 +1688,14 @@ def try_fallback(a0, al, tau0, T, K, f, k_start, state, k_best):
     t_up, low, status, share = fallback(a0, al, tau0, T, K, f, k, 1e-8)
     if fold(state, k_best, k, t_up, max(low, 0.0), status, 5) or status == NOT_PUSHING:
         return
-    t_up, low, share = finish_from(a0, al, tau0, T, K, f, k, lam, eta, 1e-6)
-    if fold(state, k_best, k, t_up, low, BOUNDARY if share > 1e-9 else INTERIOR, 5):
-        return
+    k_fallback = k.copy()
+    for tol in (1e-6, 1e-5, 1e-4, 1e-3):
+        # the barrier's point is near-optimal to about 1e-8; degenerate optima (a finger
+        # with almost no force) need looser tolerances to read the active sets off it
+        copy_into(k, k_fallback, k.shape[0])
+        t_up, low, share = finish_from(a0, al, tau0, T, K, f, k, lam, eta, tol)
+        if fold(state, k_best, k, t_up, low, BOUNDARY if share > 1e-9 else INTERIOR, 5):
+            return
     low, share = barrier_certificate(a0, al, tau0, T, K, f, k_best, state[0])
     fold(state, k_best, k_best, state[0], low, BOUNDARY if share > 1e-6 else INTERIOR, 5)
 
@@ -1618,10 +1705,16 @@ def solve_one(F, E, N, K_in, f_in, k, theta):
     """Certified minimax for one grasp; fills k and theta, returns (lower, status, path).
 
     path (diagnostic): 0 apex, 1 direct Newton, 2 SQP, 3 released finger, 4 SQP restarted,
-    5 fallback, 6 not certified to GAP_TOL.
+    5 fallback, 6 not certified to GAP_TOL; -1 (INVALID) if an input is NaN or inf.
     """
     n = F.shape[0]
     m = E.shape[0]
+    if not (all_finite(F) and all_finite(E) and all_finite(N)):
+        for j in range(m):
+            k[j] = 0.0
+        for i in range(n):
+            theta[i] = 0.0
+        return 0.0, INTERIOR, INVALID
     a0 = np.empty(n)
     al = np.empty((n, m))
     tau0 = np.empty((n, 2))
@@ -1694,12 +1787,10 @@ def solve_one(F, E, N, K_in, f_in, k, theta):
 
 
 @_jit
-def solve_batch(F, E, N, K, f, k, theta, lower, status, start, stop):
+def solve_batch(F, E, N, K, f, k, theta, lower, status, path, start, stop):
     """:func:`solve_one` for grasps start..stop of a flat batch (B, ...); releases the GIL."""
     for b in range(start, stop):
-        lo, st, _ = solve_one(F[b], E[b], N[b], K[b], f[b], k[b], theta[b])
-        lower[b] = lo
-        status[b] = st
+        lower[b], status[b], path[b] = solve_one(F[b], E[b], N[b], K[b], f[b], k[b], theta[b])
 
 
 @_jit

@@ -31,6 +31,7 @@ mean the same for any weight.
 from __future__ import annotations
 
 import itertools
+import math
 import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -101,11 +102,26 @@ def _positive_limit(name: str, value: ArrayLike, batch: tuple[int, ...]) -> np.n
     return np.ascontiguousarray(array, dtype=float).reshape(-1)
 
 
+def _positive_number(name: str, value: ArrayLike) -> float:
+    number = float(value)
+    if not (math.isfinite(number) and number > 0):
+        raise ValueError(f"{name} must be finite and > 0 (newtons), got {number}")
+    return number
+
+
+def _kernel_array(array: np.ndarray) -> np.ndarray:
+    """Float64, C-contiguous and writable: the one array type the kernels are compiled for."""
+    if array.dtype == np.float64 and array.flags.c_contiguous and array.flags.writeable:
+        return array
+    return np.array(array, dtype=float, order="C")
+
+
 def _flat(array: np.ndarray, batch: tuple[int, ...], item: tuple[int, ...]) -> np.ndarray:
-    """Broadcast to (*batch, *item) and flatten the batch; contiguous and writable, so that
-    the kernels always see the same array types (numba compiles once per type)."""
-    array = np.require(np.broadcast_to(array, (*batch, *item)), float, ("C", "W"))
-    return array.reshape(-1, *item)
+    """Broadcast to (*batch, *item) and flatten the batch, as a kernel array."""
+    return _kernel_array(np.broadcast_to(array, (*batch, *item))).reshape(-1, *item)
+
+
+_NOT_FINITE = "the grasp's equilibrating forces, basis or normals contain NaN or inf"
 
 
 def solve_minimax(grasp: Grasp, k_max: ArrayLike, f_max: ArrayLike | None = None) -> MinimaxResult:
@@ -120,24 +136,33 @@ def solve_minimax(grasp: Grasp, k_max: ArrayLike, f_max: ArrayLike | None = None
         The optimum with its certificate; see :class:`MinimaxResult`. Never NaN.
     """
     F = np.asarray(grasp.equilibrating, dtype=float)
+    E = np.asarray(grasp.basis, dtype=float)
+    N = np.asarray(grasp.normals, dtype=float)
     if F.ndim < 2 or F.shape[-1] != 3 or F.shape[-2] not in (3, 4):
         raise ValueError(f"grasp forces must have shape (..., 3 or 4, 3), got {F.shape}")
     n = F.shape[-2]
     m = n_pairs(n)
-    E = np.asarray(grasp.basis, dtype=float)
-    N = np.asarray(grasp.normals, dtype=float)
-    try:
-        batch = np.broadcast_shapes(F.shape[:-2], N.shape[:-2], E.shape[:-3])
-    except ValueError:
-        raise ValueError("the grasp's arrays have incompatible batch shapes") from None
     if E.shape[-3:] != (m, n, 3) or N.shape[-2:] != (n, 3):
         raise ValueError(
             f"grasp basis must be (..., {m}, {n}, 3) and normals (..., {n}, 3), "
             f"got {E.shape} and {N.shape}"
         )
-    for name, array in (("equilibrating forces", F), ("basis", E), ("normals", N)):
-        if not np.all(np.isfinite(array)):
-            raise ValueError(f"grasp {name} contain NaN or inf")
+    if F.ndim == 2 and E.ndim == 3 and N.ndim == 2 and np.ndim(k_max) == 0 and np.ndim(f_max) == 0:
+        # one grasp: the lean path (numpy's per-call costs would dominate the kernel's)
+        k_lim = _positive_number("k_max", k_max)
+        f_lim = math.inf if f_max is None else _positive_number("f_max", f_max)
+        k = np.empty(m)
+        angles = np.empty(n)
+        lower, status, path = kernels.solve_one(
+            _kernel_array(F), _kernel_array(E), _kernel_array(N), k_lim, f_lim, k, angles
+        )
+        if path == kernels.INVALID:
+            raise ValueError(_NOT_FINITE)
+        return MinimaxResult(k, angles, angles.max(), np.float64(lower), np.int8(status))
+    try:
+        batch = np.broadcast_shapes(F.shape[:-2], N.shape[:-2], E.shape[:-3])
+    except ValueError:
+        raise ValueError("the grasp's arrays have incompatible batch shapes") from None
     k_lim = _positive_limit("k_max", k_max, batch)
     f_lim = (
         np.full(k_lim.shape, np.inf) if f_max is None else _positive_limit("f_max", f_max, batch)
@@ -150,12 +175,9 @@ def solve_minimax(grasp: Grasp, k_max: ArrayLike, f_max: ArrayLike | None = None
     angles = np.empty((size, n))
     lower = np.empty(size)
     status = np.empty(size, dtype=np.int8)
-    arrays = (F, E, N, k_lim, f_lim, k, angles, lower, status)
-    if size == 1:  # one grasp: no thread hand-off
-        lower[0], status[0], _ = kernels.solve_one(
-            F[0], E[0], N[0], k_lim[0], f_lim[0], k[0], angles[0]
-        )
-    elif size < _PARALLEL_FROM or _THREADS == 1:
+    path = np.empty(size, dtype=np.int8)
+    arrays = (F, E, N, k_lim, f_lim, k, angles, lower, status, path)
+    if size < _PARALLEL_FROM or _THREADS == 1:
         kernels.solve_batch(*arrays, 0, size)
     else:
         # the kernel releases the GIL: one contiguous chunk per core
@@ -166,6 +188,8 @@ def solve_minimax(grasp: Grasp, k_max: ArrayLike, f_max: ArrayLike | None = None
         ]
         for chunk in chunks:
             chunk.result()
+    if np.any(path == kernels.INVALID):
+        raise ValueError(_NOT_FINITE)
     angles = angles.reshape(*batch, n)
     return MinimaxResult(
         k=k.reshape(*batch, m),
