@@ -205,8 +205,9 @@ def test_behaviour_cloning_and_dagger_learn_the_expert(tmp_path):
     train(config, tmp_path / "run", progress_bar=False)
     rows = curve(tmp_path / "run")
     assert [r["phase"] for r in rows] == ["initial", "imitation", "imitation"]
-    steps = [int(r["env_steps"]) for r in rows]  # whole vector steps: up to n_envs - 1 more
-    assert steps[0] == 0 and 310 <= steps[1] < 314 and 620 <= steps[2] < 624
+    # whole vector steps: each round collects up to n_envs - 1 states more than asked
+    steps = [int(r["env_steps"]) for r in rows]
+    assert steps[0] == 0 and 310 <= steps[1] < 314 and 620 <= steps[2] < 628
     initial, taught = float(rows[0]["mean_gap_deg"]), float(rows[-1]["mean_gap_deg"])
     assert taught < 1.0 < initial
     assert float(rows[-1]["success_rate"]) == 1.0
