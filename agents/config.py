@@ -36,11 +36,15 @@ class PolicyConfig:
         activation: hidden activation function.
         log_std_init: initial log standard deviation of the Gaussian exploration noise, in
             action units (-1 gives std 0.37; a low value keeps a pretrained policy precise).
+        features: the network's input: the raw ``observation``, or the ``grasp`` in the
+            object's frame computed from it (:class:`agents.features.GraspFeatures`: the
+            equilibrating forces, pair directions and normals, which is all k* depends on).
     """
 
     net_arch: list[int] = field(default_factory=lambda: [256, 256])
     activation: Literal["tanh", "relu", "silu"] = "tanh"
     log_std_init: float = 0.0
+    features: Literal["observation", "grasp"] = "observation"
 
     def __post_init__(self) -> None:
         if not self.net_arch or any(width < 1 for width in self.net_arch):
@@ -113,6 +117,9 @@ class ImitationConfig:
         batch_size: minibatch size.
         learning_rate: initial Adam step size of each round (cosine decay to 1% of it).
         n_envs: parallel environments of the data-collecting vector env.
+        gap_weight: weight of the max friction angle (radians) the action gives, added to the
+            squared error (0: pure imitation). That angle is computed from the observation
+            alone, so this term trains on the environment's own reward, exactly.
     """
 
     rounds: int = 1
@@ -121,6 +128,7 @@ class ImitationConfig:
     batch_size: int = 1024
     learning_rate: float = 1e-3
     n_envs: int = 256
+    gap_weight: float = 0.0
 
     def __post_init__(self) -> None:
         _check_range("imitation.rounds", self.rounds, 1, 1000)
@@ -129,6 +137,7 @@ class ImitationConfig:
         _check_range("imitation.batch_size", self.batch_size, 1, 1 << 24)
         _check_range("imitation.learning_rate", self.learning_rate, 0.0, 1.0, low_open=True)
         _check_range("imitation.n_envs", self.n_envs, 1, 1 << 20)
+        _check_range("imitation.gap_weight", self.gap_weight, 0.0, 1e6)
 
 
 @dataclass(frozen=True)
@@ -176,6 +185,11 @@ class TrainConfig:
         _check_range("checkpoint_freq", self.checkpoint_freq, 0, 1 << 40)
         _check_range("torch_threads", self.torch_threads, 1, 1024)
         check_env_id(self.env_id)
+        if self.policy.features == "grasp" and self.normalize:
+            raise ValueError(
+                "normalize must be false with policy.features: grasp (the grasp features are "
+                "computed from the raw observation)"
+            )
 
     def to_dict(self) -> dict[str, Any]:
         """Plain data (the YAML written into the run directory)."""

@@ -14,6 +14,13 @@ environment:
    the labels by mean squared error, Adam, cosine learning-rate decay. Only the actor is
    trained; its log std (the exploration noise PPO starts from) is left as configured.
 
+Imitating k* is a proxy: what counts is the largest friction angle the action gives, which
+near the optimum grows linearly with the error in k (a max of angles has a kink there). The
+observation holds the whole grasp, so that angle is a differentiable function of the action
+(eqs. 2 and 4, :func:`agents.features.max_friction_angle`); with ``gap_weight`` > 0 the loss
+adds it, in radians: mean squared error + gap_weight x mean max_i theta_i. Its gradient is the
+exact gradient of the environment's reward.
+
 The result is an ordinary SB3 PPO model that PPO can fine-tune.
 """
 
@@ -31,13 +38,18 @@ import torch
 from gymnasium.vector import AutoresetMode
 from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.vec_env import VecNormalize
+from tqdm.auto import tqdm
 
 from grasp_env import MinimaxExpert
+from grasp_env.envs.observation import ObservationLayout
 
 from .config import ImitationConfig
+from .features import grasp_tensors, max_friction_angle
 
 #: Final learning rate of each round's cosine decay, as a fraction of the initial one.
 LR_FLOOR = 0.01
+#: Observations per batch when computing features or the grasp of a data set.
+CHUNK = 65_536
 
 
 @dataclass(frozen=True)
@@ -55,6 +67,16 @@ def mean_action(policy: ActorCriticPolicy, obs: torch.Tensor) -> torch.Tensor:
     """The Gaussian policy's mean action (what ``predict(deterministic=True)`` plays, unclipped)."""
     features = policy.extract_features(obs, policy.pi_features_extractor)
     return policy.action_net(policy.mlp_extractor.forward_actor(features))
+
+
+def grasp_of(obs: np.ndarray) -> tuple[torch.Tensor, ...]:
+    """The world-frame F, interaction basis and normals of observations (B, size), in chunks."""
+    layout = ObservationLayout.from_size(obs.shape[-1])
+    parts = [
+        grasp_tensors(torch.as_tensor(obs[i : i + CHUNK]), layout)[:3]
+        for i in range(0, len(obs), CHUNK)
+    ]
+    return tuple(torch.cat(p) for p in zip(*parts, strict=True))
 
 
 def make_teacher(env_kwargs: dict[str, Any]) -> MinimaxExpert:
@@ -110,35 +132,47 @@ def fit(
     batch_size: int,
     learning_rate: float,
     generator: torch.Generator,
+    grasp: tuple[torch.Tensor, ...] | None = None,
+    gap_weight: float = 0.0,
+    k_max_ratio: float = 2.0,
 ) -> float:
-    """Fit the policy's mean action to ``labels`` (MSE); returns the last epoch's mean loss."""
-    obs_t = torch.as_tensor(obs, dtype=torch.float32)
+    """Fit the policy's mean action to ``labels``; returns the last epoch's mean loss.
+
+    The loss is the mean squared error, plus ``gap_weight`` x the mean max friction angle
+    (radians) if ``grasp`` (from :func:`grasp_of`) is given.
+    """
+    extractor = policy.pi_features_extractor
+    if any(True for _ in extractor.parameters()):
+        raise ValueError("fit needs a parameter-free features extractor (flatten or grasp)")
+    with torch.no_grad():  # so the features are computed once, not every epoch
+        obs_t = torch.as_tensor(obs, dtype=torch.float32)
+        inputs = torch.cat([extractor(obs_t[i : i + CHUNK]) for i in range(0, len(obs), CHUNK)])
     labels_t = torch.as_tensor(labels, dtype=torch.float32)
-    actor = [
-        *policy.pi_features_extractor.parameters(),
-        *policy.mlp_extractor.policy_net.parameters(),
-        *policy.action_net.parameters(),
-    ]
+    actor = [*policy.mlp_extractor.policy_net.parameters(), *policy.action_net.parameters()]
     optimizer = torch.optim.Adam(actor, lr=learning_rate)
-    batches = math.ceil(len(obs_t) / batch_size)
+    batches = math.ceil(len(inputs) / batch_size)
     schedule = torch.optim.lr_scheduler.CosineAnnealingLR(
         optimizer, T_max=epochs * batches, eta_min=learning_rate * LR_FLOOR
     )
     policy.set_training_mode(True)
     loss_sum = 0.0
-    for _ in range(epochs):
-        order = torch.randperm(len(obs_t), generator=generator)
+    for _ in tqdm(range(epochs), desc="fitting", unit="epoch", leave=False, disable=None):
+        order = torch.randperm(len(inputs), generator=generator)
         loss_sum = 0.0
-        for start in range(0, len(obs_t), batch_size):
+        for start in range(0, len(inputs), batch_size):
             index = order[start : start + batch_size]
-            loss = torch.nn.functional.mse_loss(mean_action(policy, obs_t[index]), labels_t[index])
+            action = policy.action_net(policy.mlp_extractor.forward_actor(inputs[index]))
+            loss = torch.nn.functional.mse_loss(action, labels_t[index])
+            if grasp is not None and gap_weight > 0:
+                angle = max_friction_angle(action, *(a[index] for a in grasp), k_max_ratio)
+                loss = loss + gap_weight * angle.mean()
             optimizer.zero_grad()
             loss.backward()
             optimizer.step()
             schedule.step()
             loss_sum += float(loss.detach()) * len(index)
     policy.set_training_mode(False)
-    return loss_sum / len(obs_t)
+    return loss_sum / len(inputs)
 
 
 def imitate(
@@ -175,6 +209,7 @@ def imitate(
 
     data_obs: list[np.ndarray] = []
     data_labels: list[np.ndarray] = []
+    data_grasp: list[tuple[torch.Tensor, ...]] = []
     results = []
     try:
         for round_ in range(config.rounds):
@@ -188,6 +223,8 @@ def imitate(
                 normalizer.obs_rms.update(obs)
             data_obs.append(obs)
             data_labels.append(labels)
+            if config.gap_weight > 0:
+                data_grasp.append(grasp_of(obs))
             all_obs = normalise(np.concatenate(data_obs))
             loss = fit(
                 policy,
@@ -197,6 +234,9 @@ def imitate(
                 config.batch_size,
                 config.learning_rate,
                 generator,
+                [torch.cat(a) for a in zip(*data_grasp, strict=True)] if data_grasp else None,
+                config.gap_weight,
+                teacher.k_max_ratio,
             )
             result = RoundResult(
                 round_,

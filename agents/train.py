@@ -39,6 +39,7 @@ from tqdm import TqdmExperimentalWarning
 
 from .config import DEFAULT_CONFIG, TrainConfig, load_config, save_config
 from .envs import find_held_out, make_held_out_env, make_vec_env
+from .features import GraspFeatures
 
 if TYPE_CHECKING:
     from .imitation import RoundResult
@@ -272,8 +273,9 @@ def continue_evaluation_log(evaluation: EvalCallback) -> None:
             evaluation.evaluations_successes = log["successes"].tolist()
 
 
-def new_model(config: TrainConfig, env: VecEnv, run_dir: Path) -> PPO:
-    """A fresh PPO model with the config's hyperparameters and network."""
+def new_model(config: TrainConfig, env: VecEnv, run_dir: Path | None) -> PPO:
+    """A fresh PPO model with the config's hyperparameters and network (TensorBoard logs in
+    ``run_dir/tb`` unless ``run_dir`` is None)."""
     ppo = config.ppo
     rate = ppo.learning_rate
     return PPO(
@@ -294,8 +296,13 @@ def new_model(config: TrainConfig, env: VecEnv, run_dir: Path) -> PPO:
             "net_arch": {"pi": list(config.policy.net_arch), "vf": list(config.policy.net_arch)},
             "activation_fn": ACTIVATIONS[config.policy.activation],
             "log_std_init": config.policy.log_std_init,
+            **(
+                {"features_extractor_class": GraspFeatures}
+                if config.policy.features == "grasp"
+                else {}
+            ),
         },
-        tensorboard_log=str(run_dir / "tb"),
+        tensorboard_log=None if run_dir is None else str(run_dir / "tb"),
         seed=config.seed,
         device="cpu",
         verbose=0,

@@ -1,0 +1,97 @@
+"""Training throughput: PPO steps/s and the expert-teacher's labelled states/s, with references.
+
+- PPO on ``grasp_env/CubeGraspRandom-v0`` (the batched vector env behind grasp_env's SB3 adapter)
+  with the PPO settings of ``configs/ppo.yaml``, against the same PPO on Gymnasium's
+  ``CartPole-v1`` (SB3's DummyVecEnv), measured in the same run: the ratio says what our
+  environment costs a PPO run beside the cheapest classic one.
+- The imitation phase's data: states visited and labelled by the minimax expert per second,
+  against stepping the same vector env with random actions (the ratio is the labelling cost).
+- The supervised fit: samples per second through SB3's policy network, against a bare torch MLP
+  of the same shape (the ratio is SB3's overhead).
+
+    python benchmarks/bench_training.py
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import torch
+from stable_baselines3 import PPO
+from stable_baselines3.common.env_util import make_vec_env as sb3_make_vec_env
+
+from agents.config import CONFIG_DIR, load_config
+from agents.envs import make_vec_env
+from agents.imitation import StateCollector, fit, make_teacher
+from agents.train import new_model
+
+PPO_STEPS = 32_768
+STATES = 20_000
+
+
+def ppo_steps_per_second(env, config) -> float:
+    model = new_model(config, env, run_dir=None)
+    model.learn(2 * config.n_envs * config.ppo.n_steps)  # warm-up: compile, allocate
+    start = time.perf_counter()
+    model.learn(PPO_STEPS, reset_num_timesteps=False)
+    return PPO_STEPS / (time.perf_counter() - start)
+
+
+def main() -> None:
+    torch.set_num_threads(1)
+    config = load_config(CONFIG_DIR / "ppo.yaml")
+    ours = ppo_steps_per_second(
+        make_vec_env(config.env_id, config.env_kwargs, config.n_envs, seed=0), config
+    )
+    cartpole = ppo_steps_per_second(sb3_make_vec_env("CartPole-v1", config.n_envs, seed=0), config)
+    print(f"PPO ({config.n_envs} envs, {config.policy.net_arch} MLP), {PPO_STEPS} steps:")
+    print(f"  {config.env_id}: {ours:8.0f} steps/s")
+    print(f"  CartPole-v1 (DummyVecEnv):  {cartpole:8.0f} steps/s   ratio {ours / cartpole:.2f}")
+
+    kwargs = {"terminate_on_slip": False}
+    teacher = make_teacher(kwargs)
+    collector = StateCollector("grasp_env/CubeGraspRandom-v0", kwargs, 256, seed=0)
+    collector.collect(teacher.actions, 2_000)  # warm-up
+    start = time.perf_counter()
+    collector.collect(teacher.actions, STATES)
+    labelled = STATES / (time.perf_counter() - start)
+    rng = np.random.default_rng(0)
+    start = time.perf_counter()
+    obs, _ = collector.collect(lambda o: rng.uniform(-1, 1, (len(o), 3)), STATES)
+    stepped = STATES / (time.perf_counter() - start)
+    print("Expert-labelled states (256 envs, the expert drives):")
+    print(f"  labelled: {labelled:8.0f} states/s")
+    print(f"  random actions, no labels: {stepped:8.0f} states/s   ratio {labelled / stepped:.2f}")
+
+    model = PPO("MlpPolicy", make_vec_env(config.env_id, kwargs, 1, 0), device="cpu")
+    labels = rng.uniform(-1, 1, (len(obs), 3)).astype(np.float32)
+    generator = torch.Generator().manual_seed(0)
+    start = time.perf_counter()
+    fit(model.policy, obs, labels, 2, 1024, 1e-3, generator)
+    policy_rate = 2 * len(obs) / (time.perf_counter() - start)
+    net = torch.nn.Sequential(
+        torch.nn.Linear(obs.shape[1], 64),
+        torch.nn.Tanh(),
+        torch.nn.Linear(64, 64),
+        torch.nn.Tanh(),
+        torch.nn.Linear(64, 3),
+    )  # fmt: skip  (SB3's default MlpPolicy actor)
+    optimizer = torch.optim.Adam(net.parameters(), 1e-3)
+    obs_t, labels_t = torch.as_tensor(obs), torch.as_tensor(labels)
+    start = time.perf_counter()
+    for _ in range(2):
+        for i in range(0, len(obs), 1024):
+            loss = torch.nn.functional.mse_loss(net(obs_t[i : i + 1024]), labels_t[i : i + 1024])
+            optimizer.zero_grad()
+            loss.backward()
+            optimizer.step()
+    bare_rate = 2 * len(obs) / (time.perf_counter() - start)
+    print("Supervised fit (batch 1024, SB3's default 64 x 64 actor):")
+    print(f"  through the SB3 policy: {policy_rate:8.0f} samples/s")
+    ratio = policy_rate / bare_rate
+    print(f"  bare torch MLP:         {bare_rate:8.0f} samples/s   ratio {ratio:.2f}")
+
+
+if __name__ == "__main__":
+    main()
