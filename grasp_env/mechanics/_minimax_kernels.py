@@ -28,7 +28,12 @@ APEX, UNCERTIFIED, INVALID = 0, 6, -1  # solve_one's diagnostic paths
 #: inside its cone, so that its friction angle is well defined.
 RELEASE = 1e-10
 
-_jit = njit(cache=True, nogil=True, error_model="numpy")
+_jit = njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
+_small = njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, inline="always")
+_inline = njit(
+    cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, inline="always"
+)
+_entry = njit(cache=True, nogil=True, error_model="numpy")
 
 
 @_jit
@@ -69,7 +74,7 @@ def setup(F, E, N, a0, al, tau0, T):
     return scale
 
 
-@_jit
+@_small
 def all_finite(x):
     for value in x.ravel():
         if not isfinite(value):
@@ -77,20 +82,20 @@ def all_finite(x):
     return True
 
 
-@_jit
+@_small
 def zero(A):
     for p in range(A.shape[0]):
         for q in range(A.shape[1]):
             A[p, q] = 0.0
 
 
-@_jit
+@_small
 def copy_into(dst, src, count):
     for j in range(count):
         dst[j] = src[j]
 
 
-@_jit
+@_small
 def angle(tangential, normal):
     """atan2(tangential, normal) for tangential >= 0; atan where it agrees (twice as fast)."""
     if normal > 0.0:
@@ -382,7 +387,7 @@ def force_derivatives(i, w, a, tau, al, T, grad, H):
     return P
 
 
-@_jit
+@_small
 def merit(k, a0, al, tau0, T, f, penalty, R, a, tau, rho, theta):
     """max theta_i over the fingers not released, plus the penalised force-limit excess."""
     evaluate(k, a0, al, tau0, T, a, tau, rho, theta)
@@ -721,7 +726,7 @@ def polish(a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu, release, max_
     return -1.0
 
 
-@_jit
+@_small
 def dual_vectors(al, T, S, R, Q, ct, st, lg, phi, z, nuc, vf, w):
     """Smooth fingers' dual vectors at the angle (ct, st) into z; w = sum A_i' (z_i + nu_i v_i)."""
     n, m = al.shape
@@ -941,7 +946,7 @@ def move_force(a0, al, tau0, T, i, t0, t1, t2, k_from, k):
     return True
 
 
-@_jit
+@_small
 def release_start(a0, al, tau0, T, K, i, release, k_from, k):
     """k = k_from moved (minimum norm) so that P_i = release * n_i; False if it leaves the box."""
     if not move_force(a0, al, tau0, T, i, release, 0.0, 0.0, k_from, k):
@@ -1300,6 +1305,77 @@ def barrier_duals(x, a0, al, tau0, T, K, f, t, wts, tb, z, nuv, nus):
 
 
 @_jit
+def force_certificate(a0, al, tau0, T, K, f, k):
+    """Certificate that no k in the box has every |P_i| <= f, from the point k that
+    minimises the largest excess max_i |P_i| - f: with weights nu_i >= 0 (sum 1) on the
+    fingers at that maximum and v_i = P_i / |P_i|, every such k would satisfy
+    sum nu_i (v_i . P_i(k) - f) <= 0, so
+        L = sum nu_i (v_i . F_i - f) - K || sum nu_i A_i' v_i ||_1 > 0
+    proves the limits infeasible. The nu_i are the least-squares stationarity multipliers."""
+    n, m = al.shape
+    a = np.empty(n)
+    tau = np.empty((n, 2))
+    rho = np.empty(n)
+    theta = np.empty(n)
+    evaluate(k, a0, al, tau0, T, a, tau, rho, theta)
+    P = np.empty(n)
+    worst = 0.0
+    for i in range(n):
+        P[i] = sqrt(a[i] ** 2 + rho[i] ** 2)
+        worst = max(worst, P[i])
+    Q = np.zeros(n, dtype=np.bool_)
+    fixed = np.zeros(m, dtype=np.int64)
+    for i in range(n):
+        Q[i] = P[i] >= worst - 1e-6 * f
+    for j in range(m):
+        fixed[j] = 1 if k[j] >= K * (1.0 - 1e-6) else (-1 if k[j] <= -K * (1.0 - 1e-6) else 0)
+    # least-squares multipliers: the force gradients take the place of the angles'
+    grads = np.zeros((n, m))
+    Hd = np.zeros((m, m))
+    for i in range(n):
+        if Q[i]:
+            force_derivatives(i, 0.0, a, tau, al, T, grads[i], Hd)
+    nc = 0
+    for i in range(n):
+        nc += Q[i]
+    A = np.zeros((nc + 1, nc + 1))
+    b = np.zeros(nc + 1)
+    p = 0
+    for i in range(n):
+        if Q[i]:
+            q = 0
+            for i2 in range(n):
+                if Q[i2]:
+                    s = 0.0
+                    for j in range(m):
+                        if fixed[j] == 0:
+                            s += grads[i, j] * grads[i2, j]
+                    A[p, q] = s
+                    q += 1
+            A[p, p] += 1e-12
+            A[p, nc] = 1.0
+            A[nc, p] = 1.0
+            p += 1
+    b[nc] = 1.0
+    if not lu_solve(A, b, nc + 1):
+        return -1.0
+    value = 0.0
+    w = np.zeros(m)
+    p = 0
+    for i in range(n):
+        if Q[i]:
+            nu = max(0.0, b[p])
+            p += 1
+            v0, v1, v2 = a[i] / P[i], tau[i, 0] / P[i], tau[i, 1] / P[i]
+            value += nu * (v0 * a0[i] + v1 * tau0[i, 0] + v2 * tau0[i, 1] - f)
+            for j in range(m):
+                w[j] += nu * (v0 * al[i, j] + v1 * T[i, 0, j] + v2 * T[i, 1, j])
+    for j in range(m):
+        value -= K * abs(w[j])
+    return value
+
+
+@_jit
 def fallback(a0, al, tau0, T, K, f, k, gap):
     """Robust certified minimax: Dinkelbach iterations on t over the convex cone problem.
 
@@ -1334,14 +1410,12 @@ def fallback(a0, al, tau0, T, K, f, k, gap):
             for j in range(m):
                 x[j] = k[j]
             x[m] = excess + 1.0
-            tb = barrier_solve(a0, al, tau0, T, K, f, 0.0, wts, 0.0, x, 1e-14, -1e-6 * f, 1.0)
+            barrier_solve(a0, al, tau0, T, K, f, 0.0, wts, 0.0, x, 1e-14, -1e-6 * f, 1.0)
             for j in range(m):
-                k[j] = x[j]
-            if x[m] >= -1e-6 * f:
-                barrier_duals(x, a0, al, tau0, T, K, f, 0.0, wts, tb, z, nuv, nus)
-                zero(z)
-                L, share = dual_value(a0, al, tau0, T, K, f, 0.0, z, nuv, nus)
-                # L > 0 proves that no k meets the force limits at all
+                k[j] = min(K * inner, max(-K * inner, x[j]))
+            if x[m] >= 0.0:
+                # no k meets the force limits (k is the least excess): certified if L > 0
+                L = force_certificate(a0, al, tau0, T, K, f, k)
                 return pi, (pi / 2 if L > 0.0 else 0.0), NOT_PUSHING, 0.0
     t_best = evaluate(k, a0, al, tau0, T, a, tau, rho, theta)
     k_best = k.copy()
@@ -1392,48 +1466,6 @@ def fallback(a0, al, tau0, T, K, f, k, gap):
         t = t_new
     copy_into(k, k_best, m)
     return t_best, -1.0, INTERIOR, 0.0
-
-
-@_jit
-def barrier_certificate(a0, al, tau0, T, K, f, k, t_up):
-    """Last resort: the barrier dual at t_up - delta for growing delta; (lower, box share).
-
-    Valid but looser than :func:`certify`; used only where the KKT polish fails.
-    """
-    n, m = al.shape
-    x = np.empty(m + 1)
-    wts = np.empty(n)
-    z = np.empty((n, 3))
-    nuv = np.empty((n, 3))
-    nus = np.empty(n)
-    a = np.empty(n)
-    tau = np.empty((n, 2))
-    rho = np.empty(n)
-    theta = np.empty(n)
-    evaluate(k, a0, al, tau0, T, a, tau, rho, theta)
-    for i in range(n):
-        wts[i] = max(sqrt(a[i] ** 2 + rho[i] ** 2), 1e-300)
-    inner = 1.0 - 1e-9
-    fixed = np.zeros(m, dtype=np.int64)
-    for delta in (1e-10, 1e-9, 1e-8, 1e-6, 1e-4, 1e-2):
-        t_low = t_up - delta
-        if t_low <= 0.0 or t_up >= pi / 2:
-            return 0.0, 0.0
-        ct, st = cos(t_low), sin(t_low)
-        s0 = -inf
-        for i in range(n):
-            s0 = max(s0, (ct * rho[i] - st * a[i]) / wts[i])
-        for j in range(m):
-            x[j] = min(K * inner, max(-K * inner, k[j]))
-        x[m] = s0 + 1e-3
-        tb = barrier_solve(a0, al, tau0, T, K, f, t_low, wts, 1.0, x, 0.01 * delta, -inf, 1e3)
-        barrier_duals(x, a0, al, tau0, T, K, f, t_low, wts, tb, z, nuv, nus)
-        for j in range(m):
-            fixed[j] = 1 if x[j] >= K * (1.0 - 1e-6) else (-1 if x[j] <= -K * (1.0 - 1e-6) else 0)
-        L, share = certify_vectors(a0, al, tau0, T, K, f, t_low, z, nuv, nus, fixed)
-        if L >= 0.0:
-            return t_low, share
-    return 0.0, 0.0
 
 
 @_jit
@@ -1544,7 +1576,7 @@ def multiplier_estimate(a, tau, rho, al, T, S, R, Q, fixed, lam, eta, nu):
             p += 1
 
 
-@_jit
+@_small
 def fold(state, k_best, k, t_up, low, status, path):
     """Fold one attempt into the best point and the best certificate so far.
 
@@ -1563,7 +1595,7 @@ def fold(state, k_best, k, t_up, low, status, path):
     return done
 
 
-@_jit
+@_small
 def sets_from_point(K, f, k, a, rho, Q, fixed):
     """The force-limit and box sets that a near-optimal point k touches (within 1e-6)."""
     for q in range(a.shape[0]):
@@ -1573,7 +1605,7 @@ def sets_from_point(K, f, k, a, rho, Q, fixed):
         fixed[j] = 1 if k[j] >= K * (1.0 - 1e-6) else (-1 if k[j] <= -K * (1.0 - 1e-6) else 0)
 
 
-@_jit
+@_inline
 def try_releases(a0, al, tau0, T, K, f, k_sqp, state, k_best):
     """Four fingers: one of them may let go at the optimum (P_i = 0, the cone's apex),
     where theta_i is singular and the SQP stalls. Try releasing each finger, weakest first;
@@ -1642,7 +1674,7 @@ def try_releases(a0, al, tau0, T, K, f, k_sqp, state, k_best):
                 return
 
 
-@_jit
+@_inline
 def try_push(a0, al, tau0, T, K, f, k_sqp, state, k_best):
     """Four fingers: the SQP may stall where a finger's force vanishes without that being
     optimal; restart it with the weakest finger pushing along its normal."""
@@ -1678,9 +1710,9 @@ def try_push(a0, al, tau0, T, K, f, k_sqp, state, k_best):
             return
 
 
-@_jit
+@_inline
 def try_fallback(a0, al, tau0, T, K, f, k_start, state, k_best):
-    """The robust primal of :func:`fallback`, then the KKT certificate, then the barrier's."""
+    """The robust primal of :func:`fallback`, then the KKT certificate."""
     n = al.shape[0]
     k = k_start.copy()
     lam = np.full(n, 1.0 / n)
@@ -1696,11 +1728,9 @@ def try_fallback(a0, al, tau0, T, K, f, k_start, state, k_best):
         t_up, low, share = finish_from(a0, al, tau0, T, K, f, k, lam, eta, tol)
         if fold(state, k_best, k, t_up, low, BOUNDARY if share > 1e-9 else INTERIOR, 5):
             return
-    low, share = barrier_certificate(a0, al, tau0, T, K, f, k_best, state[0])
-    fold(state, k_best, k_best, state[0], low, BOUNDARY if share > 1e-6 else INTERIOR, 5)
 
 
-@_jit
+@_inline
 def solve_one(F, E, N, K_in, f_in, k, theta):
     """Certified minimax for one grasp; fills k and theta, returns (lower, status, path).
 
@@ -1781,79 +1811,18 @@ def solve_one(F, E, N, K_in, f_in, k, theta):
         k[j] = k_best[j] * scale
     t_best = evaluate(k_best, a0, al, tau0, T, a, tau, rho, theta)
     status = int(state[2])
-    if t_best >= pi / 2:
-        status = NOT_PUSHING  # certified when lower == pi / 2
+    excess = False
+    for i in range(n):
+        excess = excess or sqrt(a[i] ** 2 + rho[i] ** 2) > f * (1.0 + 1e-9)
+    if t_best >= pi / 2 or excess:
+        # no k keeps every finger pushing (or meets the force limits; k then exceeds them
+        # least): certified when lower == pi / 2
+        status = NOT_PUSHING
     return state[1], status, int(state[3])
 
 
-@_jit
+@_entry
 def solve_batch(F, E, N, K, f, k, theta, lower, status, path, start, stop):
     """:func:`solve_one` for grasps start..stop of a flat batch (B, ...); releases the GIL."""
     for b in range(start, stop):
         lower[b], status[b], path[b] = solve_one(F[b], E[b], N[b], K[b], f[b], k[b], theta[b])
-
-
-@_jit
-def certify_vectors(a0, al, tau0, T, K, f, t_low, z, nuv, nus, fixed):
-    """:func:`dual_value` after a minimum-norm correction of the dual vectors z_i and nuv_i
-    (finger frames) that zeroes the L1 term's free components (k_j with fixed_j = 0).
-
-    Interior-point duals lie strictly inside their cones but satisfy the stationarity only
-    approximately; K times that residual would spoil the bound without the correction.
-    """
-    n, m = al.shape
-    has_f = f < inf
-    free = np.empty(m, dtype=np.int64)
-    nf = 0
-    for j in range(m):
-        if fixed[j] == 0:
-            free[nf] = j
-            nf += 1
-    ncols = 3 * n * (2 if has_f else 1)
-    if nf > 0:
-        w = np.zeros(m)
-        for j in range(m):
-            s = 0.0
-            for i in range(n):
-                s += z[i, 0] * al[i, j] + z[i, 1] * T[i, 0, j] + z[i, 2] * T[i, 1, j]
-                if has_f:
-                    s += nuv[i, 0] * al[i, j] + nuv[i, 1] * T[i, 0, j] + nuv[i, 2] * T[i, 1, j]
-            w[j] = s
-        J = np.zeros((m, ncols))
-        for p in range(nf):
-            j = free[p]
-            for i in range(n):
-                for c in range(3):
-                    v = al[i, j] if c == 0 else T[i, c - 1, j]
-                    J[p, 3 * i + c] = v
-                    if has_f:
-                        J[p, 3 * n + 3 * i + c] = v
-        G = np.empty((nf, nf))
-        y = np.empty(nf)
-        big = 0.0
-        for p in range(nf):
-            for q in range(nf):
-                s = 0.0
-                for c in range(ncols):
-                    s += J[p, c] * J[q, c]
-                G[p, q] = s
-            big = max(big, G[p, p])
-            y[p] = -w[free[p]]
-        for p in range(nf):
-            G[p, p] += 1e-12 * big
-        if lu_solve(G, y, nf):
-            for i in range(n):
-                for c in range(3):
-                    dz = 0.0
-                    dv = 0.0
-                    for p in range(nf):
-                        dz += J[p, 3 * i + c] * y[p]
-                        if has_f:
-                            dv += J[p, 3 * n + 3 * i + c] * y[p]
-                    z[i, c] += dz
-                    if has_f:
-                        nuv[i, c] += dv
-            if has_f:
-                for i in range(n):
-                    nus[i] = max(nus[i], sqrt(nuv[i, 0] ** 2 + nuv[i, 1] ** 2 + nuv[i, 2] ** 2))
-    return dual_value(a0, al, tau0, T, K, f, t_low, z, nuv, nus)

@@ -151,14 +151,28 @@ def solve_minimax(grasp: Grasp, k_max: ArrayLike, f_max: ArrayLike | None = None
         # one grasp: the lean path (numpy's per-call costs would dominate the kernel's)
         k_lim = _positive_number("k_max", k_max)
         f_lim = math.inf if f_max is None else _positive_number("f_max", f_max)
-        k = np.empty(m)
-        angles = np.empty(n)
-        lower, status, path = kernels.solve_one(
-            _kernel_array(F), _kernel_array(E), _kernel_array(N), k_lim, f_lim, k, angles
+        k = np.empty((1, m))
+        angles = np.empty((1, n))
+        lower = np.empty(1)
+        status = np.empty(1, dtype=np.int8)
+        path = np.empty(1, dtype=np.int8)
+        kernels.solve_batch(
+            _kernel_array(F)[None],
+            _kernel_array(E)[None],
+            _kernel_array(N)[None],
+            np.array([k_lim]),
+            np.array([f_lim]),
+            k,
+            angles,
+            lower,
+            status,
+            path,
+            0,
+            1,
         )
-        if path == kernels.INVALID:
+        if path[0] == kernels.INVALID:
             raise ValueError(_NOT_FINITE)
-        return MinimaxResult(k, angles, angles.max(), np.float64(lower), np.int8(status))
+        return MinimaxResult(k[0], angles[0], angles[0].max(), lower[0], status[0])
     try:
         batch = np.broadcast_shapes(F.shape[:-2], N.shape[:-2], E.shape[:-3])
     except ValueError:
