@@ -103,12 +103,13 @@ def test_not_pushing_is_certified(references) -> None:
     assert result.status == Status.BOUNDARY and abs(result.max_angle - ref.upper) <= TOLERANCE
 
 
-def test_force_limit_below_the_load() -> None:
-    """No k can hold 5 N with three fingers of 0.5 N each: reported as not pushing."""
+def test_force_limit_below_the_load(references) -> None:
+    """No k can hold 5 N with three fingers of 0.5 N each: certified, reported as not pushing."""
     g = scene_grasp(Scene(), START_ROTATION)
     result = solve_minimax(g, 10.0, f_max=0.5)
-    assert result.status == Status.NOT_PUSHING
+    assert result.status == Status.NOT_PUSHING and result.lower_bound == np.pi / 2
     assert np.all(np.isfinite(result.angles)) and np.all(np.isfinite(result.k))
+    assert references[3, True].solve(g.equilibrating, g.basis, g.normals, 10.0, 0.5).not_pushing
 
 
 def test_paper_scene_zero_angle_and_eq8() -> None:

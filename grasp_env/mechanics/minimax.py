@@ -4,28 +4,31 @@ The problem is quasi-convex: theta_i <= t < 90 deg exactly when P_i(k) = F_i + A
 lies in the cone |P_i - (n_i . P_i) n_i| <= tan(t) (n_i . P_i), convex in k. The solver
 (numba kernels in ``_minimax_kernels``) works in three stages for each grasp:
 
-1. **Primal.** An SQP method on  min t s.t. theta_i(k) <= t  (eq. 2), the box and the
-   optional force limits, started from the k that minimises the tangential forces, finds the
-   active set: the fingers at the maximum angle (typically all of them, the paper's closing
-   observation), the k_ij on the box, the fingers at the force limit, and fingers whose force
-   vanishes at the optimum (the cone's apex; with four fingers one may let go). Newton's
-   method on the KKT system of that active set then converges to rounding level. When all
-   tangential forces can vanish (the paper's exact scene, where the normal lines meet at the
-   centre of gravity) the optimum is 0 and is found by least squares directly.
+1. **Primal.** From the k that minimises the tangential forces (exact when they can all
+   vanish: the paper's scene, whose normal lines meet at the centre of gravity, has optimum
+   0), Newton's method on the KKT system of  min t s.t. theta_i(k) <= t  (eq. 2) with every
+   finger at the maximum (the typical optimum, the paper's closing observation) is tried
+   first for three fingers; otherwise an SQP method with a line search on max_i theta_i
+   finds the active set (fingers at the maximum, k_ij on the box, fingers at the force
+   limit) and Newton's method on its KKT system converges to rounding level. With four
+   fingers one of them may let go at the optimum (P_i = 0, the cone's apex, where theta_i
+   is singular and the SQP stalls): each finger is then tried released, and restarts cover
+   stalls near the apex that are not optimal.
 2. **Certificate.** Weak duality: for weights l_i >= 0 and |y_i| <= 1 the vectors
    z_i = l_i (cos t B_i y_i - sin t n_i) satisfy z_i . P <= 0 for every P in the cone, so if
        L(t) = sum_i z_i . F_i - k_max || sum_i A_i' z_i ||_1 > 0
    no k in the box has every theta_i <= t (the minimum over the box of an affine function).
-   The KKT multipliers at the optimum t* give L(t*) = 0 exactly only in exact arithmetic;
-   moved to t* - 1e-11 rad and corrected so that the free components of the L1 term vanish,
-   they give L > 0: ``lower_bound`` is that t, computed, not assumed (the force limits add
-   their own dual terms).
-3. **Fallback.** Whatever does not certify to 1e-9 rad goes to a robust method: Dinkelbach
+   The KKT multipliers at the optimum t* give L(t*) = 0 only in exact arithmetic; moved to
+   t* - 1e-11 rad and corrected so that the free components of the L1 term vanish, they give
+   L > 0: ``lower_bound`` is that t, computed, not assumed (force limits and released
+   fingers add their own dual terms). At t = 90 deg the same bound certifies NOT_PUSHING.
+3. **Fallback.** Whatever is not certified to 1e-9 rad goes to a robust method: Dinkelbach
    iterations on t (with Crouzeix-Ferland-Schaible weights) over the convex cone problem at
-   fixed t, each solved by a log-barrier interior-point method, then stage 2 again.
+   fixed t, each solved by a log-barrier interior-point method, then stage 2 again. It also
+   decides NOT_PUSHING and infeasible force limits.
 
 Forces are scaled by the largest equilibrating force inside the kernels, so the tolerances
-mean the same for any weight.
+mean the same for any weight. The kernels compile once (about a minute) into numba's cache.
 """
 
 from __future__ import annotations
@@ -72,9 +75,10 @@ class MinimaxResult:
         angles: (..., n) friction angles at k, radians.
         max_angle: (...) max_i angles, the optimum (attained by k).
         lower_bound: (...) certified lower bound: no k in the box has a smaller max angle.
-            Within 1e-9 rad of ``max_angle`` unless the status is NOT_PUSHING, where it is
-            pi/2 (no k keeps every finger below 90 deg).
-        status: (...) :class:`Status` codes (int8).
+            Within 1e-9 rad of ``max_angle``, except with status NOT_PUSHING, where pi/2
+            certifies that no k keeps every finger below 90 deg (within f_max, if given).
+        status: (...) :class:`Status` codes (int8). NOT_PUSHING also covers an f_max that no
+            k in the box can meet; k then exceeds it least, and its angles may be < 90 deg.
     """
 
     k: np.ndarray
