@@ -23,11 +23,13 @@ GAP_TOL = 1e-9
 #: Offsets below the primal value at which the dual certificate is tried, radians.
 _DELTAS = (1e-11, 1e-10, 1e-9)
 INTERIOR, BOUNDARY, NOT_PUSHING = 0, 1, 2
-APEX, UNCERTIFIED, INVALID = 0, 6, -1  # solve_one's diagnostic paths
+APEX, UNCERTIFIED, INVALID = 0, 6, -1  # diagnostic paths (see solve_one)
 #: A released finger (zero force at the optimum) is held at this normal force (normalised),
 #: inside its cone, so that its friction angle is well defined.
 RELEASE = 1e-10
 
+# Compile time: numba links every callee's code into each caller and compiles it again, so
+# the attempts and small helpers are inlined and only the entry point gets a Python wrapper.
 _jit = njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
 _small = njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, inline="always")
 _inline = njit(
@@ -1049,7 +1051,7 @@ def finish(a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu):
     if t_up >= pi / 2:
         # beyond 90 deg the cones are not convex and this certificate does not hold
         return t_up, -1.0, 0.0
-    for delta in (1e-11, 1e-10, 1e-9):
+    for delta in _DELTAS:
         t_low = t_up - delta
         if t_low <= 0.0:
             return t_up, 0.0, 0.0

@@ -8,12 +8,12 @@ lies in the cone |P_i - (n_i . P_i) n_i| <= tan(t) (n_i . P_i), convex in k. The
    vanish: the paper's scene, whose normal lines meet at the centre of gravity, has optimum
    0), Newton's method on the KKT system of  min t s.t. theta_i(k) <= t  (eq. 2) with every
    finger at the maximum (the typical optimum, the paper's closing observation) is tried
-   first for three fingers; otherwise an SQP method with a line search on max_i theta_i
-   finds the active set (fingers at the maximum, k_ij on the box, fingers at the force
-   limit) and Newton's method on its KKT system converges to rounding level. With four
-   fingers one of them may let go at the optimum (P_i = 0, the cone's apex, where theta_i
-   is singular and the SQP stalls): each finger is then tried released, and restarts cover
-   stalls near the apex that are not optimal.
+   first for three fingers without a force limit; otherwise an SQP method with a line
+   search on max_i theta_i finds the active set (fingers at the maximum, k_ij on the box,
+   fingers at the force limit) and Newton's method on its KKT system converges to rounding
+   level. With four fingers one of them may let go at the optimum (P_i = 0, the cone's
+   apex, where theta_i is singular and the SQP stalls): each finger is then tried released,
+   and restarts cover stalls near the apex that are not optimal.
 2. **Certificate.** Weak duality: for weights l_i >= 0 and |y_i| <= 1 the vectors
    z_i = l_i (cos t B_i y_i - sin t n_i) satisfy z_i . P <= 0 for every P in the cone, so if
        L(t) = sum_i z_i . F_i - k_max || sum_i A_i' z_i ||_1 > 0
