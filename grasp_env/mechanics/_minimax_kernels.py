@@ -924,6 +924,26 @@ def apex_start(a0, al, tau0, T, k):
 
 
 @_jit
+def normal_start(a0, al, tau0, T, c, k):
+    """k minimising sum_i |tau_i(k)|^2 + (a_i(k) - c)^2: every finger pushing with force c."""
+    n, m = al.shape
+    M = np.zeros((m, m))
+    r = np.zeros(m)
+    for i in range(n):
+        for row in range(3):
+            target = c - a0[i] if row == 0 else -tau0[i, row - 1]
+            for p in range(m):
+                vp = al[i, p] if row == 0 else T[i, row - 1, p]
+                r[p] += vp * target
+                for q in range(m):
+                    M[p, q] += vp * (al[i, q] if row == 0 else T[i, row - 1, q])
+    ok = lu_solve(M, r, m)
+    for j in range(m):
+        k[j] = r[j] if ok else 0.0
+    return ok
+
+
+@_jit
 def move_force(a0, al, tau0, T, i, t0, t1, t2, k_from, k):
     """k = k_from moved (minimum norm) so that P_i = (t0, t1, t2) in finger i's frame."""
     m = al.shape[1]
@@ -1769,6 +1789,19 @@ def solve_one(F, E, N, K_in, f_in, k, theta):
     for j in range(m):
         k[j] = min(K, max(-K, k[j]))
     t_up = evaluate(k, a0, al, tau0, T, a, tau, rho, theta)
+    if n == 4 and f == inf:
+        # four fingers: also try every finger pushing with a common normal force; the best
+        # start saves the SQP about a quarter of its steps
+        k_try = np.empty(m)
+        for c in (1.0, 2.0, 4.0):
+            normal_start(a0, al, tau0, T, c, k_try)
+            for j in range(m):
+                k_try[j] = min(K, max(-K, k_try[j]))
+            t_try = evaluate(k_try, a0, al, tau0, T, a, tau, rho, theta)
+            if t_try < t_up:
+                t_up = t_try
+                copy_into(k, k_try, m)
+        t_up = evaluate(k, a0, al, tau0, T, a, tau, rho, theta)
     feasible = True
     for i in range(n):
         feasible = feasible and sqrt(a[i] ** 2 + rho[i] ** 2) <= f
