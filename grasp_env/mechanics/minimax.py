@@ -48,6 +48,7 @@ from .forces import Grasp, n_pairs
 
 _THREADS = max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else 1)
 _PARALLEL_FROM = 64  # smaller batches are not worth the hand-off to threads
+_CHUNKS_PER_THREAD = 4
 _executor: ThreadPoolExecutor | None = None
 
 
@@ -198,8 +199,9 @@ def solve_minimax(grasp: Grasp, k_max: ArrayLike, f_max: ArrayLike | None = None
     if size < _PARALLEL_FROM or _THREADS == 1:
         kernels.solve_batch(*arrays, 0, size)
     else:
-        # the kernel releases the GIL: one contiguous chunk per core
-        bounds = np.linspace(0, size, _THREADS + 1).astype(int)
+        # the kernel releases the GIL: the cores share a few contiguous chunks each, so that
+        # one that finishes early takes the next (hard grasps cluster along trajectories)
+        bounds = np.linspace(0, size, _CHUNKS_PER_THREAD * _THREADS + 1).astype(int)
         chunks = [
             _pool().submit(kernels.solve_batch, *arrays, lo, hi)
             for lo, hi in itertools.pairwise(bounds)
