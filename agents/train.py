@@ -52,6 +52,7 @@ CURVE_FIELDS = (
     "phase",
     "env_steps",
     "wall_seconds",
+    "cpu_seconds",
     "mean_gap_deg",
     "p90_gap_deg",
     "worst_gap_deg",
@@ -116,9 +117,11 @@ def train(
 ) -> PPO:
     """Train as ``config`` says, writing everything into ``run_dir``; return the model.
 
-    With ``resume``, continue from the run's latest checkpoint: PPO's step count, the
-    learning-rate schedule and the learning curve carry on (the random streams restart from
-    the seed and the step count, so a resumed run is not bit-for-bit an uninterrupted one).
+    With ``resume``, continue from the run's latest checkpoint: the weights, the optimiser
+    state, PPO's step count, the learning-rate schedule and the learning curve carry on; the
+    hyperparameters are ``config``'s (the run's ``config.yaml`` for ``--resume``). The random
+    streams restart from the seed and the step count, so a resumed run is not bit-for-bit an
+    uninterrupted one.
     """
     run_dir = Path(run_dir)
     checkpoint = latest_checkpoint(run_dir) if resume else None
@@ -148,13 +151,14 @@ def train(
             env = VecNormalize(env, norm_obs=True, norm_reward=False)
         eval_env = VecNormalize(eval_env, training=False, norm_reward=False)
 
-    # 3. The model: fresh, or the latest checkpoint.
+    # 3. The model, as the config says; on resume with the checkpoint's weights, optimiser
+    # state and step count (so the run's config.yaml stays the one source of hyperparameters).
+    model = new_model(config, env, run_dir)
     if checkpoint is not None:
-        model = PPO.load(checkpoint, env=env, device="cpu", tensorboard_log=str(run_dir / "tb"))
-    else:
-        model = new_model(config, env, run_dir)
+        model.set_parameters(str(checkpoint), device="cpu")
+        model.num_timesteps = steps_done
     curve = LearningCurve(run_dir / "learning_curve.csv", append=checkpoint is not None)
-    clock = Clock(curve.last("wall_seconds"))
+    clock = Clock(curve.last("wall_seconds"), curve.last("cpu_seconds"))
     imitation_steps = int(curve.last("env_steps", phase="imitation"))
 
     def evaluate_now(phase: str, env_steps: int) -> dict[str, float]:
@@ -368,13 +372,18 @@ class RecordEvaluation(BaseCallback):
 
 
 class Clock:
-    """Seconds of training so far, continuing from ``offset`` (the resumed run's time)."""
+    """Wall and CPU seconds of training so far, continuing from a resumed run's times.
 
-    def __init__(self, offset: float = 0.0) -> None:
-        self.start = time.perf_counter() - offset
+    The CPU time of this process tells how long the run would take on an idle machine when
+    the wall time is stretched by other processes sharing the cores.
+    """
 
-    def __call__(self) -> float:
-        return time.perf_counter() - self.start
+    def __init__(self, wall: float = 0.0, cpu: float = 0.0) -> None:
+        self.wall = time.perf_counter() - wall
+        self.cpu = time.process_time() - cpu
+
+    def __call__(self) -> tuple[float, float]:
+        return time.perf_counter() - self.wall, time.process_time() - self.cpu
 
 
 class LearningCurve:
@@ -394,9 +403,17 @@ class LearningCurve:
             with path.open("w", newline="") as file:
                 csv.writer(file).writerow(CURVE_FIELDS)
 
-    def append(self, phase: str, env_steps: int, seconds: float, metrics: dict) -> None:
-        row = {"phase": phase, "env_steps": env_steps, "wall_seconds": round(seconds, 2)}
-        row |= {key: metrics[key] for key in CURVE_FIELDS[3:]}
+    def append(
+        self, phase: str, env_steps: int, seconds: tuple[float, float], metrics: dict
+    ) -> None:
+        """One evaluation: ``seconds`` is (wall, cpu) since the run started."""
+        row = {
+            "phase": phase,
+            "env_steps": env_steps,
+            "wall_seconds": round(seconds[0], 2),
+            "cpu_seconds": round(seconds[1], 2),
+        }
+        row |= {key: metrics[key] for key in CURVE_FIELDS[4:]}
         self.rows.append({key: str(value) for key, value in row.items()})
         with self.path.open("a", newline="") as file:
             csv.DictWriter(file, CURVE_FIELDS).writerow(row)
