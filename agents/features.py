@@ -24,20 +24,6 @@ from grasp_env.envs.observation import ObservationLayout
 from grasp_env.mechanics import contact_pairs
 
 
-def _skew(v: torch.Tensor) -> torch.Tensor:
-    """[v]x, the cross-product matrix, batched: (..., 3) -> (..., 3, 3)."""
-    zero = torch.zeros_like(v[..., 0])
-    x, y, z = v.unbind(-1)
-    return torch.stack(
-        [
-            torch.stack([zero, -z, y], -1),
-            torch.stack([z, zero, -x], -1),
-            torch.stack([-y, x, zero], -1),
-        ],
-        -2,
-    )
-
-
 def grasp_tensors(
     obs: torch.Tensor, layout: ObservationLayout
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -49,19 +35,23 @@ def grasp_tensors(
     """
     n = layout.n_contacts
     batch = obs.shape[0]
-    obs = obs.double()  # the 6 x 6 solve below loses digits in float32
+    obs = obs.double()  # the solve below loses digits in float32
     columns = obs[:, layout.rotation].reshape(batch, 2, 3)
     third = torch.linalg.cross(columns[:, 0], columns[:, 1])
     rotation = torch.stack([columns[:, 0], columns[:, 1], third], -1)
     positions = obs[:, layout.positions].reshape(batch, n, 3)
     normals = obs[:, layout.normals].reshape(batch, n, 3)
     wrench = torch.cat([obs[:, layout.force], obs[:, layout.torque]], -1)
-    # G = [I ... I; [p_1]x ... [p_n]x] (6 x 3n); F = G^T (G G^T)^-1 (-wrench)
-    eye = torch.eye(3, dtype=obs.dtype).expand(batch, n, 3, 3)
-    grasp = torch.cat([eye, _skew(positions)], -2)  # (B, n, 6, 3)
-    grasp = grasp.permute(0, 2, 1, 3).reshape(batch, 6, 3 * n)
-    lam = torch.linalg.solve(grasp @ grasp.transpose(1, 2), -wrench[..., None])
-    forces = (grasp.transpose(1, 2) @ lam).reshape(batch, n, 3)
+    # F = G^+ (-wrench) in closed form, as grasp_env.mechanics.equilibrating_forces:
+    # F_i = -f / n + mu x q_i with q_i = p_i - c and (sum_i |q_i|^2 I - q_i q_i^T) mu = c x f - tau
+    centroid = positions.mean(1)
+    q = positions - centroid[:, None]
+    qq = q.transpose(1, 2) @ q
+    inertia = qq.diagonal(dim1=1, dim2=2).sum(-1)[:, None, None] * torch.eye(3, dtype=obs.dtype)
+    force, torque = wrench[:, :3], wrench[:, 3:]
+    rhs = torch.linalg.cross(centroid, force) - torque
+    mu = torch.linalg.solve(inertia - qq, rhs)
+    forces = -force[:, None] / n + torch.linalg.cross(mu[:, None].expand_as(q), q)
     pairs = torch.as_tensor(contact_pairs(n))
     delta = positions[:, pairs[:, 1]] - positions[:, pairs[:, 0]]
     u = delta / torch.linalg.vector_norm(delta, dim=-1, keepdim=True)

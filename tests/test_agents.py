@@ -231,3 +231,82 @@ def test_constant_policy_is_batched():
     actions, state = ConstantPolicy([0.1, 0.2]).predict(np.zeros((5, 32)))
     assert actions.shape == (5, 2) and state is None
     assert np.all(actions == np.array([0.1, 0.2], np.float32))
+
+
+# --- the grasp features --------------------------------------------------------------------
+
+
+def random_env_steps(steps: int = 40, seed: int = 3):
+    """Observations and infos of CubeGraspRandom-v0 under random actions (batched)."""
+    import gymnasium as gym
+
+    envs = gym.make_vec(
+        "grasp_env/CubeGraspRandom-v0",
+        num_envs=16,
+        vectorization_mode="vector_entry_point",
+        terminate_on_slip=False,
+    )
+    obs, _ = envs.reset(seed=seed)
+    rng = np.random.default_rng(seed)
+    rows = []
+    for _ in range(steps):
+        action = rng.uniform(-1, 1, (16, 3))
+        next_obs, _, _, _, info = envs.step(action)
+        rows.append((obs, action, info))
+        obs = next_obs
+    return rows
+
+
+def test_grasp_features_are_the_object_frame_grasp():
+    """GraspFeatures against the numpy mechanics: R^T F_i, R^T u_ij, R^T n_i and theta_lim."""
+    import gymnasium as gym
+    import torch
+
+    from agents.features import GraspFeatures
+    from grasp_env.envs.observation import ObservationLayout
+    from grasp_env.mechanics import contact_pairs, equilibrating_forces, interaction_basis
+
+    layout = ObservationLayout(3)
+    obs = np.concatenate([o for o, _, _ in random_env_steps()])
+    extractor = GraspFeatures(gym.spaces.Box(-np.inf, np.inf, (layout.size,), np.float32))
+    features = extractor(torch.as_tensor(obs)).numpy()
+    assert features.shape == (len(obs), 6 * 3 + 3 * 3 + 1)
+
+    o = obs.astype(float)
+    batch = len(o)
+    columns = o[:, layout.rotation].reshape(batch, 2, 3)
+    rotation = np.stack([columns[:, 0], columns[:, 1], np.cross(columns[:, 0], columns[:, 1])], -1)
+    positions = o[:, layout.positions].reshape(batch, 3, 3)
+    wrench = np.concatenate([o[:, layout.force], o[:, layout.torque]], 1)
+    to_object = np.swapaxes(rotation, 1, 2)[:, None]
+    forces = equilibrating_forces(positions, wrench)
+    pairs = contact_pairs(3)
+    directions = interaction_basis(positions)[:, np.arange(3), pairs[:, 0]]
+    normals = o[:, layout.normals].reshape(batch, 3, 3)
+    expected = np.concatenate(
+        [
+            (to_object @ v[..., None])[..., 0].reshape(batch, -1)
+            for v in (forces, directions, normals)
+        ]
+        + [o[:, layout.friction_limit, None]],
+        axis=1,
+    )
+    np.testing.assert_allclose(features, expected, atol=1e-5)
+    # the object-frame normals are the cube's face normals whatever the pose
+    np.testing.assert_allclose(np.abs(features[:, 18:27]).max(axis=1), 1.0, atol=1e-5)
+
+
+def test_max_friction_angle_is_the_environments_reward():
+    """The differentiable loss term equals theta_lim - reward, as the environment scores it."""
+    import torch
+
+    from agents.features import grasp_tensors, max_friction_angle
+    from grasp_env.envs.observation import ObservationLayout
+
+    for obs, action, info in random_env_steps(steps=8):
+        forces, basis, normals, _ = grasp_tensors(torch.as_tensor(obs), ObservationLayout(3))
+        actions = torch.tensor(action, dtype=torch.float32, requires_grad=True)
+        angle = max_friction_angle(actions, forces, basis, normals, 2.0)
+        np.testing.assert_allclose(angle.detach().numpy(), info["theta"].max(axis=1), atol=1e-4)
+        angle.sum().backward()
+        assert torch.isfinite(actions.grad).all() and actions.grad.abs().sum() > 0
