@@ -429,6 +429,7 @@ class LearningCurve:
 
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
+        from matplotlib.ticker import EngFormatter
 
         if not self.rows:
             return
@@ -447,6 +448,7 @@ class LearningCurve:
             twin.plot(x, 100 * data["success_rate"], "g:", label="success rate")
             twin.set_ylim(0, 101)
             twin.set_ylabel("held-out success (%)", color="g")
+        axes[0].xaxis.set_major_formatter(EngFormatter())  # 100k, not 100000 (labels overlap)
         axes[0].set_ylabel("optimality gap (deg)")
         axes[0].legend(loc="upper right")
         fig.suptitle("Held-out scenes over training")
