@@ -14,6 +14,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import time
 
 import numpy as np
@@ -44,8 +45,15 @@ def main() -> None:
     ours = ppo_steps_per_second(
         make_vec_env(config.env_id, config.env_kwargs, config.n_envs, seed=0), config
     )
-    cartpole = ppo_steps_per_second(sb3_make_vec_env("CartPole-v1", config.n_envs, seed=0), config)
-    print(f"PPO ({config.n_envs} envs, {config.policy.net_arch} MLP), {PPO_STEPS} steps:")
+    # CartPole has no grasp to compute features from: the same MLP on its raw observation
+    plain = dataclasses.replace(
+        config, policy=dataclasses.replace(config.policy, features="observation")
+    )
+    cartpole = ppo_steps_per_second(sb3_make_vec_env("CartPole-v1", config.n_envs, seed=0), plain)
+    print(
+        f"PPO ({config.n_envs} envs, {config.policy.net_arch} {config.policy.activation} MLP on "
+        f"{config.policy.features} features), {PPO_STEPS} steps:"
+    )
     print(f"  {config.env_id}: {ours:8.0f} steps/s")
     print(f"  CartPole-v1 (DummyVecEnv):  {cartpole:8.0f} steps/s   ratio {ours / cartpole:.2f}")
 
