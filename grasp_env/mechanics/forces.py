@@ -76,18 +76,18 @@ def equilibrating_forces(positions: ArrayLike, wrench: ArrayLike) -> np.ndarray:
     q = p - centroid[..., None, :]
     qq = np.swapaxes(q, -1, -2) @ q
     inertia = np.trace(qq, axis1=-2, axis2=-1)[..., None, None] * np.eye(3) - qq
-    mu = solve_symmetric_3x3(inertia, cross(centroid, force) - torque)
-    return -force[..., None, :] / p.shape[-2] + cross(mu[..., None, :], q)
+    mu = _solve_symmetric_3x3(inertia, _cross(centroid, force) - torque)
+    return -force[..., None, :] / p.shape[-2] + _cross(mu[..., None, :], q)
 
 
-def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """a x b over the last axis (broadcasting); a lean np.cross for small batched vectors."""
     a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
     b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
     return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
 
 
-def solve_symmetric_3x3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+def _solve_symmetric_3x3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """x with a x = b for symmetric positive definite (..., 3, 3) a, by the adjugate."""
     a00, a01, a02 = a[..., 0, 0], a[..., 0, 1], a[..., 0, 2]
     a11, a12, a22 = a[..., 1, 1], a[..., 1, 2], a[..., 2, 2]
