@@ -48,6 +48,8 @@ from .features import grasp_tensors, max_friction_angle
 
 #: Final learning rate of each round's cosine decay, as a fraction of the initial one.
 LR_FLOOR = 0.01
+#: Gradient-norm clip of the fit's Adam steps.
+MAX_GRAD_NORM = 1.0
 #: Observations per batch when computing features or the grasp of a data set.
 CHUNK = 65_536
 
@@ -168,6 +170,9 @@ def fit(
                 loss = loss + gap_weight * angle.mean()
             optimizer.zero_grad()
             loss.backward()
+            # the angle's gradient is huge where a finger's force nearly vanishes: one such
+            # batch must not throw Adam off (unclipped, a run at lr 1e-2 collapsed)
+            torch.nn.utils.clip_grad_norm_(actor, MAX_GRAD_NORM)
             optimizer.step()
             schedule.step()
             loss_sum += float(loss.detach()) * len(index)
