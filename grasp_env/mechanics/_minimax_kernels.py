@@ -577,6 +577,27 @@ def sqp(a0, al, tau0, T, K, f, R, release, k, lam, nu, max_iter, tol):
     return max_iter
 
 
+@_small
+def read_multipliers(x, row, S, R, Q, lam, eta, nu):
+    """Unpack lam (fingers in S), eta (released fingers, 3 each) and nu (force limits in Q)
+    from x, starting at ``row``, in that order; the others are zero."""
+    for i in range(S.shape[0]):
+        lam[i] = 0.0
+        if S[i]:
+            lam[i] = x[row]
+            row += 1
+    for i in range(R.shape[0]):
+        if R[i]:
+            for c in range(3):
+                eta[i, c] = x[row]
+                row += 1
+    for i in range(Q.shape[0]):
+        nu[i] = 0.0
+        if Q[i]:
+            nu[i] = x[row]
+            row += 1
+
+
 @_jit
 def polish(a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu, release, max_iter):
     """Newton's method on the KKT system of the minimax for fixed active sets; returns t.
@@ -707,22 +728,7 @@ def polish(a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu, release, max_
             k[free[p]] += rhs[p]
             step = max(step, abs(rhs[p]))
         t += rhs[size - 1]
-        row = nf
-        for i in range(n):
-            lam[i] = 0.0
-            if S[i]:
-                lam[i] = rhs[row]
-                row += 1
-        for i in range(n):
-            if R[i]:
-                for c in range(3):
-                    eta[i, c] = rhs[row]
-                    row += 1
-        for i in range(n):
-            nu[i] = 0.0
-            if Q[i]:
-                nu[i] = rhs[row]
-                row += 1
+        read_multipliers(rhs, nf, S, R, Q, lam, eta, nu)
         if step <= 1e-15 * (1.0 + K) and it > 0:
             return t
     return -1.0
@@ -1580,22 +1586,7 @@ def multiplier_estimate(a, tau, rho, al, T, S, R, Q, fixed, lam, eta, nu):
     b[nc] = 1.0
     if not lu_solve(A, b, nc + 1):
         return
-    p = 0
-    for i in range(n):
-        lam[i] = 0.0
-        if S[i]:
-            lam[i] = b[p]
-            p += 1
-    for i in range(n):
-        if R[i]:
-            for c in range(3):
-                eta[i, c] = b[p]
-                p += 1
-    for i in range(n):
-        nu[i] = 0.0
-        if Q[i]:
-            nu[i] = b[p]
-            p += 1
+    read_multipliers(b, 0, S, R, Q, lam, eta, nu)
 
 
 @_small
