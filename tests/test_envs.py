@@ -655,3 +655,22 @@ def test_step_kernel_matches_the_mechanics():
     np.testing.assert_array_equal(theta[:3], [[0.0] * n, [np.pi] * n, [0.0] * n])
     np.testing.assert_array_equal(margin, 0.4 - theta)
     np.testing.assert_array_equal(reward, margin.min(axis=1))
+
+
+def test_sampled_scenes_within_their_ranges():
+    """Every drawn quantity stays in its documented range (the extra torque's z component once
+    reused a normal draw of the axis)."""
+    from grasp_env.envs.core import SceneSampler
+
+    sampler = SceneSampler(extra_force=0.3, extra_torque=0.4, cg_offset=0.2, contact_offset=0.5)
+    scenes = sampler.scenes(sampler.raw(np.random.default_rng(0), 5000))
+    weight = scenes.weight[:, None]
+    assert np.all(np.abs(scenes.extra_force) <= 0.3 * weight)
+    assert np.all(np.abs(scenes.extra_torque) <= 0.4 * weight)
+    assert np.all(np.abs(scenes.extra_torque).max(0) > 0.35 * weight.max())
+    assert np.all(np.abs(scenes.cg_offset) <= 0.1)
+    assert np.all((scenes.weight >= 1) & (scenes.weight <= 10))
+    assert np.all((scenes.mu >= 0.3) & (scenes.mu <= 1))
+    np.testing.assert_allclose(np.linalg.norm(scenes.axis, axis=1), 1.0)
+    assert np.all(np.abs(scenes.contacts).max(-1) == 0.5)  # on a face of the unit cube
+    assert np.all(np.sort(np.abs(scenes.contacts), -1)[..., 1] <= 0.25)  # offsets <= 0.5 L / 2

@@ -567,9 +567,11 @@ class SceneSampler:
         return int(np.floor(span / self.alpha_step_deg + 1e-9)) + 1
 
     def raw(self, rng: np.random.Generator, count: int) -> np.ndarray:
-        """The random numbers of ``count`` scenes, (count, 4 n + 18): two calls to ``rng``,
+        """The random numbers of ``count`` scenes, (count, 2 n + 16): two calls to ``rng``,
         so that drawing for many generators is cheap; :meth:`scenes` maps them to scenes."""
-        uniform = rng.random((count, 2 * len(self.faces) + 12))
+        # 2 n contact offsets, then cg (3), weight, mu, alpha start and end, extra force (3)
+        # and torque (3) uniform; then the axis (3) normal
+        uniform = rng.random((count, 2 * len(self.faces) + 13))
         return np.concatenate([uniform, rng.standard_normal((count, 3))], axis=1)
 
     def scenes(self, raw: np.ndarray) -> SceneBatch:
