@@ -13,8 +13,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
+from .envs._pose_kernels import observation_grasps
 from .envs.observation import ObservationLayout
-from .mechanics import Grasp, equilibrating_forces, interaction_basis, solve_minimax
+from .mechanics import Grasp, contact_pairs, solve_minimax
 
 #: Default action scale of the environments: k_max = 2 w.
 DEFAULT_K_MAX_RATIO = 2.0
@@ -66,15 +67,18 @@ class MinimaxExpert:
         """Actions (B, m) float32 in [-1, 1] for a batch of observations (B, size)."""
         layout = ObservationLayout.from_size(observations.shape[-1])
         n = layout.n_contacts
-        count = observations.shape[0]
+        pairs = contact_pairs(n)
         obs = np.asarray(observations, dtype=np.float64)
-        positions = obs[:, layout.positions].reshape(count, n, 3)
-        wrench = np.concatenate([obs[:, layout.force], obs[:, layout.torque]], axis=1)
+        count = obs.shape[0]
+        forces, normals = np.empty((count, n, 3)), np.empty((count, n, 3))
+        basis = np.empty((count, len(pairs), n, 3))
+        # as mechanics.equilibrating_forces and interaction_basis, in one compiled pass
+        observation_grasps(obs, pairs, forces, basis, normals)
         grasp = Grasp(
-            positions=positions,
-            normals=obs[:, layout.normals].reshape(count, n, 3),
-            equilibrating=equilibrating_forces(positions, wrench),
-            basis=interaction_basis(positions),
+            positions=obs[:, layout.positions].reshape(count, n, 3),
+            normals=normals,
+            equilibrating=forces,
+            basis=basis,
             friction_limit=obs[:, layout.friction_limit],
         )
         k = solve_minimax(grasp, self.k_max_ratio).k

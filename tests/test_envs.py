@@ -657,6 +657,69 @@ def test_step_kernel_matches_the_mechanics():
     np.testing.assert_array_equal(reward, margin.min(axis=1))
 
 
+@pytest.mark.parametrize("faces", [("-x", "-y", "-z"), FOUR_FINGER_FACES])
+def test_pose_kernels_match_the_mechanics(faces):
+    """The compiled episode geometry (and the expert's grasp from an observation) against the
+    numpy mechanics: rotation (eq. 5), grasp, equilibrating forces and the observation layout."""
+    from grasp_env.envs.core import SceneSampler, build_episodes
+    from grasp_env.mechanics import (
+        contact_pairs,
+        equilibrating_forces,
+        grasp,
+        interaction_basis,
+        load_wrench,
+        pose_rotation,
+    )
+
+    sampler = SceneSampler(faces=faces, extra_force=0.8, extra_torque=0.8)
+    scenes = sampler.scenes(sampler.raw(np.random.default_rng(3), 50))
+    poses = build_episodes(scenes, MinimaxExpert()).poses
+    episode = np.repeat(np.arange(len(scenes)), scenes.length)
+    step = np.concatenate([np.arange(length) for length in scenes.length])
+    alphas = scenes.alpha_start[episode] + scenes.alpha_step[episode] * step
+    rotations = pose_rotation(scenes.axis[episode], np.deg2rad(alphas))
+    wrench = load_wrench(
+        scenes.weight[episode], scenes.extra_force[episode], scenes.extra_torque[episode]
+    )
+    relative = (scenes.contacts - scenes.cg_offset[:, None])[episode]
+    limit = np.arctan(scenes.mu[episode])
+    g = grasp(relative, scenes.normals[episode], rotations, wrench, limit)
+    n, pairs = len(faces), contact_pairs(len(faces))
+    np.testing.assert_array_equal(poses.alphas, alphas)
+    np.testing.assert_array_equal(poses.limit, limit)
+    np.testing.assert_allclose(poses.rotations, rotations, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(poses.normals, g.normals, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(poses.forces, g.equilibrating, rtol=0, atol=1e-13)
+    np.testing.assert_allclose(
+        poses.directions, g.basis[:, np.arange(len(pairs)), pairs[:, 0]], rtol=0, atol=1e-15
+    )
+    layout = ObservationLayout(n)
+    weight = scenes.weight[episode][:, None]
+    expected = np.empty((len(episode), layout.size))
+    expected[:, layout.rotation] = np.concatenate([rotations[..., 0], rotations[..., 1]], 1)
+    expected[:, layout.positions] = g.positions.reshape(len(episode), -1)
+    expected[:, layout.normals] = g.normals.reshape(len(episode), -1)
+    expected[:, layout.force] = wrench[:, :3] / weight
+    expected[:, layout.torque] = wrench[:, 3:] / weight
+    expected[:, layout.friction_limit] = limit
+    expected[:, layout.phase] = step / scenes.length[episode]
+    assert poses.observations.dtype == np.float32
+    # float32 roundings of values 1e-15 apart: equal, or one float32 step (< 2.4e-7) apart
+    np.testing.assert_allclose(poses.observations, expected, rtol=0, atol=2.4e-7)
+    # the expert rebuilds the grasp from the observation alone
+    from grasp_env.envs._pose_kernels import observation_grasps
+
+    obs = poses.observations.astype(float)
+    positions = obs[:, layout.positions].reshape(-1, n, 3)
+    forces, normals = np.empty_like(positions), np.empty_like(positions)
+    basis = np.empty((len(obs), len(pairs), n, 3))
+    observation_grasps(obs, pairs, forces, basis, normals)
+    load = np.concatenate([obs[:, layout.force], obs[:, layout.torque]], 1)
+    np.testing.assert_allclose(forces, equilibrating_forces(positions, load), rtol=0, atol=1e-13)
+    np.testing.assert_allclose(basis, interaction_basis(positions), rtol=0, atol=1e-15)
+    np.testing.assert_array_equal(normals, obs[:, layout.normals].reshape(-1, n, 3))
+
+
 def test_sampled_scenes_within_their_ranges():
     """Every drawn quantity stays in its documented range (the extra torque's z component once
     reused a normal draw of the axis)."""

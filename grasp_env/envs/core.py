@@ -24,18 +24,18 @@ from ..mechanics import (
     DEFAULT_WEIGHT,
     FACES,
     PAPER_FACES,
+    START_ROTATION,
     Scene,
     Trajectory,
     contact_pairs,
     face_point,
-    grasp,
-    load_wrench,
-    pose_rotation,
 )
+from ._pose_kernels import pose_geometry
 from .observation import ObservationLayout
 
-#: Edge length L of the grasped cube, metres (the paper's unit cube).
+#: Edge length L of the grasped cube, metres (the paper's unit cube; the observation's units).
 EDGE = 1.0
+_BOUNDS = {n: ObservationLayout(n).bounds() for n in (3, 4)}
 SCENE_KEYS = (
     "contacts", "cg_offset", "weight", "mu", "extra_force", "extra_torque", "trajectory",
 )  # fmt: skip
@@ -214,25 +214,38 @@ def build_poses(
     expert's actions where already solved (NaN elsewhere).
     """
     n = scenes.contacts.shape[1]
-    layout = ObservationLayout(n)
-    alphas = scenes.alpha_start[episode] + scenes.alpha_step[episode] * step
-    rotations = pose_rotation(scenes.axis[episode], np.deg2rad(alphas))
-    weight = scenes.weight[episode]
-    limit = np.arctan(scenes.mu[episode])
-    wrench = load_wrench(weight, scenes.extra_force[episode], scenes.extra_torque[episode])
-    relative = (scenes.contacts - scenes.cg_offset[:, None, :])[episode]
-    g = grasp(relative, scenes.normals[episode], rotations, wrench, limit)
     pairs = contact_pairs(n)
-    directions = g.basis[:, np.arange(len(pairs)), pairs[:, 0], :]
-    observations = layout.build(
+    count = len(episode)
+    alphas, limit = np.empty(count), np.empty(count)
+    rotations = np.empty((count, 3, 3))
+    forces, normals = np.empty((count, n, 3)), np.empty((count, n, 3))
+    directions = np.empty((count, len(pairs), 3))
+    observations = np.empty((count, ObservationLayout(n).size), np.float32)
+    pose_geometry(
+        scenes.contacts - scenes.cg_offset[:, None, :],
+        scenes.normals,
+        scenes.axis,
+        scenes.alpha_start,
+        scenes.alpha_step,
+        scenes.length,
+        scenes.weight,
+        scenes.mu,
+        scenes.extra_force,
+        scenes.extra_torque,
+        episode,
+        step,
+        START_ROTATION,
+        pairs,
+        *_BOUNDS[n],
+        alphas,
         rotations,
-        g.positions / EDGE,
-        g.normals,
-        wrench[:, :3] / weight[:, None],
-        wrench[:, 3:] / (weight[:, None] * EDGE),
+        forces,
+        directions,
+        normals,
+        observations,
         limit,
-        step / scenes.length[episode],
     )
+    weight = scenes.weight[episode]
     k_max = expert.k_max_ratio * weight
     if known is None:
         actions = expert.actions(observations).astype(np.float64)
@@ -242,9 +255,9 @@ def build_poses(
         actions[todo] = expert.actions(observations[todo])
     # The expert's grip scored exactly as an agent's action is (same kernel, same clipping).
     _, k, _, _, _, reward = evaluate(
-        g.equilibrating,
+        forces,
         directions,
-        g.normals,
+        normals,
         pairs,
         np.arange(len(episode)),
         actions,
@@ -253,9 +266,9 @@ def build_poses(
     )
     return Poses(
         rotations,
-        g.equilibrating,
+        forces,
         directions,
-        g.normals,
+        normals,
         observations,
         alphas,
         limit,

@@ -107,31 +107,3 @@ class ObservationLayout:
             ]
         )
         return low.astype(np.float32), high.astype(np.float32)
-
-    def build(
-        self,
-        rotation: np.ndarray,
-        positions: np.ndarray,
-        normals: np.ndarray,
-        force: np.ndarray,
-        torque: np.ndarray,
-        friction_limit: np.ndarray,
-        phase: np.ndarray,
-    ) -> np.ndarray:
-        """Observation rows (P, size) float32 from scaled world-frame quantities of P poses.
-
-        ``rotation`` (P, 3, 3), ``positions`` and ``normals`` (P, n, 3), ``force`` and
-        ``torque`` (P, 3) already in units of w and w L, ``friction_limit`` and ``phase`` (P,).
-        Values are clipped to the bounds, which they can exceed only by rounding.
-        """
-        count = rotation.shape[0]
-        obs = np.empty((count, self.size), dtype=np.float64)
-        obs[:, self.rotation] = rotation[:, :, :2].transpose(0, 2, 1).reshape(count, 6)
-        obs[:, self.positions] = positions.reshape(count, -1)
-        obs[:, self.normals] = normals.reshape(count, -1)
-        obs[:, self.force] = force
-        obs[:, self.torque] = torque
-        obs[:, self.friction_limit] = friction_limit
-        obs[:, self.phase] = phase
-        low, high = self.bounds()
-        return np.clip(obs, low, high).astype(np.float32)

@@ -1,0 +1,188 @@
+"""Compiled per-pose geometry for building episodes: the numpy mechanics written out per pose.
+
+Building an episode (and screening candidate scenes) costs one minimax solve per pose; around
+it, numpy's per-call costs on batches of a few hundred poses came to as much again. These
+kernels do the same arithmetic as :func:`grasp_env.mechanics.pose_rotation`,
+:func:`~grasp_env.mechanics.grasp` and :func:`~grasp_env.mechanics.equilibrating_forces` in
+one pass; ``tests/test_envs.py`` checks them against those functions.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+_kernel = numba.njit(cache=True, nogil=True)
+
+
+@_kernel
+def _equilibrating(p, force, torque, out):
+    """Minimum-norm forces F_i = -f / n + mu x q_i balancing (f, tau) at contacts p (n, 3).
+
+    The closed form of :func:`grasp_env.mechanics.equilibrating_forces` (q_i = p_i - c about
+    the contacts' centroid c, J mu = c x f - tau with J = sum_i |q_i|^2 I - q_i q_i^T).
+    """
+    n = p.shape[0]
+    c = np.zeros(3)
+    for i in range(n):
+        for a in range(3):
+            c[a] += p[i, a]
+    for a in range(3):
+        c[a] /= n
+    q = np.empty((n, 3))
+    j = np.zeros((3, 3))
+    for i in range(n):
+        for a in range(3):
+            q[i, a] = p[i, a] - c[a]
+        s = q[i, 0] ** 2 + q[i, 1] ** 2 + q[i, 2] ** 2
+        for a in range(3):
+            j[a, a] += s
+            for b in range(3):
+                j[a, b] -= q[i, a] * q[i, b]
+    r0 = c[1] * force[2] - c[2] * force[1] - torque[0]
+    r1 = c[2] * force[0] - c[0] * force[2] - torque[1]
+    r2 = c[0] * force[1] - c[1] * force[0] - torque[2]
+    # J symmetric positive definite: solve by the adjugate
+    c00 = j[1, 1] * j[2, 2] - j[1, 2] * j[1, 2]
+    c01 = j[0, 2] * j[1, 2] - j[0, 1] * j[2, 2]
+    c02 = j[0, 1] * j[1, 2] - j[0, 2] * j[1, 1]
+    c11 = j[0, 0] * j[2, 2] - j[0, 2] * j[0, 2]
+    c12 = j[0, 1] * j[0, 2] - j[0, 0] * j[1, 2]
+    c22 = j[0, 0] * j[1, 1] - j[0, 1] * j[0, 1]
+    det = j[0, 0] * c00 + j[0, 1] * c01 + j[0, 2] * c02
+    m0 = (c00 * r0 + c01 * r1 + c02 * r2) / det
+    m1 = (c01 * r0 + c11 * r1 + c12 * r2) / det
+    m2 = (c02 * r0 + c12 * r1 + c22 * r2) / det
+    for i in range(n):
+        out[i, 0] = -force[0] / n + m1 * q[i, 2] - m2 * q[i, 1]
+        out[i, 1] = -force[1] / n + m2 * q[i, 0] - m0 * q[i, 2]
+        out[i, 2] = -force[2] / n + m0 * q[i, 1] - m1 * q[i, 0]
+
+
+@_kernel
+def _directions(p, pairs, out):
+    """u_ij = (p_j - p_i) / |p_j - p_i| for the pairs (m, 2): out (m, 3)."""
+    for q in range(pairs.shape[0]):
+        i, j = pairs[q, 0], pairs[q, 1]
+        d0 = p[j, 0] - p[i, 0]
+        d1 = p[j, 1] - p[i, 1]
+        d2 = p[j, 2] - p[i, 2]
+        norm = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+        out[q, 0] = d0 / norm
+        out[q, 1] = d1 / norm
+        out[q, 2] = d2 / norm
+
+
+@_kernel
+def pose_geometry(
+    relative, object_normals, axis, alpha_start, alpha_step, length, weight, mu,
+    extra_force, extra_torque, episode, step, start_rotation, pairs, low, high,
+    alphas, rotations, forces, directions, normals, observations, limit,
+):  # fmt: skip
+    """The world-frame grasp and observation of poses (episode[P], step[P]) of E scenes.
+
+    Scene arrays: ``relative`` contacts c_i - g and ``object_normals`` (E, n, 3), unit ``axis``
+    (E, 3), trajectory ``alpha_start``, ``alpha_step`` (degrees) and ``length``, ``weight``,
+    ``mu``, ``extra_force`` and ``extra_torque`` (E, 3). Fills ``alphas`` (P,), ``rotations``
+    R = Rot(axis, alpha) R0 (P, 3, 3) (eq. 5), the equilibrating ``forces`` (P, n, 3),
+    ``directions`` u_ij (P, m, 3), ``normals`` (P, n, 3), ``observations`` (P, size) float32
+    clipped to [``low``, ``high``] (the layout of :mod:`grasp_env.envs.observation`), and
+    ``limit`` = atan(mu) (P,).
+    """
+    n = relative.shape[1]
+    rot = np.empty((3, 3))
+    force = np.empty(3)
+    torque = np.empty(3)
+    row = np.empty(observations.shape[1])
+    for b in range(episode.shape[0]):
+        e = episode[b]
+        alpha = alpha_start[e] + alpha_step[e] * step[b]
+        alphas[b] = alpha
+        angle = np.deg2rad(alpha)
+        cos, sin = math.cos(angle), math.sin(angle)
+        rx, ry, rz = axis[e, 0], axis[e, 1], axis[e, 2]
+        # R = cos I + (1 - cos) r r^T + sin [r]x, then times R0
+        rot[0, 0] = cos + (1 - cos) * rx * rx
+        rot[0, 1] = (1 - cos) * rx * ry - sin * rz
+        rot[0, 2] = (1 - cos) * rx * rz + sin * ry
+        rot[1, 0] = (1 - cos) * ry * rx + sin * rz
+        rot[1, 1] = cos + (1 - cos) * ry * ry
+        rot[1, 2] = (1 - cos) * ry * rz - sin * rx
+        rot[2, 0] = (1 - cos) * rz * rx - sin * ry
+        rot[2, 1] = (1 - cos) * rz * ry + sin * rx
+        rot[2, 2] = cos + (1 - cos) * rz * rz
+        for r in range(3):
+            for c in range(3):
+                rotations[b, r, c] = (
+                    rot[r, 0] * start_rotation[0, c]
+                    + rot[r, 1] * start_rotation[1, c]
+                    + rot[r, 2] * start_rotation[2, c]
+                )
+        big = rotations[b]
+        for i in range(n):
+            for r in range(3):
+                normals[b, i, r] = (
+                    big[r, 0] * object_normals[e, i, 0]
+                    + big[r, 1] * object_normals[e, i, 1]
+                    + big[r, 2] * object_normals[e, i, 2]
+                )
+        positions = np.empty((n, 3))
+        for i in range(n):
+            for r in range(3):
+                positions[i, r] = (
+                    big[r, 0] * relative[e, i, 0]
+                    + big[r, 1] * relative[e, i, 1]
+                    + big[r, 2] * relative[e, i, 2]
+                )
+        w = weight[e]
+        for a in range(3):
+            force[a] = extra_force[e, a]
+            torque[a] = extra_torque[e, a]
+        force[2] -= w
+        _equilibrating(positions, force, torque, forces[b])
+        _directions(positions, pairs, directions[b])
+        limit[b] = math.atan(mu[e])
+        # the observation: units of the edge length (1) and the weight
+        for a in range(3):  # R's first two columns, one after the other
+            row[a] = big[a, 0]
+            row[3 + a] = big[a, 1]
+        for i in range(n):
+            for a in range(3):
+                row[6 + 3 * i + a] = positions[i, a]
+                row[6 + 3 * n + 3 * i + a] = normals[b, i, a]
+        for a in range(3):
+            row[6 + 6 * n + a] = force[a] / w
+            row[9 + 6 * n + a] = torque[a] / w
+        row[12 + 6 * n] = limit[b]
+        row[13 + 6 * n] = step[b] / length[e]
+        for a in range(row.shape[0]):
+            observations[b, a] = min(max(row[a], low[a]), high[a])
+
+
+@_kernel
+def observation_grasps(observations, pairs, forces, basis, normals):
+    """The grasps in an observation batch (B, size), in units of w and L: the equilibrating
+    ``forces`` (B, n, 3), the interaction ``basis`` e_ij (B, m, n, 3) and the ``normals``."""
+    n = forces.shape[1]
+    positions = np.empty((n, 3))
+    force = np.empty(3)
+    torque = np.empty(3)
+    u = np.empty((pairs.shape[0], 3))
+    for b in range(observations.shape[0]):
+        obs = observations[b]
+        for i in range(n):
+            for a in range(3):
+                positions[i, a] = obs[6 + 3 * i + a]
+                normals[b, i, a] = obs[6 + 3 * n + 3 * i + a]
+        for a in range(3):
+            force[a] = obs[6 + 6 * n + a]
+            torque[a] = obs[9 + 6 * n + a]
+        _equilibrating(positions, force, torque, forces[b])
+        _directions(positions, pairs, u)
+        basis[b] = 0.0
+        for q in range(pairs.shape[0]):
+            for a in range(3):
+                basis[b, q, pairs[q, 0], a] = u[q, a]
+                basis[b, q, pairs[q, 1], a] = -u[q, a]
