@@ -27,6 +27,9 @@ APEX, UNCERTIFIED, INVALID = 0, 6, -1  # diagnostic paths (see solve_one)
 #: A released finger (zero force at the optimum) is held at this normal force (normalised),
 #: inside its cone, so that its friction angle is well defined.
 RELEASE = 1e-10
+#: Newton's KKT residual that an attempt from a far start must reach within its first few
+#: iterations (see polish): one that has not is rarely converging, and costs as much as the SQP.
+SETTLED = 1e-4
 
 # Compile time: numba links every callee's code into each caller and compiles it again, so
 # the attempts and small helpers are inlined and only the entry point gets a Python wrapper.
@@ -599,13 +602,14 @@ def read_multipliers(x, row, S, R, Q, lam, eta, nu):
 
 
 @_jit
-def polish(a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu, release, max_iter):
+def polish(a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu, release, max_iter, settle_by):
     """Newton's method on the KKT system of the minimax for fixed active sets; returns t.
 
     S: fingers with theta_i = t (multipliers lam, summing to 1); R: released fingers,
     P_i = release * n_i (the cone's apex, nudged inside; multipliers eta, 3 each, finger
     frame); Q: fingers at |P_i| = f (nu); fixed: -1/0/+1 per k_j for k_j = -K / free / +K.
-    Returns -1 when the Newton matrix is singular or the iteration does not settle.
+    Returns -1 when the Newton matrix is singular or the iteration does not settle (within
+    max_iter steps, or below SETTLED by step settle_by).
     """
     n, m = al.shape
     a = np.empty(n)
@@ -675,6 +679,8 @@ def polish(a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu, release, max_
                 resid = max(resid, abs(g))
             if resid <= 1e-14:
                 return t
+            if it >= settle_by and resid > SETTLED:
+                return -1.0  # not in Newton's quadratic phase yet: the caller tries otherwise
         for p in range(size):
             for q in range(size):
                 A[p, q] = 0.0
@@ -986,9 +992,10 @@ def release_start(a0, al, tau0, T, K, i, release, k_from, k):
 
 
 @_jit
-def finish(a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu):
+def finish(a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu, settle_by):
     """Polish the KKT point for the given sets, repairing them, then certify it.
 
+    settle_by: see :func:`polish` (12, its step limit, when k starts near the optimum).
     Returns (t_up, lower, box_share); lower < 0 when no certificate was found.
     """
     n, m = al.shape
@@ -1001,7 +1008,7 @@ def finish(a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu):
     Hd = np.zeros((m, m))
     k_in = k.copy()
     for _ in range(6):
-        t = polish(a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu, RELEASE, 12)
+        t = polish(a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu, RELEASE, 12, settle_by)
         if t < 0.0:
             for j in range(m):
                 k[j] = k_in[j]
@@ -1529,7 +1536,7 @@ def finish_from(a0, al, tau0, T, K, f, k, lam, eta, tol):
         elif k[j] <= -K * (1.0 - tol):
             fixed[j] = -1
     multiplier_estimate(a, tau, rho, al, T, S, R, Q, fixed, lam, eta, nu)
-    return finish(a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu)
+    return finish(a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu, 12)
 
 
 @_jit
@@ -1682,7 +1689,7 @@ def try_releases(a0, al, tau0, T, K, f, k_sqp, state, k_best):
                 lam[q] = 1.0 / n
             evaluate(k, a0, al, tau0, T, a, tau, rho, theta)
             sets_from_point(K, f, k, a, rho, Q, fixed)
-            t_up, low, share = finish(a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu)
+            t_up, low, share = finish(a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu, 12)
             if fold(state, k_best, k, t_up, low, BOUNDARY if share > 1e-9 else INTERIOR, 3):
                 return
 
@@ -1804,10 +1811,11 @@ def solve_one(F, E, N, K_in, f_in, k, theta):
     done = state[3] == APEX
     if not done and n == 3 and f == inf:
         # Newton on the KKT system straight from the start with every finger at the maximum
-        # (the typical optimum): cheap, and certified like any other attempt
+        # (the typical optimum): cheap, and certified like any other attempt; given up
+        # early where Newton is not converging (then the SQP costs less than finishing)
         for j in range(m):
             fixed[j] = 1 if k[j] >= K else (-1 if k[j] <= -K else 0)
-        t_up, low, share = finish(a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu)
+        t_up, low, share = finish(a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu, 5)
         done = fold(state, k_best, k, t_up, low, BOUNDARY if share > 1e-9 else INTERIOR, 1)
     k_sqp = k_start.copy()
     if not done:
