@@ -78,18 +78,18 @@ def _directions(p, pairs, out):
 @_kernel
 def pose_geometry(
     relative, object_normals, axis, alpha_start, alpha_step, length, weight, mu,
-    extra_force, extra_torque, episode, step, start_rotation, pairs, low, high,
+    extra_force, extra_torque, edge, episode, step, start_rotation, pairs, low, high,
     alphas, rotations, forces, directions, normals, observations, limit,
 ):  # fmt: skip
     """The world-frame grasp and observation of poses (episode[P], step[P]) of E scenes.
 
     Scene arrays: ``relative`` contacts c_i - g and ``object_normals`` (E, n, 3), unit ``axis``
     (E, 3), trajectory ``alpha_start``, ``alpha_step`` (degrees) and ``length``, ``weight``,
-    ``mu``, ``extra_force`` and ``extra_torque`` (E, 3). Fills ``alphas`` (P,), ``rotations``
-    R = Rot(axis, alpha) R0 (P, 3, 3) (eq. 5), the equilibrating ``forces`` (P, n, 3),
-    ``directions`` u_ij (P, m, 3), ``normals`` (P, n, 3), ``observations`` (P, size) float32
-    clipped to [``low``, ``high``] (the layout of :mod:`grasp_env.envs.observation`), and
-    ``limit`` = atan(mu) (P,).
+    ``mu``, ``extra_force`` and ``extra_torque`` (E, 3), and the cube's ``edge`` length L.
+    Fills ``alphas`` (P,), ``rotations`` R = Rot(axis, alpha) R0 (P, 3, 3) (eq. 5), the
+    equilibrating ``forces`` (P, n, 3), ``directions`` u_ij (P, m, 3), ``normals`` (P, n, 3),
+    ``observations`` (P, size) float32 clipped to [``low``, ``high``] (the layout of
+    :mod:`grasp_env.envs.observation`), and ``limit`` = atan(mu) (P,).
     """
     n = relative.shape[1]
     rot = np.empty((3, 3))
@@ -144,17 +144,17 @@ def pose_geometry(
         _equilibrating(positions, force, torque, forces[b])
         _directions(positions, pairs, directions[b])
         limit[b] = math.atan(mu[e])
-        # the observation: units of the edge length (1) and the weight
+        # the observation: lengths in units of L, forces of w
         for a in range(3):  # R's first two columns, one after the other
             row[a] = big[a, 0]
             row[3 + a] = big[a, 1]
         for i in range(n):
             for a in range(3):
-                row[6 + 3 * i + a] = positions[i, a]
+                row[6 + 3 * i + a] = positions[i, a] / edge
                 row[6 + 3 * n + 3 * i + a] = normals[b, i, a]
         for a in range(3):
             row[6 + 6 * n + a] = force[a] / w
-            row[9 + 6 * n + a] = torque[a] / w
+            row[9 + 6 * n + a] = torque[a] / (w * edge)
         row[12 + 6 * n] = limit[b]
         row[13 + 6 * n] = step[b] / length[e]
         for a in range(row.shape[0]):

@@ -232,6 +232,7 @@ def build_poses(
         scenes.mu,
         scenes.extra_force,
         scenes.extra_torque,
+        EDGE,
         episode,
         step,
         START_ROTATION,
