@@ -95,6 +95,7 @@ def pose_geometry(
     rot = np.empty((3, 3))
     force = np.empty(3)
     torque = np.empty(3)
+    positions = np.empty((n, 3))
     row = np.empty(observations.shape[1])
     for b in range(episode.shape[0]):
         e = episode[b]
@@ -128,7 +129,6 @@ def pose_geometry(
                     + big[r, 1] * object_normals[e, i, 1]
                     + big[r, 2] * object_normals[e, i, 2]
                 )
-        positions = np.empty((n, 3))
         for i in range(n):
             for r in range(3):
                 positions[i, r] = (
