@@ -63,8 +63,13 @@ class MinimaxExpert:
         actions = self.actions(obs.reshape(-1, obs.shape[-1]))
         return (actions[0] if obs.ndim == 1 else actions), None
 
-    def actions(self, observations: np.ndarray) -> np.ndarray:
-        """Actions (B, m) float32 in [-1, 1] for a batch of observations (B, size)."""
+    def actions(self, observations: np.ndarray, follows: np.ndarray | None = None) -> np.ndarray:
+        """Actions (B, m) float32 in [-1, 1] for a batch of observations (B, size).
+
+        ``follows`` (B,) bool marks observations that are the next pose of a trajectory after
+        the one before them: their solves start from its optimum (see
+        :func:`~grasp_env.mechanics.solve_minimax`).
+        """
         layout = ObservationLayout.from_size(observations.shape[-1])
         n = layout.n_contacts
         pairs = contact_pairs(n)
@@ -81,5 +86,5 @@ class MinimaxExpert:
             basis=basis,
             friction_limit=obs[:, layout.friction_limit],
         )
-        k = solve_minimax(grasp, self.k_max_ratio).k
+        k = solve_minimax(grasp, self.k_max_ratio, follows=follows).k
         return np.clip(k / self.k_max_ratio, -1.0, 1.0).astype(np.float32)

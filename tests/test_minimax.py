@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import fields
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -14,6 +16,7 @@ from grasp_env.mechanics import (
     PAPER_FACES,
     PHI,
     START_ROTATION,
+    Grasp,
     Scene,
     Status,
     Trajectory,
@@ -198,6 +201,27 @@ def test_batched_equals_single() -> None:
     np.testing.assert_array_equal(per_pose.k, batch.k)
 
 
+@pytest.mark.parametrize(("n", "f_max"), [(3, None), (3, 12.0), (4, None)])
+def test_following_poses_reach_the_same_certified_optima(n: int, f_max: float | None) -> None:
+    """Warm starts along trajectories change where the solver starts, not what it certifies;
+    and the results do not depend on how the batch is split between threads."""
+    rng = np.random.default_rng(11 + n)
+    rotations = pose_rotation(PAPER_AXIS, np.deg2rad(np.arange(-15.0, 16.0)))
+    scenes = [random_scene(rng, n)[0] for _ in range(6)]
+    poses = [scene_grasp(s, rotations) for s in scenes]
+    g = Grasp(*(np.stack([getattr(p, f.name) for p in poses]) for f in fields(Grasp)))
+    k_max = np.array([2 * s.weight for s in scenes])[:, None]
+    follows = np.arange(len(rotations)) > 0
+    cold = solve_minimax(g, k_max, f_max)
+    warm = solve_minimax(g, k_max, f_max, follows=follows)
+    np.testing.assert_array_equal(warm.status, cold.status)
+    np.testing.assert_allclose(warm.max_angle, cold.max_angle, rtol=0, atol=GAP)
+    assert np.all(warm.gap <= GAP) and np.all(warm.gap >= 0)
+    for e, scene in enumerate(scenes):  # one trajectory at a time: no threads
+        alone = solve_minimax(scene_grasp(scene, rotations), k_max[e], f_max, follows=follows)
+        np.testing.assert_array_equal(alone.k, warm.k[e])
+
+
 def test_zero_load_is_finite() -> None:
     """No load at all: zero forces are optimal, and nothing is NaN."""
     scene = Scene()
@@ -226,6 +250,10 @@ def test_bad_shapes_and_values() -> None:
     g = scene_grasp(Scene(), Trajectory().rotations())
     with pytest.raises(ValueError, match="must broadcast to the grasp's batch shape"):
         solve_minimax(g, np.ones(5))
+    with pytest.raises(ValueError, match="follows must be boolean"):
+        solve_minimax(g, 10.0, follows=np.ones(31))
+    with pytest.raises(ValueError, match="follows must broadcast"):
+        solve_minimax(g, 10.0, follows=np.ones(5, bool))
     bad = type(g)(g.positions, g.normals, g.equilibrating * np.nan, g.basis, g.friction_limit)
     with pytest.raises(ValueError, match="contain NaN or inf"):
         solve_minimax(bad, 10.0)

@@ -248,12 +248,14 @@ def build_poses(
     )
     weight = scenes.weight[episode]
     k_max = expert.k_max_ratio * weight
-    if known is None:
-        actions = expert.actions(observations).astype(np.float64)
-    else:
-        todo = np.isnan(known[:, 0])
-        actions = known.copy()
-        actions[todo] = expert.actions(observations[todo])
+    todo = np.ones(count, bool) if known is None else np.isnan(known[:, 0])
+    actions = np.zeros((count, len(pairs))) if known is None else known.copy()
+    # a pose whose predecessor on the trajectory is solved just before it starts from its
+    # optimum (the solver's warm start)
+    follows = todo & (step > 0)
+    follows[1:] &= todo[:-1] & (episode[1:] == episode[:-1]) & (step[1:] == step[:-1] + 1)
+    follows[0] = False
+    actions[todo] = expert.actions(observations[todo], follows[todo])
     # The expert's grip scored exactly as an agent's action is (same kernel, same clipping).
     _, k, _, _, _, reward = evaluate(
         forces,

@@ -269,7 +269,10 @@ _DOC_SPACES = """
     `alpha_deg` (the pose), `theta` (n,) and `margin` (n,) radians, `k` (m,) newtons,
     `contact_forces` (n, 3) and `equilibrating_forces` (n, 3) world-frame forces on the object,
     newtons, `expert_k` (m,) and `expert_reward` (the minimax expert's grip and reward at this
-    pose), `optimality_gap` = expert_reward - reward, `slip` (n,) bool; with
+    pose, solved at reset along the trajectory, each pose starting from the previous one's
+    optimum: where the optimum is not unique, `expert_k` may be another optimal grip than
+    `MinimaxExpert.predict` returns, with the same reward to 1e-14 rad),
+    `optimality_gap` = expert_reward - reward, `slip` (n,) bool; with
     `physics="mujoco"` also `physics`, the MuJoCo report as a dict.
 """
 

@@ -30,6 +30,10 @@ RELEASE = 1e-10
 #: Newton's KKT residual that an attempt from a far start must reach within its first few
 #: iterations (see polish): one that has not is rarely converging, and costs as much as the SQP.
 SETTLED = 1e-4
+#: Starting from a nearby grasp's optimum, the fingers within this of the largest friction
+#: angle are taken as the maximum (radians, about 6 deg; finish repairs a wrong guess at the
+#: cost of a polish, where a finger missed would cost the SQP).
+NEAR_ANGLES = 0.1
 
 # Compile time: numba links every callee's code into each caller and compiles it again, so
 # the attempts and small helpers are inlined and only the entry point gets a Python wrapper.
@@ -1504,8 +1508,9 @@ def fallback(a0, al, tau0, T, K, f, k, gap):
 
 
 @_jit
-def finish_from(a0, al, tau0, T, K, f, k, lam, eta, tol):
-    """Read the active sets off a near-optimal point k (within ``tol``), then :func:`finish`."""
+def finish_from(a0, al, tau0, T, K, f, k, lam, eta, tol, angle_tol):
+    """Read the active sets off a near-optimal point k (within ``tol``; the fingers at the
+    maximum angle within ``angle_tol``), then :func:`finish`."""
     n, m = al.shape
     a = np.empty(n)
     tau = np.empty((n, 2))
@@ -1527,7 +1532,7 @@ def finish_from(a0, al, tau0, T, K, f, k, lam, eta, tol):
         if not R[i]:
             t_up = max(t_up, theta[i])
     for i in range(n):
-        S[i] = not R[i] and theta[i] >= t_up - tol
+        S[i] = not R[i] and theta[i] >= t_up - angle_tol
         if f < inf:
             Q[i] = sqrt(a[i] ** 2 + rho[i] ** 2) >= f * (1.0 - tol)
     for j in range(m):
@@ -1666,7 +1671,7 @@ def try_releases(a0, al, tau0, T, K, f, k_sqp, state, k_best):
             continue
         if sqp(a0, al, tau0, T, K, f, R, RELEASE, k, lam, nu, 60, 1e-8) < 0:
             continue
-        t_up, low, share = finish_from(a0, al, tau0, T, K, f, k, lam, eta, 1e-6)
+        t_up, low, share = finish_from(a0, al, tau0, T, K, f, k, lam, eta, 1e-6, 1e-6)
         if fold(state, k_best, k, t_up, low, BOUNDARY if share > 1e-9 else INTERIOR, 3):
             return
         if t_up < 0.0 or t_up >= pi / 2:
@@ -1725,7 +1730,7 @@ def try_push(a0, al, tau0, T, K, f, k_sqp, state, k_best):
             k[j] = min(K, max(-K, k[j]))
         if sqp(a0, al, tau0, T, K, f, R, 0.0, k, lam, nu, 60, 1e-8) < 0:
             continue
-        t_up, low, share = finish_from(a0, al, tau0, T, K, f, k, lam, eta, 1e-6)
+        t_up, low, share = finish_from(a0, al, tau0, T, K, f, k, lam, eta, 1e-6, 1e-6)
         if fold(state, k_best, k, t_up, low, BOUNDARY if share > 1e-9 else INTERIOR, 4):
             return
 
@@ -1745,17 +1750,20 @@ def try_fallback(a0, al, tau0, T, K, f, k_start, state, k_best):
         # the barrier's point is near-optimal to about 1e-8; degenerate optima (a finger
         # with almost no force) need looser tolerances to read the active sets off it
         copy_into(k, k_fallback, k.shape[0])
-        t_up, low, share = finish_from(a0, al, tau0, T, K, f, k, lam, eta, tol)
+        t_up, low, share = finish_from(a0, al, tau0, T, K, f, k, lam, eta, tol, tol)
         if fold(state, k_best, k, t_up, low, BOUNDARY if share > 1e-9 else INTERIOR, 5):
             return
 
 
 @_inline
-def solve_one(F, E, N, K_in, f_in, k, theta):
+def solve_one(F, E, N, K_in, f_in, k, theta, k_near, near):
     """Certified minimax for one grasp; fills k and theta, returns (lower, status, path).
 
+    near: k_near (newtons) is the optimum of a nearby grasp (the previous pose of a
+    trajectory): Newton's method starts there, with the sets it nearly has, first.
     path (diagnostic): 0 apex, 1 direct Newton, 2 SQP, 3 released finger, 4 SQP restarted,
-    5 fallback, 6 not certified to GAP_TOL; -1 (INVALID) if an input is NaN or inf.
+    5 fallback, 6 not certified to GAP_TOL, 7 from the nearby optimum; -1 (INVALID) if an
+    input is NaN or inf.
     """
     n = F.shape[0]
     m = E.shape[0]
@@ -1809,6 +1817,19 @@ def solve_one(F, E, N, K_in, f_in, k, theta):
     if feasible and t_up <= GAP_TOL:
         state[3] = APEX  # every finger along its normal: 0 is attained, 0 is the bound
     done = state[3] == APEX
+    if not done and near:
+        # a step along a trajectory moves the optimum a little and its sets rarely: the
+        # fingers within NEAR_ANGLES of the largest angle there are taken as the maximum
+        for j in range(m):
+            k[j] = min(K, max(-K, k_near[j] / scale))
+        t_up, low, share = finish_from(a0, al, tau0, T, K, f, k, lam, eta, 1e-6, NEAR_ANGLES)
+        done = fold(state, k_best, k, t_up, low, BOUNDARY if share > 1e-9 else INTERIOR, 7)
+        if not done:  # start afresh
+            copy_into(k, k_start, m)
+            zero(eta)
+            for i in range(n):
+                lam[i] = 1.0 / n
+                nu[i] = 0.0
     if not done and n == 3 and f == inf:
         # Newton on the KKT system straight from the start with every finger at the maximum
         # (the typical optimum): cheap, and certified like any other attempt; given up
@@ -1824,14 +1845,14 @@ def solve_one(F, E, N, K_in, f_in, k, theta):
         steps = sqp(a0, al, tau0, T, K, f, R, 0.0, k_sqp, lam, nu, 60, 1e-8)
         if steps >= 0 or n == 4:
             copy_into(k, k_sqp, m)
-            t_up, low, share = finish_from(a0, al, tau0, T, K, f, k, lam, eta, 1e-6)
+            t_up, low, share = finish_from(a0, al, tau0, T, K, f, k, lam, eta, 1e-6, 1e-6)
             done = fold(state, k_best, k, t_up, low, BOUNDARY if share > 1e-9 else INTERIOR, 2)
         if not done and steps >= 0:
             # not certified from a point 1e-8 from optimal: converge further, read sets again
             steps = sqp(a0, al, tau0, T, K, f, R, 0.0, k_sqp, lam, nu, 60, 1e-14)
             if steps >= 0:
                 copy_into(k, k_sqp, m)
-                t_up, low, share = finish_from(a0, al, tau0, T, K, f, k, lam, eta, 1e-6)
+                t_up, low, share = finish_from(a0, al, tau0, T, K, f, k, lam, eta, 1e-6, 1e-6)
                 done = fold(state, k_best, k, t_up, low, BOUNDARY if share > 1e-9 else INTERIOR, 2)
     if not done and n == 4:
         try_releases(a0, al, tau0, T, K, f, k_sqp, state, k_best)
@@ -1856,7 +1877,14 @@ def solve_one(F, E, N, K_in, f_in, k, theta):
 
 
 @_entry
-def solve_batch(F, E, N, K, f, k, theta, lower, status, path, start, stop):
-    """:func:`solve_one` for grasps start..stop of a flat batch (B, ...); releases the GIL."""
+def solve_batch(F, E, N, K, f, k, theta, lower, status, path, follows, start, stop):
+    """:func:`solve_one` for grasps start..stop of a flat batch (B, ...); releases the GIL.
+
+    follows[b]: grasp b is near grasp b - 1 (the next pose of a trajectory), whose optimum
+    (if solved in this call and not NOT_PUSHING) is its first start.
+    """
     for b in range(start, stop):
-        lower[b], status[b], path[b] = solve_one(F[b], E[b], N[b], K[b], f[b], k[b], theta[b])
+        near = follows[b] and b > start and path[b - 1] != INVALID and status[b - 1] != NOT_PUSHING
+        lower[b], status[b], path[b] = solve_one(
+            F[b], E[b], N[b], K[b], f[b], k[b], theta[b], k[b - 1 if b > 0 else 0], near
+        )

@@ -13,7 +13,9 @@ lies in the cone |P_i - (n_i . P_i) n_i| <= tan(t) (n_i . P_i), convex in k. The
    fingers at the force limit) and Newton's method on its KKT system converges to rounding
    level. With four fingers one of them may let go at the optimum (P_i = 0, the cone's
    apex, where theta_i is singular and the SQP stalls): each finger is then tried released,
-   and restarts cover stalls near the apex that are not optimal.
+   and restarts cover stalls near the apex that are not optimal. Along a trajectory
+   (``follows``), Newton's method starts from the previous pose's optimum and the sets it
+   nearly has, first: 19 poses in 20 of the random environment's trajectories need no more.
 2. **Certificate.** Weak duality: for weights l_i >= 0 and |y_i| <= 1 the vectors
    z_i = l_i (cos t B_i y_i - sin t n_i) satisfy z_i . P <= 0 for every P in the cone, so if
        L(t) = sum_i z_i . F_i - k_max || sum_i A_i' z_i ||_1 > 0
@@ -121,6 +123,18 @@ def _kernel_array(array: np.ndarray) -> np.ndarray:
     return np.array(array, dtype=float, order="C")
 
 
+def _flat_bool(name: str, value: ArrayLike, batch: tuple[int, ...]) -> np.ndarray:
+    array = np.asarray(value)
+    if array.dtype != bool:
+        raise ValueError(f"{name} must be boolean, got dtype {array.dtype}")
+    try:
+        return np.ascontiguousarray(np.broadcast_to(array, batch)).reshape(-1)
+    except ValueError:
+        raise ValueError(
+            f"{name} must broadcast to the grasp's batch shape {batch}, got shape {array.shape}"
+        ) from None
+
+
 def _flat(array: np.ndarray, batch: tuple[int, ...], item: tuple[int, ...]) -> np.ndarray:
     """Broadcast to (*batch, *item) and flatten the batch, as a kernel array."""
     return _kernel_array(np.broadcast_to(array, (*batch, *item))).reshape(-1, *item)
@@ -129,13 +143,24 @@ def _flat(array: np.ndarray, batch: tuple[int, ...], item: tuple[int, ...]) -> n
 _NOT_FINITE = "the grasp's equilibrating forces, basis or normals contain NaN or inf"
 
 
-def solve_minimax(grasp: Grasp, k_max: ArrayLike, f_max: ArrayLike | None = None) -> MinimaxResult:
+def solve_minimax(
+    grasp: Grasp,
+    k_max: ArrayLike,
+    f_max: ArrayLike | None = None,
+    *,
+    follows: ArrayLike | None = None,
+) -> MinimaxResult:
     """Globally minimise the largest friction angle over |k_ij| <= k_max (and |P_i| <= f_max).
 
     Args:
         grasp: one grasp or a batch of them (any leading axes), from :func:`scene_grasp`.
         k_max: the box half-width, newtons, > 0; broadcasts against the batch.
         f_max: optional limit on each finger's force |P_i|, newtons, > 0; broadcasts.
+        follows: optional bool, broadcasts against the batch: grasp b (in C order) is the
+            next pose, along a trajectory, after grasp b - 1, whose optimum is then its first
+            start (about 1.5x faster along 1-degree steps). Every optimum is certified as
+            without it; where the optimum is not unique (the box binds), k may be another
+            optimal point than a solve on its own would return.
 
     Returns:
         The optimum with its certificate; see :class:`MinimaxResult`. Never NaN.
@@ -172,6 +197,7 @@ def solve_minimax(grasp: Grasp, k_max: ArrayLike, f_max: ArrayLike | None = None
             lower,
             status,
             path,
+            np.zeros(1, dtype=bool),
             0,
             1,
         )
@@ -187,6 +213,7 @@ def solve_minimax(grasp: Grasp, k_max: ArrayLike, f_max: ArrayLike | None = None
         np.full(k_lim.shape, np.inf) if f_max is None else _positive_limit("f_max", f_max, batch)
     )
     size = k_lim.size
+    follows = np.zeros(size, bool) if follows is None else _flat_bool("follows", follows, batch)
     F = _flat(F, batch, (n, 3))
     E = _flat(E, batch, (m, n, 3))
     N = _flat(N, batch, (n, 3))
@@ -195,13 +222,18 @@ def solve_minimax(grasp: Grasp, k_max: ArrayLike, f_max: ArrayLike | None = None
     lower = np.empty(size)
     status = np.empty(size, dtype=np.int8)
     path = np.empty(size, dtype=np.int8)
-    arrays = (F, E, N, k_lim, f_lim, k, angles, lower, status, path)
+    arrays = (F, E, N, k_lim, f_lim, k, angles, lower, status, path, follows)
     if size < _PARALLEL_FROM or _THREADS == 1:
         kernels.solve_batch(*arrays, 0, size)
     else:
         # the kernel releases the GIL: the cores share a few contiguous chunks each, so that
-        # one that finishes early takes the next (hard grasps cluster along trajectories)
-        bounds = np.linspace(0, size, _CHUNKS_PER_THREAD * _THREADS + 1).astype(int)
+        # one that finishes early takes the next (hard grasps cluster along trajectories);
+        # chunks begin where no grasp follows its predecessor, so that the results do not
+        # depend on the number of threads
+        heads = np.append(np.flatnonzero(~follows), size)
+        even = np.linspace(0, size, _CHUNKS_PER_THREAD * _THREADS + 1).astype(int)
+        bounds = np.unique(heads[np.searchsorted(heads, even)])
+        bounds = np.unique(np.append(0, bounds))
         chunks = [
             _pool().submit(kernels.solve_batch, *arrays, lo, hi)
             for lo, hi in itertools.pairwise(bounds)
