@@ -93,6 +93,12 @@ def load_agent(run_dir: Path) -> TrainedAgent:
     return TrainedAgent(model, normalizer)
 
 
+def _cell(fmt: str, value: float) -> str:
+    text = fmt.format(value)
+    # what rounds to zero reads 0, not -0 (the expert against itself differs by ~1e-14 rad)
+    return text[1:] if text.startswith("-") and float(text.rstrip("%")) == 0 else text
+
+
 def evaluate_run(
     run_dir: Path, episodes: int | None = None, physics_episodes: int | None = None
 ) -> Comparison:
@@ -192,7 +198,7 @@ def report(
         "|---" * (len(columns) + 1) + "|",
     ]
     for name, row in metrics.items():
-        cells = [fmt.format(row[key]) for key, _, fmt in columns]
+        cells = [_cell(fmt, row[key]) for key, _, fmt in columns]
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
     curve = run_dir / "learning_curve.csv"
     if curve.is_file():
