@@ -5,7 +5,10 @@
 Scenes as in the solver's accuracy test: contact offsets up to 0.35 of the face half-width,
 centre-of-gravity offsets up to 0.12, weights 1 to 20 N, alpha across the paper's
 trajectory, k_max = 2 w. "single" calls ``solve_minimax`` on one pose's Grasp at a time;
-"batched" makes one call on a Grasp of 4,096 poses (one scene each). The reference is
+"batched" makes one call on a Grasp of 4,096 poses (one scene each); "trajectories" one call
+on 128 scenes x 32 poses 1 degree apart with ``follows`` (each pose's solve starts from the
+previous one's optimum, as the environments build their episodes), beside the same batch
+solved without it. The reference is
 ``tests/reference_solver.py``, bisection over second-order-cone feasibility solved by
 Clarabel, run on a few of the same scenes; the largest difference between the two optima is
 printed too. The solver is warmed up first (numba compiles once, then loads its cache).
@@ -38,26 +41,40 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from reference_solver import ConeBisection
 
 BATCH = 4096
+TRAJECTORIES = 128  # x 32 poses = BATCH
 REFERENCE_SCENES = 6
 TARGETS = {"single": 5_000, "batched": 50_000}  # solves per second, three fingers
+
+
+def random_scene(rng: np.random.Generator, n: int) -> Scene:
+    return Scene.on_faces(
+        PAPER_FACES if n == 3 else FOUR_FINGER_FACES,
+        offsets=rng.uniform(-0.35, 0.35, (n, 2)),
+        weight=rng.uniform(1.0, 20.0),
+        cg_offset=rng.uniform(-0.12, 0.12, 3),
+    )
 
 
 def random_grasps(n: int, count: int, seed: int) -> tuple[list[Grasp], np.ndarray]:
     """``count`` one-pose grasps of random scenes with ``n`` fingers, and their k_max."""
     rng = np.random.default_rng(seed)
-    faces = PAPER_FACES if n == 3 else FOUR_FINGER_FACES
     grasps, k_max = [], []
     for _ in range(count):
-        scene = Scene.on_faces(
-            faces,
-            offsets=rng.uniform(-0.35, 0.35, (n, 2)),
-            weight=rng.uniform(1.0, 20.0),
-            cg_offset=rng.uniform(-0.12, 0.12, 3),
-        )
+        scene = random_scene(rng, n)
         rotation = pose_rotation(PAPER_AXIS, np.deg2rad(rng.uniform(-15.0, 15.0)))
         grasps.append(scene_grasp(scene, rotation))
         k_max.append(2 * scene.weight)
     return grasps, np.array(k_max)
+
+
+def trajectories(n: int, seed: int) -> tuple[Grasp, np.ndarray, np.ndarray]:
+    """TRAJECTORIES random scenes along alpha = -15, -14, ..., 16 deg: (grasp, k_max, follows)."""
+    rng = np.random.default_rng(seed)
+    scenes = [random_scene(rng, n) for _ in range(TRAJECTORIES)]
+    rotations = pose_rotation(PAPER_AXIS, np.deg2rad(np.arange(-15.0, 17.0)))
+    grasp = stacked([scene_grasp(scene, rotations) for scene in scenes])
+    k_max = np.array([[2 * scene.weight] for scene in scenes])
+    return grasp, k_max, np.arange(len(rotations)) > 0
 
 
 def stacked(grasps: list[Grasp]) -> Grasp:
@@ -89,6 +106,16 @@ def measure(n: int, seconds: float) -> dict[str, float]:
         solve_minimax(batch, k_max)
         return BATCH
 
+    along, along_k_max, follows = trajectories(n, seed=n)
+
+    def tracked(_: int) -> int:
+        solve_minimax(along, along_k_max, follows=follows)
+        return BATCH
+
+    def untracked(_: int) -> int:
+        solve_minimax(along, along_k_max)
+        return BATCH
+
     result = solve_minimax(batch, k_max)
     reference = ConeBisection(n)
     start = time.perf_counter()
@@ -101,6 +128,8 @@ def measure(n: int, seconds: float) -> dict[str, float]:
     return {
         "single": rate(single, seconds),
         "batched": rate(batched, seconds),
+        "trajectories": rate(tracked, seconds),
+        "untracked": rate(untracked, seconds),
         "reference": reference_rate,
         "error_deg": float(np.rad2deg(max(errors))),
         "gap": float(result.gap.max()),
@@ -134,6 +163,12 @@ def main() -> int:
                 if not ok:
                     missed.append(mode)
             print(line, flush=True)
+        print(
+            f"  trajectories{figures['trajectories']:8,.0f} solves/s   "
+            f"{figures['trajectories'] / figures['untracked']:8.2f} x the same batch "
+            f"without follows ({figures['untracked']:,.0f} solves/s)",
+            flush=True,
+        )
     return 1 if missed else 0
 
 
