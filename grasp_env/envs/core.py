@@ -252,9 +252,8 @@ def build_poses(
     actions = np.zeros((count, len(pairs))) if known is None else known.copy()
     # a pose whose predecessor on the trajectory is solved just before it starts from its
     # optimum (the solver's warm start)
-    follows = todo & (step > 0)
-    follows[1:] &= todo[:-1] & (episode[1:] == episode[:-1]) & (step[1:] == step[:-1] + 1)
-    follows[0] = False
+    follows = np.zeros(count, bool)
+    follows[1:] = todo[1:] & todo[:-1] & (episode[1:] == episode[:-1]) & (step[1:] == step[:-1] + 1)
     actions[todo] = expert.actions(observations[todo], follows[todo])
     # The expert's grip scored exactly as an agent's action is (same kernel, same clipping).
     _, k, _, _, _, reward = evaluate(

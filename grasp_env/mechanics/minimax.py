@@ -96,14 +96,17 @@ class MinimaxResult:
         return self.max_angle - self.lower_bound
 
 
-def _positive_limit(name: str, value: ArrayLike, batch: tuple[int, ...]) -> np.ndarray:
-    array = np.asarray(value, dtype=float)
+def _broadcast(name: str, array: np.ndarray, batch: tuple[int, ...]) -> np.ndarray:
     try:
-        array = np.broadcast_to(array, batch)
+        return np.broadcast_to(array, batch)
     except ValueError:
         raise ValueError(
             f"{name} must broadcast to the grasp's batch shape {batch}, got shape {array.shape}"
         ) from None
+
+
+def _positive_limit(name: str, value: ArrayLike, batch: tuple[int, ...]) -> np.ndarray:
+    array = _broadcast(name, np.asarray(value, dtype=float), batch)
     if not np.all(np.isfinite(array)) or np.any(array <= 0):
         raise ValueError(f"{name} must be finite and > 0 (newtons), got {np.unique(array)[:5]}")
     return np.ascontiguousarray(array, dtype=float).reshape(-1)
@@ -127,12 +130,7 @@ def _flat_bool(name: str, value: ArrayLike, batch: tuple[int, ...]) -> np.ndarra
     array = np.asarray(value)
     if array.dtype != bool:
         raise ValueError(f"{name} must be boolean, got dtype {array.dtype}")
-    try:
-        return np.ascontiguousarray(np.broadcast_to(array, batch)).reshape(-1)
-    except ValueError:
-        raise ValueError(
-            f"{name} must broadcast to the grasp's batch shape {batch}, got shape {array.shape}"
-        ) from None
+    return np.ascontiguousarray(_broadcast(name, array, batch)).reshape(-1)
 
 
 def _flat(array: np.ndarray, batch: tuple[int, ...], item: tuple[int, ...]) -> np.ndarray:
