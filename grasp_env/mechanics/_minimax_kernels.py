@@ -1790,34 +1790,10 @@ def solve_one(F, E, N, K_in, f_in, k, theta, k_near, near):
     S = np.ones(n, dtype=np.bool_)
     Q = np.zeros(n, dtype=np.bool_)
     fixed = np.zeros(m, dtype=np.int64)
-    # start: the k that minimises the tangential forces (exact when they can all vanish)
-    apex_start(a0, al, tau0, T, k)
-    for j in range(m):
-        k[j] = min(K, max(-K, k[j]))
-    t_up = evaluate(k, a0, al, tau0, T, a, tau, rho, theta)
-    if n == 4 and f == inf:
-        # four fingers: also try every finger pushing with a common normal force; the best
-        # start saves the SQP about a quarter of its steps
-        k_try = np.empty(m)
-        for c in (1.0, 2.0, 4.0):
-            normal_start(a0, al, tau0, T, c, k_try)
-            for j in range(m):
-                k_try[j] = min(K, max(-K, k_try[j]))
-            t_try = evaluate(k_try, a0, al, tau0, T, a, tau, rho, theta)
-            if t_try < t_up:
-                t_up = t_try
-                copy_into(k, k_try, m)
-        t_up = evaluate(k, a0, al, tau0, T, a, tau, rho, theta)
-    feasible = True
-    for i in range(n):
-        feasible = feasible and sqrt(a[i] ** 2 + rho[i] ** 2) <= f
-    k_start = k.copy()
-    k_best = k.copy()
-    state = np.array([t_up if feasible else inf, 0.0, INTERIOR, UNCERTIFIED])
-    if feasible and t_up <= GAP_TOL:
-        state[3] = APEX  # every finger along its normal: 0 is attained, 0 is the bound
-    done = state[3] == APEX
-    if not done and near:
+    state = np.array([inf, 0.0, INTERIOR, UNCERTIFIED])
+    k_best = np.empty(m)
+    done = False
+    if near:
         # a step along a trajectory moves the optimum a little and its sets rarely: the
         # fingers within NEAR_ANGLES of the largest angle there are taken as the maximum
         for j in range(m):
@@ -1825,11 +1801,41 @@ def solve_one(F, E, N, K_in, f_in, k, theta, k_near, near):
         t_up, low, share = finish_from(a0, al, tau0, T, K, f, k, lam, eta, 1e-6, NEAR_ANGLES)
         done = fold(state, k_best, k, t_up, low, BOUNDARY if share > 1e-9 else INTERIOR, 7)
         if not done:  # start afresh
-            copy_into(k, k_start, m)
             zero(eta)
             for i in range(n):
                 lam[i] = 1.0 / n
                 nu[i] = 0.0
+    k_start = k_best  # (unused when the nearby optimum is certified)
+    if not done:
+        # start: the k that minimises the tangential forces (exact when they can all vanish)
+        apex_start(a0, al, tau0, T, k)
+        for j in range(m):
+            k[j] = min(K, max(-K, k[j]))
+        t_up = evaluate(k, a0, al, tau0, T, a, tau, rho, theta)
+        if n == 4 and f == inf:
+            # four fingers: also try every finger pushing with a common normal force; the best
+            # start saves the SQP about a quarter of its steps
+            k_try = np.empty(m)
+            for c in (1.0, 2.0, 4.0):
+                normal_start(a0, al, tau0, T, c, k_try)
+                for j in range(m):
+                    k_try[j] = min(K, max(-K, k_try[j]))
+                t_try = evaluate(k_try, a0, al, tau0, T, a, tau, rho, theta)
+                if t_try < t_up:
+                    t_up = t_try
+                    copy_into(k, k_try, m)
+            t_up = evaluate(k, a0, al, tau0, T, a, tau, rho, theta)
+        feasible = True
+        for i in range(n):
+            feasible = feasible and sqrt(a[i] ** 2 + rho[i] ** 2) <= f
+        k_start = k.copy()
+        if state[0] == inf or (feasible and t_up < state[0]):
+            copy_into(k_best, k, m)  # the best point so far (fold keeps certified ones only)
+            if feasible:
+                state[0] = t_up
+        if feasible and t_up <= GAP_TOL:
+            state[3] = APEX  # every finger along its normal: 0 is attained, 0 is the bound
+            done = True
     if not done and n == 3 and f == inf:
         # Newton on the KKT system straight from the start with every finger at the maximum
         # (the typical optimum): cheap, and certified like any other attempt; given up
