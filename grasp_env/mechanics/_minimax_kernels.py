@@ -1800,11 +1800,10 @@ def solve_one(F, E, N, K_in, f_in, k, theta, k_near, near):
             k[j] = min(K, max(-K, k_near[j] / scale))
         t_up, low, share = finish_from(a0, al, tau0, T, K, f, k, lam, eta, 1e-6, NEAR_ANGLES)
         done = fold(state, k_best, k, t_up, low, BOUNDARY if share > 1e-9 else INTERIOR, 7)
-        if not done:  # start afresh
+        if not done:  # start afresh (finish_from set lam and eta; its nu is its own)
             zero(eta)
             for i in range(n):
                 lam[i] = 1.0 / n
-                nu[i] = 0.0
     k_start = k_best  # (unused when the nearby optimum is certified)
     if not done:
         # start: the k that minimises the tangential forces (exact when they can all vanish)
