@@ -21,6 +21,8 @@ from typing import Any, Literal
 
 import yaml
 
+from grasp_env.expert import DEFAULT_K_MAX_RATIO
+
 #: The directory of the configs shipped with the package (``configs/`` at the repository root).
 CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
 #: The config ``grasp-env train`` uses when given none.
@@ -39,16 +41,25 @@ class PolicyConfig:
         features: the network's input: the raw ``observation``, or the ``grasp`` in the
             object's frame computed from it (:class:`agents.features.GraspFeatures`: the
             equilibrating forces, pair directions and normals, which is all k* depends on).
+        output: what the actor network outputs: the actions ``k`` themselves (SB3's linear
+            action layer), or each finger's ``force_directions``, from which the action is the
+            least-squares grip that realises them (:mod:`agents.policy`; needs features: grasp).
     """
 
     net_arch: list[int] = field(default_factory=lambda: [256, 256])
     activation: Literal["tanh", "relu", "silu"] = "tanh"
     log_std_init: float = 0.0
     features: Literal["observation", "grasp"] = "observation"
+    output: Literal["k", "force_directions"] = "k"
 
     def __post_init__(self) -> None:
         if not self.net_arch or any(width < 1 for width in self.net_arch):
             raise ValueError(f"policy.net_arch must be positive layer widths, got {self.net_arch}")
+        if self.output == "force_directions" and self.features != "grasp":
+            raise ValueError(
+                "policy.output: force_directions needs policy.features: grasp (the head solves "
+                f"for k in the grasp's object frame), got features: {self.features}"
+            )
         _check_range("policy.log_std_init", self.log_std_init, -20.0, 2.0)
 
 
@@ -190,6 +201,11 @@ class TrainConfig:
                 "normalize must be false with policy.features: grasp (the grasp features are "
                 "computed from the raw observation)"
             )
+
+    @property
+    def k_max_ratio(self) -> float:
+        """k_max / w of the config's environment: the scale of its actions."""
+        return self.env_kwargs.get("k_max_ratio", DEFAULT_K_MAX_RATIO)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain data (the YAML written into the run directory)."""

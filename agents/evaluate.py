@@ -121,7 +121,7 @@ def evaluate_run(
 
     env = make_held_out_env(config.env_id, config.env_kwargs, episodes)
     m = env.action_space.shape[0]
-    k_max_ratio = config.env_kwargs.get("k_max_ratio", 2.0)
+    k_max_ratio = config.k_max_ratio
     policies: dict[str, Any] = {
         "trained agent": load_agent(run_dir),
         "minimax expert": MinimaxExpert(k_max_ratio),

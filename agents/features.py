@@ -55,11 +55,18 @@ def grasp_tensors(
     pairs = torch.as_tensor(contact_pairs(n))
     delta = positions[:, pairs[:, 1]] - positions[:, pairs[:, 0]]
     u = delta / torch.linalg.vector_norm(delta, dim=-1, keepdim=True)
-    basis = torch.zeros(batch, len(pairs), n, 3, dtype=obs.dtype)
-    rows = torch.arange(len(pairs))
-    basis[:, rows, pairs[:, 0]] = u
-    basis[:, rows, pairs[:, 1]] = -u
+    basis = interaction_basis(u, n)
     return forces.float(), basis.float(), normals.float(), rotation.float()
+
+
+def interaction_basis(directions: torch.Tensor, n_contacts: int) -> torch.Tensor:
+    """The basis e_ij (B, m, n, 3) of eq. 4 from the unit pair directions u_ij (B, m, 3)."""
+    pairs = torch.as_tensor(contact_pairs(n_contacts))
+    basis = directions.new_zeros(len(directions), len(pairs), n_contacts, 3)
+    rows = torch.arange(len(pairs))
+    basis[:, rows, pairs[:, 0]] = directions
+    basis[:, rows, pairs[:, 1]] = -directions
+    return basis
 
 
 def max_friction_angle(
@@ -102,3 +109,15 @@ class GraspFeatures(BaseFeaturesExtractor):
         parts = [(to_object @ v[..., None])[..., 0] for v in (forces, directions, normals)]
         limit = observations[:, self.layout.friction_limit, None]
         return torch.cat([p.flatten(1) for p in parts] + [limit], 1)
+
+
+def object_frame_grasp(
+    features: torch.Tensor, n_contacts: int
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The object-frame F (B, n, 3), interaction basis (B, m, n, 3) and normals (B, n, 3) that
+    :class:`GraspFeatures` (B, 6n + 3m + 1) hold: :func:`grasp_tensors` in the object's frame."""
+    m = n_contacts * (n_contacts - 1) // 2
+    forces, directions, normals = features[:, :-1].split([3 * n_contacts, 3 * m, 3 * n_contacts], 1)
+    batch = len(features)
+    basis = interaction_basis(directions.reshape(batch, m, 3), n_contacts)
+    return forces.reshape(batch, n_contacts, 3), basis, normals.reshape(batch, n_contacts, 3)

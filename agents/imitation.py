@@ -42,6 +42,7 @@ from tqdm.auto import tqdm
 
 from grasp_env import MinimaxExpert
 from grasp_env.envs.observation import ObservationLayout
+from grasp_env.expert import DEFAULT_K_MAX_RATIO
 
 from .config import ImitationConfig
 from .features import grasp_tensors, max_friction_angle
@@ -83,7 +84,7 @@ def grasp_of(obs: np.ndarray) -> tuple[torch.Tensor, ...]:
 
 def make_teacher(env_kwargs: dict[str, Any]) -> MinimaxExpert:
     """The expert for environments built with ``env_kwargs`` (it needs their k_max / w)."""
-    return MinimaxExpert(env_kwargs.get("k_max_ratio", 2.0))
+    return MinimaxExpert(env_kwargs.get("k_max_ratio", DEFAULT_K_MAX_RATIO))
 
 
 class StateCollector:

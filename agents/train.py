@@ -40,6 +40,7 @@ from tqdm import TqdmExperimentalWarning
 from .config import DEFAULT_CONFIG, TrainConfig, load_config, save_config
 from .envs import find_held_out, make_held_out_env, make_vec_env
 from .features import GraspFeatures
+from .policy import ForceDirectionPolicy
 
 if TYPE_CHECKING:
     from .imitation import RoundResult
@@ -282,8 +283,9 @@ def new_model(config: TrainConfig, env: VecEnv, run_dir: Path | None) -> PPO:
     ``run_dir/tb`` unless ``run_dir`` is None)."""
     ppo = config.ppo
     rate = ppo.learning_rate
+    policy = config.policy
     return PPO(
-        "MlpPolicy",
+        ForceDirectionPolicy if policy.output == "force_directions" else "MlpPolicy",
         env,
         learning_rate=(lambda progress: progress * rate) if ppo.lr_schedule == "linear" else rate,
         n_steps=ppo.n_steps,
@@ -297,14 +299,11 @@ def new_model(config: TrainConfig, env: VecEnv, run_dir: Path | None) -> PPO:
         max_grad_norm=ppo.max_grad_norm,
         target_kl=ppo.target_kl,
         policy_kwargs={
-            "net_arch": {"pi": list(config.policy.net_arch), "vf": list(config.policy.net_arch)},
-            "activation_fn": ACTIVATIONS[config.policy.activation],
-            "log_std_init": config.policy.log_std_init,
-            **(
-                {"features_extractor_class": GraspFeatures}
-                if config.policy.features == "grasp"
-                else {}
-            ),
+            "net_arch": {"pi": list(policy.net_arch), "vf": list(policy.net_arch)},
+            "activation_fn": ACTIVATIONS[policy.activation],
+            "log_std_init": policy.log_std_init,
+            **({"features_extractor_class": GraspFeatures} if policy.features == "grasp" else {}),
+            **({"k_max_ratio": config.k_max_ratio} if policy.output == "force_directions" else {}),
         },
         tensorboard_log=None if run_dir is None else str(run_dir / "tb"),
         seed=config.seed,
