@@ -7,7 +7,8 @@
 - The imitation phase's data: states visited and labelled by the minimax expert per second,
   against stepping the same vector env with random actions (the ratio is the labelling cost).
 - The supervised fit: samples per second through SB3's policy network, against a bare torch MLP
-  of the same shape (the ratio is SB3's overhead).
+  of the same shape (the ratio is SB3's overhead); and the main job's network with the
+  force-direction output against the same network outputting k (the ratio is the head's cost).
 
     python benchmarks/bench_training.py
 """
@@ -22,9 +23,9 @@ import torch
 from stable_baselines3 import PPO
 from stable_baselines3.common.env_util import make_vec_env as sb3_make_vec_env
 
-from agents.config import CONFIG_DIR, load_config
+from agents.config import CONFIG_DIR, DEFAULT_CONFIG, load_config
 from agents.envs import make_vec_env
-from agents.imitation import StateCollector, fit, make_teacher
+from agents.imitation import StateCollector, fit, grasp_of, make_teacher
 from agents.train import new_model
 
 PPO_STEPS = 32_768
@@ -99,6 +100,22 @@ def main() -> None:
     print(f"  through the SB3 policy: {policy_rate:8.0f} samples/s")
     ratio = policy_rate / bare_rate
     print(f"  bare torch MLP:         {bare_rate:8.0f} samples/s   ratio {ratio:.2f}")
+
+    default = load_config(DEFAULT_CONFIG)
+    rates = {}
+    for output in ("k", "force_directions"):
+        policy = dataclasses.replace(default.policy, output=output)
+        env = make_vec_env(default.env_id, kwargs, default.n_envs, 0)
+        model = new_model(dataclasses.replace(default, policy=policy), env, run_dir=None)
+        start = time.perf_counter()
+        fit(model.policy, obs, labels, 2, 1024, 1e-3, generator, grasp_of(obs), 1.0)
+        rates[output] = 2 * len(obs) / (time.perf_counter() - start)
+    print(f"Supervised fit of the main job ({default.policy.net_arch} MLP, angle loss):")
+    print(f"  output k:                {rates['k']:8.0f} samples/s")
+    ratio = rates["force_directions"] / rates["k"]
+    print(
+        f"  output force directions: {rates['force_directions']:8.0f} samples/s   ratio {ratio:.2f}"
+    )
 
 
 if __name__ == "__main__":
