@@ -30,6 +30,8 @@ import torch
 from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.torch_layers import MlpExtractor
 
+from grasp_env.expert import DEFAULT_K_MAX_RATIO
+
 from .features import GraspFeatures, object_frame_grasp
 
 #: Least-squares solves per action: equal weights, then two re-weighted by 1 / |P_i|.
@@ -59,7 +61,7 @@ def grip_along(directions: torch.Tensor, forces: torch.Tensor, basis: torch.Tens
     """
     dtype = forces.dtype
     directions, forces, basis = directions.double(), forces.double(), basis.double()
-    across = torch.eye(3).double() - directions[..., :, None] * directions[..., None, :]
+    across = torch.eye(3, dtype=torch.float64) - directions[..., :, None] * directions[..., None, :]
     per_finger = basis.permute(0, 2, 3, 1)  # (B, n, 3, m): P_i = F_i + per_finger_i @ k
     projected = across @ per_finger  # the components of P_i - F_i across d_i
     weights = forces.new_ones(forces.shape[:2])
@@ -69,7 +71,9 @@ def grip_along(directions: torch.Tensor, forces: torch.Tensor, basis: torch.Tens
         normal_matrix = (weighted @ projected).sum(1)  # across is a projector: A^T A = B^T M B
         rhs = -(weighted @ forces[..., None]).sum(1)
         ridge = RIDGE * normal_matrix.diagonal(dim1=1, dim2=2).mean(-1)[:, None, None]
-        k = torch.linalg.solve(normal_matrix + ridge * torch.eye(m).double(), rhs)[..., 0]
+        k = torch.linalg.solve(normal_matrix + ridge * torch.eye(m, dtype=torch.float64), rhs)[
+            ..., 0
+        ]
         net = forces + torch.einsum("bq,bqnc->bnc", k, basis)
         weights = 1.0 / torch.linalg.vector_norm(net.detach(), dim=-1).clamp_min(MIN_FORCE)
     return k.to(dtype)
@@ -85,15 +89,11 @@ class ForceDirectionHead(torch.nn.Module):
         self.k_max_ratio = k_max_ratio
         self.tilts = torch.nn.Linear(hidden_dim, 3 * n_contacts)
 
-    def directions(self, latent: torch.Tensor) -> torch.Tensor:
-        """The predicted force directions d_i (B, n, 3), in the object's frame."""
-        hidden, grasp = latent[:, : self.hidden_dim], latent[:, self.hidden_dim :]
-        _, _, normals = object_frame_grasp(grasp, self.n_contacts)
-        return force_directions(self.tilts(hidden).reshape(normals.shape), normals)
-
     def forward(self, latent: torch.Tensor) -> torch.Tensor:
-        forces, basis, _ = object_frame_grasp(latent[:, self.hidden_dim :], self.n_contacts)
-        return grip_along(self.directions(latent), forces, basis) / self.k_max_ratio
+        hidden, features = latent[:, : self.hidden_dim], latent[:, self.hidden_dim :]
+        forces, basis, normals = object_frame_grasp(features, self.n_contacts)
+        directions = force_directions(self.tilts(hidden).reshape(normals.shape), normals)
+        return grip_along(directions, forces, basis) / self.k_max_ratio
 
 
 class _LatentWithFeatures(MlpExtractor):
@@ -120,7 +120,7 @@ class ForceDirectionPolicy(ActorCriticPolicy):
         observation_space: gym.spaces.Box,
         action_space: gym.spaces.Box,
         lr_schedule: Any,
-        k_max_ratio: float = 2.0,
+        k_max_ratio: float = DEFAULT_K_MAX_RATIO,
         **kwargs: Any,
     ) -> None:
         self.k_max_ratio = k_max_ratio
