@@ -1,4 +1,4 @@
-"""The ``grasp-env`` command line: one sub-command per module of ``agents``.
+"""The ``grasp-env`` command line: one sub-command per module of ``grasp_env_agents``.
 
 Each command module defines ``HELP`` (one line), ``add_arguments(parser)`` and
 ``run(args) -> int``. Only the chosen command's module is imported, so ``grasp-env reproduce``
@@ -11,13 +11,8 @@ import argparse
 import importlib
 import sys
 
-COMMANDS = {
-    "reproduce": "agents.reproduce",
-    "train": "agents.train",
-    "evaluate": "agents.evaluate",
-    "verify": "agents.verify",
-    "bench": "agents.bench",
-}
+from grasp_env import __version__
+
 SUMMARIES = {
     "reproduce": "the paper's quasi-static sweep: optimal k_ij and friction angles, plots",
     "train": "train a PPO agent from a YAML config (default: a few minutes here)",
@@ -32,12 +27,13 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="grasp-env", description="Grip-force optimisation for multi-fingered grasps."
     )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    chosen = argv[0] if argv and argv[0] in COMMANDS else None
+    chosen = argv[0] if argv and argv[0] in SUMMARIES else None
     for name, summary in SUMMARIES.items():
         command = sub.add_parser(name, help=summary, description=summary)
         if name == chosen:
-            module = importlib.import_module(COMMANDS[name])
+            module = importlib.import_module(f".{name}", __package__)
             module.add_arguments(command)
             command.set_defaults(run=module.run)
     args = parser.parse_args(argv)

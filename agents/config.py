@@ -16,6 +16,7 @@ import types
 import typing
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from importlib import resources
 from pathlib import Path
 from typing import Any, Literal
 
@@ -23,10 +24,31 @@ import yaml
 
 from grasp_env.expert import DEFAULT_K_MAX_RATIO
 
-#: The directory of the configs shipped with the package (``configs/`` at the repository root).
-CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
+#: The configs shipped with the package (``configs/`` in the repository), by name.
+CONFIG_DIR = Path(str(resources.files("grasp_env_agents.configs")))
+#: rl-zoo3's hyperparameter file for grasp_env's environments (``-conf`` of ``rl_zoo3.train``).
+ZOO_HYPERPARAMS = CONFIG_DIR / "rl_zoo3" / "ppo.yml"
 #: The config ``grasp-env train`` uses when given none.
 DEFAULT_CONFIG = CONFIG_DIR / "default.yaml"
+
+
+def shipped_configs() -> list[str]:
+    """Names of the configs shipped with the package (``--config NAME``)."""
+    return sorted(path.stem for path in CONFIG_DIR.glob("*.yaml"))
+
+
+def config_path(name_or_path: str | Path) -> Path:
+    """A config file: an existing path, or the name of a shipped config (``dagger``)."""
+    path = Path(name_or_path)
+    if path.is_file():
+        return path
+    shipped = CONFIG_DIR / f"{path.name.removesuffix('.yaml')}.yaml"
+    if path.parent == Path(".") and shipped.is_file():
+        return shipped
+    raise ValueError(
+        f"config {str(name_or_path)!r}: no such file, nor a shipped config; the shipped"
+        f" configs are {shipped_configs()} (or give the path of a YAML file)"
+    )
 
 
 @dataclass(frozen=True)
@@ -39,11 +61,12 @@ class PolicyConfig:
         log_std_init: initial log standard deviation of the Gaussian exploration noise, in
             action units (-1 gives std 0.37; a low value keeps a pretrained policy precise).
         features: the network's input: the raw ``observation``, or the ``grasp`` in the
-            object's frame computed from it (:class:`agents.features.GraspFeatures`: the
+            object's frame computed from it (:class:`grasp_env_agents.features.GraspFeatures`: the
             equilibrating forces, pair directions and normals, which is all k* depends on).
         output: what the actor network outputs: the actions ``k`` themselves (SB3's linear
             action layer), or each finger's ``force_directions``, from which the action is the
-            least-squares grip that realises them (:mod:`agents.policy`; needs features: grasp).
+            least-squares grip that realises them (:mod:`grasp_env_agents.policy`; needs
+            features: grasp).
     """
 
     net_arch: list[int] = field(default_factory=lambda: [256, 256])
@@ -113,7 +136,7 @@ class PPOConfig:
 
 @dataclass(frozen=True)
 class ImitationConfig:
-    """The minimax expert as teacher, before PPO (:mod:`agents.imitation`).
+    """The minimax expert as teacher, before PPO (:mod:`grasp_env_agents.imitation`).
 
     Round 0 is behaviour cloning: the expert drives the vector environment and every state it
     visits is stored with the expert's action. Each further round is a DAgger round: the

@@ -73,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
 
 @dataclass(frozen=True)
 class Comparison:
-    """Metrics per policy (see :func:`agents.envs.summarise`), the markdown and its path."""
+    """Metrics per policy (:func:`grasp_env_agents.envs.summarise`), the markdown, its path."""
 
     metrics: dict[str, dict[str, float]]
     markdown: str

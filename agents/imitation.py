@@ -17,9 +17,9 @@ environment:
 Imitating k* is a proxy: what counts is the largest friction angle the action gives, which
 near the optimum grows linearly with the error in k (a max of angles has a kink there). The
 observation holds the whole grasp, so that angle is a differentiable function of the action
-(eqs. 2 and 4, :func:`agents.features.max_friction_angle`); with ``gap_weight`` > 0 the loss
-adds it, in radians: mean squared error + gap_weight x mean max_i theta_i. Its gradient is the
-exact gradient of the environment's reward.
+(eqs. 2 and 4, :func:`grasp_env_agents.features.max_friction_angle`); with ``gap_weight`` > 0
+the loss adds it, in radians: mean squared error + gap_weight x mean max_i theta_i. Its
+gradient is the exact gradient of the environment's reward.
 
 The result is an ordinary SB3 PPO model that PPO can fine-tune.
 """

@@ -112,7 +112,7 @@ class ForceDirectionPolicy(ActorCriticPolicy):
     """SB3's actor-critic with the force-direction head (module docstring) as its mean action.
 
     Takes ``ActorCriticPolicy``'s arguments, plus ``k_max_ratio`` (k_max / w, the environment's
-    action scale); its features are always :class:`~agents.features.GraspFeatures`.
+    action scale); its features are always :class:`~grasp_env_agents.features.GraspFeatures`.
     """
 
     def __init__(

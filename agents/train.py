@@ -6,11 +6,11 @@ One run, top to bottom (:func:`train`):
 2. build the training environments and the held-out evaluation scenes;
 3. build a fresh PPO model, or load the latest checkpoint with ``--resume``;
 4. if the config has an ``imitation`` section: behaviour cloning and DAgger rounds from the
-   minimax expert into the same policy network (:mod:`agents.imitation`);
+   minimax expert into the same policy network (:mod:`grasp_env_agents.imitation`);
 5. PPO for ``total_timesteps`` environment steps with SB3's progress bar, checkpoint and
    evaluation callbacks; Ctrl-C saves a checkpoint before stopping;
 6. save the model, the learning curve (CSV and PNG) and print the comparison with the expert
-   and the baselines (:mod:`agents.evaluate`).
+   and the baselines (:mod:`grasp_env_agents.evaluate`).
 
 The run directory holds ``config.yaml`` (the exact config used), ``model.zip`` (and
 ``vecnormalize.pkl`` if observations are normalised), ``checkpoints/``, ``tb/`` (TensorBoard),
@@ -37,7 +37,7 @@ from stable_baselines3.common.utils import set_random_seed
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize, sync_envs_normalization
 from tqdm import TqdmExperimentalWarning
 
-from .config import DEFAULT_CONFIG, TrainConfig, load_config, save_config
+from .config import TrainConfig, config_path, load_config, save_config, shipped_configs
 from .envs import find_held_out, make_held_out_env, make_vec_env
 from .features import GraspFeatures
 from .policy import ForceDirectionPolicy
@@ -69,9 +69,10 @@ CURVE_FIELDS = (
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--config",
-        type=Path,
-        default=DEFAULT_CONFIG,
-        help="YAML training config (default: configs/default.yaml)",
+        default="default",
+        metavar="NAME|PATH",
+        help=f"a shipped config by name ({', '.join(shipped_configs())}) or the path of a"
+        " YAML config (default: default)",
     )
     parser.add_argument(
         "--run-dir",
@@ -100,9 +101,10 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError(f"--resume {str(run_dir)!r}: not a run directory (no config.yaml)")
         config = load_config(run_dir / "config.yaml", overrides)
     else:
-        config = load_config(args.config, overrides)
+        path = config_path(args.config)
+        config = load_config(path, overrides)
         stamp = time.strftime("%Y%m%d-%H%M%S")
-        run_dir = args.run_dir or Path("runs") / f"{Path(args.config).stem}-{stamp}"
+        run_dir = args.run_dir or Path("runs") / f"{path.stem}-{stamp}"
     train(config, run_dir, resume=args.resume is not None)
     from .evaluate import evaluate_run
 

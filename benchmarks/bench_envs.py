@@ -1,6 +1,6 @@
 """Throughput of the grasp environments beside Gymnasium's CartPole-v1, measured in one run.
 
-    python benchmarks/bench_envs.py [--seconds 2]
+    grasp-env bench envs [--seconds 2]
 
 Single environments come from ``gym.make`` (with its default wrappers), vector environments
 from ``gym.make_vec(..., vectorization_mode="vector_entry_point")`` at 4,096 sub-environments.

@@ -6,7 +6,7 @@ model, from the same state, for the same simulated time, with no Python in betwe
 what the check adds to MuJoCo itself. Then the agreement study (``grasp-env verify
 --agreement``) is timed end to end. Target: one check <= 20 ms median.
 
-    python benchmarks/bench_physics.py
+    grasp-env bench physics
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Speed of the certified minimax solver beside the cvxpy + Clarabel reference, in one run.
 
-    python benchmarks/bench_solver.py [--seconds 2]
+    grasp-env bench solver [--seconds 2]
 
 Scenes as in the solver's accuracy test: contact offsets up to 0.35 of the face half-width,
 centre-of-gravity offsets up to 0.12, weights 1 to 20 N, alpha across the paper's
@@ -9,7 +9,7 @@ trajectory, k_max = 2 w. "single" calls ``solve_minimax`` on one pose's Grasp at
 on 128 scenes x 32 poses 1 degree apart with ``follows`` (each pose's solve starts from the
 previous one's optimum, as the environments build their episodes), beside the same batch
 solved without it. The reference is
-``tests/reference_solver.py``, bisection over second-order-cone feasibility solved by
+``benchmarks/reference_solver.py``, bisection over second-order-cone feasibility solved by
 Clarabel, run on a few of the same scenes; the largest difference between the two optima is
 printed too. The solver is warmed up first (numba compiles once, then loads its cache).
 Issue 2's targets are for the paper's three fingers: single >= 5,000 solves/s and batched
@@ -22,7 +22,6 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
@@ -36,9 +35,7 @@ from grasp_env.mechanics import (
     scene_grasp,
     solve_minimax,
 )
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-from reference_solver import ConeBisection
+from grasp_env_agents.benchmarks.reference_solver import ConeBisection
 
 BATCH = 4096
 TRAJECTORIES = 128  # x 32 poses = BATCH

@@ -14,7 +14,7 @@ from gymnasium.envs.registration import register, registry
 
 from .expert import MinimaxExpert
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"
 
 _FOUR_FINGERS = {"faces": ("-x", "-y", "-z", "+z")}
 _ENVS = {

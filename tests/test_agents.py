@@ -16,11 +16,11 @@ import yaml
 from stable_baselines3 import PPO
 from stable_baselines3.common.evaluation import evaluate_policy
 
-from agents import cli
-from agents.baselines import ConstantPolicy, equal_k_policy
-from agents.config import CONFIG_DIR, config_from_dict, load_config, save_config
-from agents.envs import find_held_out, make_held_out_env
-from agents.train import RecordEvaluation, checkpoint_steps, latest_checkpoint, train
+from grasp_env_agents import cli
+from grasp_env_agents.baselines import ConstantPolicy, equal_k_policy
+from grasp_env_agents.config import CONFIG_DIR, config_from_dict, load_config, save_config
+from grasp_env_agents.envs import find_held_out, make_held_out_env
+from grasp_env_agents.train import RecordEvaluation, checkpoint_steps, latest_checkpoint, train
 
 TINY = {
     "env_id": "grasp_env/CubeGrasp-v0",
@@ -266,9 +266,9 @@ def test_grasp_features_are_the_object_frame_grasp():
     import gymnasium as gym
     import torch
 
-    from agents.features import GraspFeatures
     from grasp_env.envs.observation import ObservationLayout
     from grasp_env.mechanics import contact_pairs, equilibrating_forces, interaction_basis
+    from grasp_env_agents.features import GraspFeatures
 
     layout = ObservationLayout(3)
     obs = np.concatenate([o for o, _, _ in random_env_steps()])
@@ -304,8 +304,8 @@ def test_max_friction_angle_is_the_environments_reward():
     """The differentiable loss term equals theta_lim - reward, as the environment scores it."""
     import torch
 
-    from agents.features import grasp_tensors, max_friction_angle
     from grasp_env.envs.observation import ObservationLayout
+    from grasp_env_agents.features import grasp_tensors, max_friction_angle
 
     for obs, action, info in random_env_steps(steps=8):
         forces, basis, normals, _ = grasp_tensors(torch.as_tensor(obs), ObservationLayout(3))
@@ -324,9 +324,9 @@ def test_force_directions_of_the_experts_grip_give_back_that_grip():
     import gymnasium as gym
     import torch
 
-    from agents.features import GraspFeatures, object_frame_grasp
-    from agents.policy import grip_along
     from grasp_env import MinimaxExpert
+    from grasp_env_agents.features import GraspFeatures, object_frame_grasp
+    from grasp_env_agents.policy import grip_along
 
     obs = np.concatenate([o for o, _, _ in random_env_steps(steps=10)])
     k_star = MinimaxExpert(2.0).actions(obs).astype(float) * 2.0
@@ -343,7 +343,7 @@ def test_force_directions_of_the_experts_grip_give_back_that_grip():
 
 def test_force_direction_policy_learns_the_expert_and_reloads(tmp_path):
     """Behaviour cloning through the least squares, on random scenes; the saved model reloads."""
-    from agents.policy import ForceDirectionPolicy
+    from grasp_env_agents.policy import ForceDirectionPolicy
 
     config = tiny(
         env_id="grasp_env/CubeGraspRandom-v0",

@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from reference_solver import ConeBisection
 
 from grasp_env.mechanics import (
     FOUR_FINGER_FACES,
@@ -26,6 +25,7 @@ from grasp_env.mechanics import (
     scene_grasp,
     solve_minimax,
 )
+from grasp_env_agents.benchmarks.reference_solver import ConeBisection
 
 DEG = np.pi / 180
 TOLERANCE = 1e-6 * DEG  # the accuracy requirement

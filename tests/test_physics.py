@@ -8,7 +8,6 @@ import mujoco
 import numpy as np
 import pytest
 
-from agents.cli import main
 from grasp_env.mechanics import (
     FOUR_FINGER_FACES,
     PAPER_AXIS,
@@ -25,6 +24,7 @@ from grasp_env.mechanics import (
 from grasp_env.physics import SETTINGS, PhysicsReport, StabilityChecker
 from grasp_env.physics.agreement import ForceSet, force_set_k, summarise
 from grasp_env.physics.model import pose_qpos
+from grasp_env_agents.cli import main
 
 EDGE_SCENES = {
     "paper grip, mu = tan 10 deg": (

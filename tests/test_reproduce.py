@@ -6,8 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from agents.cli import main
 from grasp_env.mechanics import PHI
+from grasp_env_agents.cli import main
 
 
 def read_sweep(path):

@@ -1,21 +1,20 @@
-"""The ecosystem: rl-zoo3 trains on our environment with the hyperparameters in configs/ppo.yml."""
+"""The ecosystem: rl-zoo3 trains on our environment with configs/rl_zoo3/ppo.yml."""
 
 from __future__ import annotations
 
 import os
 import subprocess
 import sys
-from pathlib import Path
 
 import yaml
 
-CONFIGS = Path(__file__).resolve().parent.parent / "configs"
+from grasp_env_agents.config import ZOO_HYPERPARAMS
 
 
 def test_zoo_config_covers_every_environment():
     import grasp_env
 
-    hyperparams = yaml.safe_load((CONFIGS / "ppo.yml").read_text())
+    hyperparams = yaml.safe_load(ZOO_HYPERPARAMS.read_text())
     batched = [env_id for env_id in grasp_env.ENV_IDS if "Mujoco" not in env_id]
     assert sorted(hyperparams) == sorted(batched)
 
@@ -27,7 +26,7 @@ def test_rl_zoo3_trains_on_cube_grasp(tmp_path):
         "--algo", "ppo",
         "--env", "grasp_env/CubeGrasp-v0",
         "--gym-packages", "grasp_env",
-        "-conf", str(CONFIGS / "ppo.yml"),
+        "-conf", str(ZOO_HYPERPARAMS),
         "-n", str(steps),
         "--hyperparams", "n_envs:2",
         "--eval-freq", "-1",

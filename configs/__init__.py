@@ -1,0 +1,1 @@
+"""The training configs shipped with the package (YAML; `grasp-env train --config NAME`)."""
