@@ -22,7 +22,7 @@ from typing import Any, Literal
 
 import yaml
 
-from grasp_env.expert import DEFAULT_K_MAX_RATIO
+from grasp_env.envs.validation import DEFAULT_K_MAX_RATIO
 
 #: The configs shipped with the package (``configs/`` in the repository), by name.
 CONFIG_DIR = Path(str(resources.files("grasp_env_agents.configs")))

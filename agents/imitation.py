@@ -42,7 +42,7 @@ from tqdm.auto import tqdm
 
 from grasp_env import MinimaxExpert
 from grasp_env.envs.observation import ObservationLayout
-from grasp_env.expert import DEFAULT_K_MAX_RATIO
+from grasp_env.envs.validation import DEFAULT_K_MAX_RATIO
 
 from .config import ImitationConfig
 from .features import grasp_tensors, max_friction_angle

@@ -30,7 +30,7 @@ import torch
 from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.torch_layers import MlpExtractor
 
-from grasp_env.expert import DEFAULT_K_MAX_RATIO
+from grasp_env.envs.validation import DEFAULT_K_MAX_RATIO
 
 from .features import GraspFeatures, object_frame_grasp
 

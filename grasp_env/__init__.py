@@ -8,11 +8,20 @@
     env = gym.make("grasp_env/CubeGrasp-v0")
     envs = gym.make_vec("grasp_env/CubeGraspRandom-v0", num_envs=64,
                         vectorization_mode="vector_entry_point")
+
+The layers import one way (docs/design.md): ``grasp_env.mechanics`` (pure numpy and numba)
+<- ``grasp_env.envs`` and ``grasp_env.physics``. So that ``import grasp_env.mechanics`` does
+not load gymnasium, the environments are registered when gymnasium's registry is first
+imported (at once if it already is): either import order works.
 """
 
-from gymnasium.envs.registration import register, registry
+from __future__ import annotations
 
-from .expert import MinimaxExpert
+import importlib.util
+import sys
+from importlib.abc import MetaPathFinder
+from types import ModuleType
+from typing import Any
 
 __version__ = "0.2.0"
 
@@ -28,14 +37,51 @@ _ENVS = {
     "CubeGrasp4Mujoco-v0": ("CubeGraspEnv", None, {**_FOUR_FINGERS, "physics": "mujoco"}),
 }
 ENV_IDS = tuple(f"grasp_env/{name}" for name in _ENVS)
+_REGISTRATION = "gymnasium.envs.registration"
 
-for _name, (_single, _vector, _kwargs) in _ENVS.items():
-    if f"grasp_env/{_name}" not in registry:
-        register(
-            id=f"grasp_env/{_name}",
-            entry_point=f"grasp_env.envs.cube_grasp:{_single}",
-            vector_entry_point=None if _vector is None else f"grasp_env.envs.vector:{_vector}",
-            kwargs=_kwargs,
-        )
+
+def _register(registration: ModuleType) -> None:
+    for name, (single, vector, kwargs) in _ENVS.items():
+        if f"grasp_env/{name}" not in registration.registry:
+            registration.register(
+                id=f"grasp_env/{name}",
+                entry_point=f"grasp_env.envs.cube_grasp:{single}",
+                vector_entry_point=None if vector is None else f"grasp_env.envs.vector:{vector}",
+                kwargs=kwargs,
+            )
+
+
+class _RegisterWithGymnasium(MetaPathFinder):
+    """Finds gymnasium's registry module as usual, and registers the environments in it once
+    it has run."""
+
+    def find_spec(self, name: str, path: Any = None, target: Any = None) -> Any:
+        if name != _REGISTRATION:
+            return None
+        sys.meta_path.remove(self)
+        spec = importlib.util.find_spec(name)
+        run = spec.loader.exec_module
+
+        def exec_module(module: ModuleType) -> None:
+            run(module)
+            _register(module)
+
+        spec.loader.exec_module = exec_module
+        return spec
+
+
+if _REGISTRATION in sys.modules:
+    _register(sys.modules[_REGISTRATION])
+elif not any(isinstance(finder, _RegisterWithGymnasium) for finder in sys.meta_path):
+    sys.meta_path.insert(0, _RegisterWithGymnasium())
+
+
+def __getattr__(name: str) -> Any:
+    if name == "MinimaxExpert":  # the expert lives with the environments (grasp_env.envs)
+        from .envs.expert import MinimaxExpert
+
+        return MinimaxExpert
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 __all__ = ["ENV_IDS", "MinimaxExpert", "__version__"]

@@ -605,12 +605,13 @@ def test_rgb_array_render():
 
 def test_sampled_episodes_equal_fresh_builds():
     """The sampler reuses its screening solves: the episodes must equal ones built afresh."""
-    from grasp_env.envs import core
+    from grasp_env.envs.episodes import build_episodes, sample_episodes
+    from grasp_env.envs.scenes import SceneSampler
 
-    sampler, expert = core.SceneSampler(), MinimaxExpert()
+    sampler, expert = SceneSampler(), MinimaxExpert()
     rngs = [np.random.default_rng(seed) for seed in range(20)]
-    sampled = core.sample_episodes(rngs, sampler, expert, np.deg2rad(1.0))
-    fresh = core.build_episodes(sampled.scenes, expert)
+    sampled = sample_episodes(rngs, sampler, expert, np.deg2rad(1.0))
+    fresh = build_episodes(sampled.scenes, expert)
     assert_same(vars(sampled.poses), vars(fresh.poses))
     assert np.all(sampled.worst_expert_reward() >= np.deg2rad(1.0))
 
@@ -629,7 +630,7 @@ def test_expert_bad_input_raises():
 
 def test_step_kernel_matches_the_mechanics():
     """The compiled step (eq. 4 and eq. 2) against grasp_env.mechanics, edge cases included."""
-    from grasp_env.envs.core import evaluate
+    from grasp_env.envs.kernels import evaluate_grips
     from grasp_env.mechanics import contact_pairs, friction_angles, interaction_basis, net_forces
 
     rng = np.random.default_rng(0)
@@ -646,7 +647,7 @@ def test_step_kernel_matches_the_mechanics():
     forces[0], forces[1], forces[2] = 2 * normals[0], -3 * normals[1], 0.0  # 0, pi, P = 0
     k_max = rng.uniform(0.5, 3.0, count)
     limit = np.full(count, 0.4)
-    ok, k, net, theta, margin, reward = evaluate(
+    ok, k, net, theta, margin, reward = evaluate_grips(
         forces, directions, normals, pairs, np.arange(count), actions, k_max, limit
     )
     assert ok
@@ -662,7 +663,8 @@ def test_step_kernel_matches_the_mechanics():
 def test_pose_kernels_match_the_mechanics(faces):
     """The compiled episode geometry (and the expert's grasp from an observation) against the
     numpy mechanics: rotation (eq. 5), grasp, equilibrating forces and the observation layout."""
-    from grasp_env.envs.core import SceneSampler, build_episodes
+    from grasp_env.envs.episodes import build_episodes
+    from grasp_env.envs.scenes import SceneSampler
     from grasp_env.mechanics import (
         contact_pairs,
         equilibrating_forces,
@@ -708,7 +710,7 @@ def test_pose_kernels_match_the_mechanics(faces):
     # float32 roundings of values 1e-15 apart: equal, or one float32 step (< 2.4e-7) apart
     np.testing.assert_allclose(poses.observations, expected, rtol=0, atol=2.4e-7)
     # the expert rebuilds the grasp from the observation alone
-    from grasp_env.envs._pose_kernels import observation_grasps
+    from grasp_env.envs.kernels import observation_grasps
 
     obs = poses.observations.astype(float)
     positions = obs[:, layout.positions].reshape(-1, n, 3)
@@ -724,7 +726,7 @@ def test_pose_kernels_match_the_mechanics(faces):
 def test_sampled_scenes_within_their_ranges():
     """Every drawn quantity stays in its documented range (the extra torque's z component once
     reused a normal draw of the axis)."""
-    from grasp_env.envs.core import SceneSampler
+    from grasp_env.envs.scenes import SceneSampler
 
     sampler = SceneSampler(extra_force=0.3, extra_torque=0.4, cg_offset=0.2, contact_offset=0.5)
     scenes = sampler.scenes(sampler.raw(np.random.default_rng(0), 5000))

@@ -1,26 +1,22 @@
-"""Gymnasium environments of the grasp (DESIGN.md §3): single, vector and an SB3 adapter.
+"""Gymnasium environments of the grasp: single and batched vector environments, an SB3 adapter
+(:mod:`grasp_env.envs.sb3`) and the minimax expert as a policy.
 
-The classes load lazily, so that ``grasp_env.expert`` can use the observation layout here
-without importing the environments.
+Modules by role: ``observation`` (the observation vector), ``scenes`` (scenes and their
+trajectories as arrays, explicit or sampled), ``episodes`` (everything precomputed at reset),
+``kernels`` (the compiled step and pose geometry), ``expert`` (the optimiser as a policy),
+``validation`` (keyword checks), ``cube_grasp`` (the single environments) and ``vector``.
 """
 
-from __future__ import annotations
+from .cube_grasp import CubeGraspEnv, CubeGraspRandomEnv
+from .expert import MinimaxExpert
+from .observation import ObservationLayout
+from .vector import CubeGraspRandomVectorEnv, CubeGraspVectorEnv
 
-from importlib import import_module
-from typing import Any
-
-_EXPORTS = {
-    "CubeGraspEnv": "cube_grasp",
-    "CubeGraspRandomEnv": "cube_grasp",
-    "CubeGraspVectorEnv": "vector",
-    "CubeGraspRandomVectorEnv": "vector",
-    "ObservationLayout": "observation",
-}
-
-__all__ = list(_EXPORTS)
-
-
-def __getattr__(name: str) -> Any:
-    if name in _EXPORTS:
-        return getattr(import_module(f".{_EXPORTS[name]}", __name__), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__all__ = [
+    "CubeGraspEnv",
+    "CubeGraspRandomEnv",
+    "CubeGraspRandomVectorEnv",
+    "CubeGraspVectorEnv",
+    "MinimaxExpert",
+    "ObservationLayout",
+]

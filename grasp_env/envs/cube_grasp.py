@@ -9,23 +9,13 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from ..expert import MinimaxExpert
 from ..mechanics import FOUR_FINGER_FACES, PAPER_FACES, Scene, contact_pairs, n_pairs
-from .core import (
-    Episode,
-    SceneBatch,
-    SceneSampler,
-    build_episodes,
-    cached_episode,
-    check_k_max_ratio,
-    check_margin,
-    default_scene,
-    evaluate,
-    parse_options,
-    parse_scene,
-    sample_episodes,
-)
+from .episodes import Episode, build_episodes, cached_episode, sample_episodes
+from .expert import MinimaxExpert
+from .kernels import evaluate_grips
 from .observation import ObservationLayout
+from .scenes import SceneBatch, SceneSampler, default_scene, parse_options, parse_scene
+from .validation import DEFAULT_K_MAX_RATIO, check_k_max_ratio, check_margin
 
 PHYSICS_ENGINES = (None, "mujoco")
 
@@ -134,7 +124,7 @@ class _CubeGraspEnv(gym.Env[np.ndarray, np.ndarray]):
         assert episode is not None
         a = action_array(action, self._pairs.shape[0])
         t = self._step
-        ok, k, forces, theta, margin, reward = evaluate(
+        ok, k, forces, theta, margin, reward = evaluate_grips(
             episode.forces,
             episode.directions,
             episode.normals,
@@ -335,7 +325,7 @@ class CubeGraspEnv(_CubeGraspEnv):
         self,
         scene: Mapping[str, Any] | None = None,
         faces: Sequence[str] = PAPER_FACES,
-        k_max_ratio: float = 2.0,
+        k_max_ratio: float = DEFAULT_K_MAX_RATIO,
         terminate_on_slip: bool = True,
         physics: str | None = None,
         render_mode: str | None = None,
@@ -421,7 +411,7 @@ class CubeGraspRandomEnv(_CubeGraspEnv):
         extra_force: float = 0.0,
         extra_torque: float = 0.0,
         min_expert_margin_deg: float = 1.0,
-        k_max_ratio: float = 2.0,
+        k_max_ratio: float = DEFAULT_K_MAX_RATIO,
         terminate_on_slip: bool = True,
         physics: str | None = None,
         render_mode: str | None = None,

@@ -17,8 +17,10 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from ..mechanics import Scene, contact_pairs
-from .core import Episode, EpisodeBatch, build_episodes, evaluate, parse_options, sample_episodes
 from .cube_grasp import CubeGraspEnv, CubeGraspRandomEnv, _CubeGraspEnv
+from .episodes import Episode, EpisodeBatch, build_episodes, sample_episodes
+from .kernels import evaluate_grips
+from .scenes import parse_options
 
 _MODES = (AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP)
 
@@ -258,7 +260,7 @@ class _CubeGraspVectorEnv(VectorEnv):
             a = np.where(active[:, None], a, 0.0)
         arrays = self._store.arrays
         rows = self._base + self._t
-        _, k, forces, theta, margin, reward = evaluate(
+        _, k, forces, theta, margin, reward = evaluate_grips(
             arrays["forces"],
             arrays["directions"],
             arrays["normals"],

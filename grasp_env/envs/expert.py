@@ -1,4 +1,4 @@
-"""The minimax optimiser as a policy: actions from observations alone (DESIGN.md §1, "Minimax").
+"""The minimax optimiser as a policy: actions from observations alone (docs/design.md, "Minimax").
 
 >>> import gymnasium as gym, grasp_env
 >>> from stable_baselines3.common.evaluation import evaluate_policy
@@ -13,12 +13,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from .envs._pose_kernels import observation_grasps
-from .envs.observation import ObservationLayout
-from .mechanics import Grasp, contact_pairs, solve_minimax
-
-#: Default action scale of the environments: k_max = 2 w.
-DEFAULT_K_MAX_RATIO = 2.0
+from ..mechanics import Grasp, contact_pairs, solve_minimax
+from .kernels import observation_grasps
+from .observation import ObservationLayout
+from .validation import DEFAULT_K_MAX_RATIO, check_k_max_ratio
 
 
 class MinimaxExpert:
@@ -38,10 +36,7 @@ class MinimaxExpert:
     """
 
     def __init__(self, k_max_ratio: float = DEFAULT_K_MAX_RATIO) -> None:
-        k_max_ratio = float(k_max_ratio)
-        if not np.isfinite(k_max_ratio) or k_max_ratio <= 0:
-            raise ValueError(f"k_max_ratio must be a finite number > 0, got {k_max_ratio}")
-        self.k_max_ratio = k_max_ratio
+        self.k_max_ratio = check_k_max_ratio(k_max_ratio)
 
     def predict(
         self,

@@ -1,10 +1,14 @@
-"""Compiled per-pose geometry for building episodes: the numpy mechanics written out per pose.
+"""The environments' compiled kernels: the step (eq. 4 and eq. 2 for a batch of grips) and the
+per-pose geometry of episodes (the numpy mechanics written out per pose).
 
-Building an episode (and screening candidate scenes) costs one minimax solve per pose; around
-it, numpy's per-call costs on batches of a few hundred poses came to as much again. These
-kernels do the same arithmetic as :func:`grasp_env.mechanics.pose_rotation`,
-:func:`~grasp_env.mechanics.grasp` and :func:`~grasp_env.mechanics.equilibrating_forces` in
-one pass; ``tests/test_envs.py`` checks them against those functions.
+The single and the vector environments step through the one kernel :func:`evaluate_grips`,
+so both compute the very same numbers. Building an episode (and screening candidate scenes)
+costs one minimax solve per pose; around it, numpy's per-call costs on batches of a few
+hundred poses came to as much again, so :func:`pose_geometry` does the arithmetic of
+:func:`grasp_env.mechanics.pose_rotation`, :func:`~grasp_env.mechanics.grasp` and
+:func:`~grasp_env.mechanics.equilibrating_forces` in one pass (``tests/test_envs.py`` checks
+it against those functions), and :func:`observation_grasps` rebuilds the grasp from
+observations for the expert.
 """
 
 from __future__ import annotations
@@ -186,3 +190,63 @@ def observation_grasps(observations, pairs, forces, basis, normals):
             for a in range(3):
                 basis[b, q, pairs[q, 0], a] = u[q, a]
                 basis[b, q, pairs[q, 1], a] = -u[q, a]
+
+
+@_kernel
+def evaluate_grips(forces, directions, normals, pairs, rows, actions, k_max, limit):
+    """Net forces and friction angles of a batch of (pose, action) pairs.
+
+    ``forces`` (R, n, 3) equilibrating forces, ``directions`` (R, m, 3) the unit vectors u_ij
+    and ``normals`` (R, n, 3) of R stored poses; ``rows`` (B,) picks a pose per item, whose
+    ``actions`` (B, m) are clipped to [-1, 1] and scaled by ``k_max`` (B,); ``limit`` (B,) is
+    theta_lim. Returns (ok, k, P, theta, margin, reward); ok is False if an action is not
+    finite (the outputs are then meaningless).
+    """
+    count = rows.shape[0]
+    n = forces.shape[1]
+    m = directions.shape[1]
+    k = np.empty((count, m))
+    net = np.empty((count, n, 3))
+    theta = np.empty((count, n))
+    margin = np.empty((count, n))
+    reward = np.empty(count)
+    ok = True
+    for b in range(count):
+        row = rows[b]
+        for i in range(n):
+            for c in range(3):
+                net[b, i, c] = forces[row, i, c]
+        for q in range(m):
+            a = actions[b, q]
+            if not math.isfinite(a):
+                ok = False
+            k[b, q] = min(max(a, -1.0), 1.0) * k_max[b]
+            # P_i += k_ij u_ij and P_j -= k_ij u_ij: the basis e_ij of eq. 4
+            i = pairs[q, 0]
+            j = pairs[q, 1]
+            for c in range(3):
+                v = k[b, q] * directions[row, q, c]
+                net[b, i, c] += v
+                net[b, j, c] -= v
+        worst = np.inf
+        for i in range(n):
+            px, py, pz = net[b, i, 0], net[b, i, 1], net[b, i, 2]
+            nx, ny, nz = normals[row, i, 0], normals[row, i, 1], normals[row, i, 2]
+            cx = py * nz - pz * ny
+            cy = pz * nx - px * nz
+            cz = px * ny - py * nx
+            # eq. 2 as atan2(|P x n|, P . n), accurate near 0 where acos is not; written with
+            # atan, which costs half as much as atan2 here (the step's largest cost)
+            tangential = math.sqrt(cx * cx + cy * cy + cz * cz)
+            normal = px * nx + py * ny + pz * nz
+            if normal > 0.0:
+                t = math.atan(tangential / normal)
+            elif tangential > 0.0:
+                t = 0.5 * math.pi + math.atan(-normal / tangential)
+            else:
+                t = math.pi if normal < 0.0 else 0.0
+            theta[b, i] = t
+            margin[b, i] = limit[b] - t
+            worst = min(worst, limit[b] - t)
+        reward[b] = worst
+    return ok, k, net, theta, margin, reward

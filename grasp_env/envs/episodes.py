@@ -1,0 +1,320 @@
+"""Episodes: a scene held along its trajectory, with everything that does not depend on the
+agent's actions computed once when the episode starts.
+
+The grasp geometry, the equilibrating forces, the observations and the expert's grip at
+every pose are computed batched over poses and episodes; a step then only forms
+P = F + sum k_ij e_ij (eq. 4) and the friction angles (eq. 2) with
+:func:`~grasp_env.envs.kernels.evaluate_grips`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+from ..mechanics import START_ROTATION, Scene, contact_pairs
+from .expert import MinimaxExpert
+from .kernels import evaluate_grips, pose_geometry
+from .observation import ObservationLayout
+from .scenes import EDGE, SCENE_ARRAYS, SceneBatch, SceneSampler
+
+_BOUNDS = {n: ObservationLayout(n).bounds() for n in (3, 4)}
+
+
+def _read_only(*arrays: np.ndarray) -> None:
+    # Episodes are shared (between environments, through the cache): keep them unchangeable.
+    for array in arrays:
+        array.flags.writeable = False
+
+
+@dataclass(frozen=True)
+class Poses:
+    """World-frame data of P poses (flattened over episodes), ready for
+    :func:`~grasp_env.envs.kernels.evaluate_grips`."""
+
+    rotations: np.ndarray  # (P, 3, 3)
+    forces: np.ndarray  # (P, n, 3) equilibrating forces F_i, newtons
+    directions: np.ndarray  # (P, m, 3) u_ij
+    normals: np.ndarray  # (P, n, 3)
+    observations: np.ndarray  # (P, size) float32
+    alphas: np.ndarray  # (P,) degrees
+    limit: np.ndarray  # (P,) theta_lim
+    k_max: np.ndarray  # (P,)
+    expert_action: np.ndarray  # (P, m) the expert's actions (float32 values)
+    expert_k: np.ndarray  # (P, m)
+    expert_reward: np.ndarray  # (P,)
+
+    def take(self, rows: np.ndarray) -> Poses:
+        return Poses(*(np.take(getattr(self, f.name), rows, axis=0) for f in fields(Poses)))
+
+
+def build_poses(
+    scenes: SceneBatch,
+    episode: np.ndarray,
+    step: np.ndarray,
+    expert: MinimaxExpert,
+    known: np.ndarray | None = None,
+) -> Poses:
+    """Grasp data, observations and the expert's grip at poses of the batch's trajectories.
+
+    ``episode`` (P,) says which scene each pose belongs to and ``step`` (P,) which pose t of
+    its trajectory it is; the observation's phase is t / length. ``known`` (P, m) holds the
+    expert's actions where already solved (NaN elsewhere).
+    """
+    n = scenes.contacts.shape[1]
+    pairs = contact_pairs(n)
+    count = len(episode)
+    alphas, limit = np.empty(count), np.empty(count)
+    rotations = np.empty((count, 3, 3))
+    forces, normals = np.empty((count, n, 3)), np.empty((count, n, 3))
+    directions = np.empty((count, len(pairs), 3))
+    observations = np.empty((count, ObservationLayout(n).size), np.float32)
+    pose_geometry(
+        scenes.contacts - scenes.cg_offset[:, None, :],
+        scenes.normals,
+        scenes.axis,
+        scenes.alpha_start,
+        scenes.alpha_step,
+        scenes.length,
+        scenes.weight,
+        scenes.mu,
+        scenes.extra_force,
+        scenes.extra_torque,
+        EDGE,
+        episode,
+        step,
+        START_ROTATION,
+        pairs,
+        *_BOUNDS[n],
+        alphas,
+        rotations,
+        forces,
+        directions,
+        normals,
+        observations,
+        limit,
+    )
+    weight = scenes.weight[episode]
+    k_max = expert.k_max_ratio * weight
+    todo = np.ones(count, bool) if known is None else np.isnan(known[:, 0])
+    actions = np.zeros((count, len(pairs))) if known is None else known.copy()
+    # a pose whose predecessor on the trajectory is solved just before it starts from its
+    # optimum (the solver's warm start)
+    follows = np.zeros(count, bool)
+    follows[1:] = todo[1:] & todo[:-1] & (episode[1:] == episode[:-1]) & (step[1:] == step[:-1] + 1)
+    actions[todo] = expert.actions(observations[todo], follows[todo])
+    # The expert's grip scored exactly as an agent's action is (same kernel, same clipping).
+    _, k, _, _, _, reward = evaluate_grips(
+        forces,
+        directions,
+        normals,
+        pairs,
+        np.arange(len(episode)),
+        actions,
+        k_max,
+        limit,
+    )
+    return Poses(
+        rotations,
+        forces,
+        directions,
+        normals,
+        observations,
+        alphas,
+        limit,
+        k_max,
+        actions,
+        k,
+        reward,
+    )
+
+
+@dataclass(frozen=True)
+class EpisodeBatch:
+    """E episodes: their scenes and the poses of all their trajectories, one after the other."""
+
+    scenes: SceneBatch
+    poses: Poses
+
+    def __len__(self) -> int:
+        return len(self.scenes)
+
+    @property
+    def starts(self) -> np.ndarray:
+        """First pose row of every episode."""
+        return np.cumsum(self.scenes.length) - self.scenes.length
+
+    def worst_expert_reward(self) -> np.ndarray:
+        """min over its trajectory of the expert's reward, per episode (E,)."""
+        return np.minimum.reduceat(self.poses.expert_reward, self.starts)
+
+    def take(self, index: Sequence[int] | np.ndarray) -> EpisodeBatch:
+        index = np.asarray(index, dtype=np.intp)
+        lengths = self.scenes.length[index]
+        rows = np.repeat(self.starts[index] - np.cumsum(lengths) + lengths, lengths)
+        return EpisodeBatch(self.scenes.take(index), self.poses.take(rows + np.arange(len(rows))))
+
+    @staticmethod
+    def concatenate(batches: Sequence[EpisodeBatch]) -> EpisodeBatch:
+        return EpisodeBatch(
+            SceneBatch(
+                *(np.concatenate([getattr(b.scenes, f) for b in batches]) for f in SCENE_ARRAYS)
+            ),
+            Poses(
+                *(
+                    np.concatenate([getattr(b.poses, f.name) for b in batches])
+                    for f in fields(Poses)
+                )
+            ),
+        )
+
+    def final_observations(self) -> np.ndarray:
+        """The observation after each episode's last step: its last pose with phase 1 (E, size)."""
+        final = self.poses.observations[self.starts + self.scenes.length - 1]
+        final[:, ObservationLayout(self.scenes.contacts.shape[1]).phase] = 1.0
+        return final
+
+    def episode(self, index: int) -> Episode:
+        """Episode ``index`` as read-only arrays of its own."""
+        start, length = int(self.starts[index]), int(self.scenes.length[index])
+        part = self.poses.take(np.arange(start, start + length))
+        scene = self.scenes.take([index])
+        observations = np.vstack([part.observations, self.final_observations()[index : index + 1]])
+        episode = Episode(
+            scene,
+            part.rotations,
+            part.forces,
+            part.directions,
+            part.normals,
+            observations,
+            part.alphas,
+            part.expert_k,
+            part.expert_reward,
+            limit=float(part.limit[0]),
+            k_max=float(part.k_max[0]),
+        )
+        _read_only(*(getattr(scene, name) for name in SCENE_ARRAYS))
+        _read_only(*(getattr(episode, f.name) for f in fields(Episode)[1:-2]))
+        return episode
+
+
+@dataclass(frozen=True)
+class Episode:
+    """One episode's precomputed arrays (read-only), T poses.
+
+    ``observations`` has T + 1 rows: row t is seen before step t, row T (the last pose with
+    phase 1) after the last step.
+    """
+
+    scenes: SceneBatch  # a batch of one: the episode's scene and trajectory
+    rotations: np.ndarray  # (T, 3, 3)
+    forces: np.ndarray  # (T, n, 3)
+    directions: np.ndarray  # (T, m, 3)
+    normals: np.ndarray  # (T, n, 3)
+    observations: np.ndarray  # (T + 1, size) float32
+    alphas: np.ndarray  # (T,) degrees
+    expert_k: np.ndarray  # (T, m)
+    expert_reward: np.ndarray  # (T,)
+    limit: float
+    k_max: float
+
+    def __len__(self) -> int:
+        return self.rotations.shape[0]
+
+    @property
+    def scene(self) -> Scene:
+        return self.scenes.scene(0)
+
+
+def build_episodes(
+    scenes: SceneBatch, expert: MinimaxExpert, known: np.ndarray | None = None
+) -> EpisodeBatch:
+    """The episodes of a batch of scenes, with every pose of every trajectory in one batch
+    (``known``: the expert's actions at some of these poses, see :func:`build_poses`)."""
+    lengths = scenes.length
+    episode = np.repeat(np.arange(len(scenes)), lengths)
+    step = np.arange(len(episode)) - np.repeat(np.cumsum(lengths) - lengths, lengths)
+    return EpisodeBatch(scenes, build_poses(scenes, episode, step, expert, known))
+
+
+_EPISODE_CACHE: dict[tuple, Episode] = {}
+_EPISODE_CACHE_SIZE = 32
+
+
+def cached_episode(scenes: SceneBatch, expert: MinimaxExpert) -> Episode:
+    """The episode of one scene, remembered: environments made with the same scene (every
+    ``gym.make("grasp_env/CubeGrasp-v0")``) share one read-only episode."""
+    key = (expert.k_max_ratio, *(getattr(scenes, name).tobytes() for name in SCENE_ARRAYS))
+    if key not in _EPISODE_CACHE:
+        if len(_EPISODE_CACHE) >= _EPISODE_CACHE_SIZE:
+            _EPISODE_CACHE.pop(next(iter(_EPISODE_CACHE)))
+        _EPISODE_CACHE[key] = build_episodes(scenes, expert).episode(0)
+    return _EPISODE_CACHE[key]
+
+
+#: Candidate scenes drawn per environment and round of :func:`sample_episodes`.
+DRAWS_PER_ROUND = 2
+#: Give up (the ranges admit almost no holdable scene) after this many candidates per episode.
+MAX_DRAWS = 2000
+
+
+def sample_episodes(
+    rngs: Sequence[np.random.Generator],
+    sampler: SceneSampler,
+    expert: MinimaxExpert,
+    min_margin: float,
+) -> EpisodeBatch:
+    """One random episode per generator whose expert keeps every margin >= ``min_margin``.
+
+    Each generator draws :data:`DRAWS_PER_ROUND` candidates per round; a cheap screen solves
+    the expert at the trajectory's two ends and middle, then candidates that pass are solved
+    along the whole trajectory in order, the first that holds being the episode. Which scene a
+    generator yields depends on that generator alone, so a vector of environments gets the
+    same episodes as single environments with the same seeds; all solves are batched.
+    """
+    chosen: list[EpisodeBatch] = []
+    owners: list[np.ndarray] = []
+    pending = np.arange(len(rngs))
+    rounds = 0
+    while len(pending):
+        rounds += 1
+        if rounds * DRAWS_PER_ROUND > MAX_DRAWS:
+            raise RuntimeError(
+                f"no scene in {MAX_DRAWS} draws lets the expert hold the whole trajectory;"
+                " widen mu_range or narrow the offset and trajectory ranges"
+            )
+        drafts = sampler.scenes(
+            np.concatenate([sampler.raw(rngs[e], DRAWS_PER_ROUND) for e in pending])
+        )
+        # Screen: the two ends and the middle of every candidate's trajectory.
+        last = drafts.length - 1
+        picks = np.stack([np.zeros_like(last), last // 2 + last % 2, last], axis=1)
+        screen = build_poses(drafts, np.repeat(np.arange(len(drafts)), 3), picks.ravel(), expert)
+        screened = screen.expert_action.reshape(len(drafts), 3, -1)
+        passed = (
+            screen.expert_reward.reshape(len(pending), DRAWS_PER_ROUND, 3).min(-1) >= min_margin
+        )
+        open_ = np.ones(len(pending), bool)
+        for d in range(DRAWS_PER_ROUND):  # candidates in their draw order
+            slots = np.flatnonzero(open_ & passed[:, d])
+            if len(slots) == 0:
+                continue
+            candidates = slots * DRAWS_PER_ROUND + d
+            scenes = drafts.take(candidates)
+            # The screened poses are solved already (the expert ignores the phase).
+            m = screened.shape[2]
+            known = np.full((scenes.length.sum(), m), np.nan)
+            starts = np.cumsum(scenes.length) - scenes.length
+            known[(starts[:, None] + picks[candidates]).ravel()] = screened[candidates].reshape(
+                -1, m
+            )
+            full = build_episodes(scenes, expert, known)
+            holds = full.worst_expert_reward() >= min_margin
+            chosen.append(full.take(np.flatnonzero(holds)))
+            owners.append(pending[slots[holds]])
+            open_[slots[holds]] = False
+        pending = pending[open_]
+    batch = EpisodeBatch.concatenate(chosen)
+    return batch.take(np.argsort(np.concatenate(owners)))

@@ -1,0 +1,306 @@
+"""Scenes and their trajectories as batched arrays: explicit scenes (parsed from a mapping)
+and random ones (drawn by a :class:`SceneSampler`)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ..mechanics import (
+    DEFAULT_MU,
+    DEFAULT_WEIGHT,
+    FACES,
+    PAPER_FACES,
+    Scene,
+    Trajectory,
+    face_point,
+)
+from .validation import check_fraction, check_range
+
+#: Edge length L of the grasped cube, metres (the paper's unit cube; the observation's units).
+EDGE = 1.0
+SCENE_KEYS = (
+    "contacts", "cg_offset", "weight", "mu", "extra_force", "extra_torque", "trajectory",
+)  # fmt: skip
+TRAJECTORY_KEYS = ("axis", "alpha_start_deg", "alpha_end_deg", "alpha_step_deg")
+
+SCENE_ARRAYS = (
+    "contacts", "cg_offset", "weight", "mu", "extra_force", "extra_torque",
+    "axis", "alpha_start", "alpha_step", "length",
+)  # fmt: skip
+
+
+@dataclass(frozen=True)
+class SceneBatch:
+    """E scenes with their trajectories, as arrays (the unit cube, object frame).
+
+    Trajectory e has poses alpha_start[e] + alpha_step[e] t, t < length[e] (degrees), about
+    ``axis[e]`` (the same values as :attr:`grasp_env.mechanics.Trajectory.alphas_deg`).
+    """
+
+    contacts: np.ndarray  # (E, n, 3)
+    cg_offset: np.ndarray  # (E, 3)
+    weight: np.ndarray  # (E,)
+    mu: np.ndarray  # (E,)
+    extra_force: np.ndarray  # (E, 3)
+    extra_torque: np.ndarray  # (E, 3)
+    axis: np.ndarray  # (E, 3) unit vectors
+    alpha_start: np.ndarray  # (E,) degrees
+    alpha_step: np.ndarray  # (E,) degrees
+    length: np.ndarray  # (E,) poses
+
+    def __len__(self) -> int:
+        return len(self.weight)
+
+    @property
+    def normals(self) -> np.ndarray:
+        """Inward unit normals (E, n, 3) of the faces the contacts lie on."""
+        axis = np.argmax(np.abs(self.contacts), axis=-1)[..., None]
+        normals = np.zeros_like(self.contacts)
+        np.put_along_axis(normals, axis, -np.sign(np.take_along_axis(self.contacts, axis, -1)), -1)
+        return normals
+
+    def alphas_deg(self, index: int) -> np.ndarray:
+        """Trajectory ``index``'s alphas, degrees."""
+        return self.alpha_start[index] + self.alpha_step[index] * np.arange(self.length[index])
+
+    def take(self, index: Sequence[int] | np.ndarray) -> SceneBatch:
+        index = np.asarray(index, dtype=np.intp)
+        return SceneBatch(*(getattr(self, name)[index] for name in SCENE_ARRAYS))
+
+    @staticmethod
+    def single(scene: Scene, trajectory: Trajectory) -> SceneBatch:
+        return SceneBatch(
+            scene.contacts[None].copy(),
+            scene.cg_offset[None].copy(),
+            np.array([scene.weight]),
+            np.array([scene.mu]),
+            scene.extra_force[None].copy(),
+            scene.extra_torque[None].copy(),
+            np.array([trajectory.axis]),
+            np.array([float(trajectory.alpha_start_deg)]),
+            np.array([float(trajectory.alpha_step_deg)]),
+            np.array([len(trajectory)]),
+        )
+
+    def scene(self, index: int) -> Scene:
+        """The mechanics :class:`Scene` of episode ``index``."""
+        return Scene(
+            contacts=self.contacts[index],
+            size=EDGE,
+            weight=float(self.weight[index]),
+            mu=float(self.mu[index]),
+            cg_offset=self.cg_offset[index],
+            extra_force=self.extra_force[index],
+            extra_torque=self.extra_torque[index],
+        )
+
+
+# ---------------------------------------------------------------------------- explicit scenes
+
+
+def _vector(name: str, value: Any, shape: tuple[int, ...]) -> np.ndarray:
+    try:
+        array = np.asarray(value, dtype=float)
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"scene {name!r} must be numeric, got {value!r}") from error
+    if array.shape != shape:
+        raise ValueError(f"scene {name!r} must have shape {shape}, got {array.shape}")
+    return array
+
+
+def default_scene(faces: Sequence[str]) -> dict[str, Any]:
+    """The paper's scene and trajectory with one face-centre contact per face in ``faces``."""
+    trajectory = Trajectory()
+    return {
+        "contacts": np.array([face_point(f, size=EDGE) for f in faces]),
+        "cg_offset": np.zeros(3),
+        "weight": DEFAULT_WEIGHT,
+        "mu": DEFAULT_MU,
+        "extra_force": np.zeros(3),
+        "extra_torque": np.zeros(3),
+        "trajectory": {key: getattr(trajectory, key) for key in TRAJECTORY_KEYS},
+    }
+
+
+def parse_scene(spec: Mapping[str, Any] | None, defaults: Mapping[str, Any]) -> SceneBatch:
+    """A validated scene from a mapping with :data:`SCENE_KEYS` (missing keys from ``defaults``).
+
+    ``contacts`` (n, 3) are object-frame points on the faces of the unit cube centred at the
+    origin, n as in ``defaults``; ``cg_offset`` lies inside the cube; ``weight`` (N) and ``mu``
+    are > 0; ``extra_force`` and ``extra_torque`` (world frame, N and N m about the cg) are at
+    most w and w L per component; ``trajectory`` is a mapping with :data:`TRAJECTORY_KEYS`.
+    """
+    spec = {} if spec is None else spec
+    if not isinstance(spec, Mapping):
+        raise ValueError(f"a scene must be a mapping with keys {SCENE_KEYS}, got {spec!r}")
+    for key in spec:
+        if key not in SCENE_KEYS:
+            raise ValueError(f"unknown scene key {key!r}; the scene keys are {SCENE_KEYS}")
+    merged = {**defaults, **spec}
+    trajectory = merged["trajectory"]
+    if not isinstance(trajectory, Mapping):
+        raise ValueError(f"scene 'trajectory' must be a mapping with keys {TRAJECTORY_KEYS}")
+    for key in trajectory:
+        if key not in TRAJECTORY_KEYS:
+            raise ValueError(
+                f"unknown trajectory key {key!r}; the trajectory keys are {TRAJECTORY_KEYS}"
+            )
+    trajectory = Trajectory(**{**defaults["trajectory"], **trajectory})
+    n = np.shape(defaults["contacts"])[0]
+    weight = merged["weight"]
+    if isinstance(weight, bool) or not isinstance(weight, int | float | np.number):
+        raise ValueError(f"scene 'weight' must be a number, got {weight!r}")
+    if isinstance(merged["mu"], bool) or not isinstance(merged["mu"], int | float | np.number):
+        raise ValueError(f"scene 'mu' must be a number, got {merged['mu']!r}")
+    scene = Scene(
+        contacts=_vector("contacts", merged["contacts"], (n, 3)),
+        size=EDGE,
+        weight=float(weight),
+        mu=float(merged["mu"]),
+        cg_offset=_vector("cg_offset", merged["cg_offset"], (3,)),
+        extra_force=_vector("extra_force", merged["extra_force"], (3,)),
+        extra_torque=_vector("extra_torque", merged["extra_torque"], (3,)),
+    )
+    if np.any(np.abs(scene.extra_force) > scene.weight):
+        raise ValueError(
+            f"extra_force {scene.extra_force.tolist()} must be at most the weight"
+            f" ({scene.weight}) per component"
+        )
+    if np.any(np.abs(scene.extra_torque) > scene.weight * EDGE):
+        raise ValueError(
+            f"extra_torque {scene.extra_torque.tolist()} must be at most weight x edge"
+            f" ({scene.weight * EDGE}) per component"
+        )
+    return SceneBatch.single(scene, trajectory)
+
+
+def parse_options(options: Mapping[str, Any] | None) -> Mapping[str, Any] | None:
+    """The scene mapping of ``reset(options=...)``; the only option is ``"scene"``."""
+    if options is None:
+        return None
+    if not isinstance(options, Mapping):
+        raise ValueError(f"options must be a mapping, got {options!r}")
+    for key in options:
+        if key != "scene":
+            raise ValueError(f"unknown option {key!r}; the only option is 'scene'")
+    return options.get("scene")
+
+
+# --------------------------------------------------------------------------- random scenes
+
+
+@dataclass(frozen=True)
+class SceneSampler:
+    """Ranges of the random scenes (see :class:`~grasp_env.envs.CubeGraspRandomEnv`)."""
+
+    faces: tuple[str, ...] = PAPER_FACES
+    contact_offset: float = 0.5
+    cg_offset: float = 0.2
+    weight_range: tuple[float, float] = (1.0, 10.0)
+    mu_range: tuple[float, float] = (0.3, 1.0)
+    alpha_start_range_deg: tuple[float, float] = (-30.0, -10.0)
+    alpha_end_range_deg: tuple[float, float] = (10.0, 30.0)
+    alpha_step_deg: float = 1.0
+    extra_force: float = 0.0
+    extra_torque: float = 0.0
+
+    def __post_init__(self) -> None:
+        set_ = object.__setattr__
+        set_(self, "faces", tuple(self.faces))
+        set_(self, "contact_offset", check_fraction("contact_offset", self.contact_offset))
+        set_(self, "cg_offset", check_fraction("cg_offset", self.cg_offset))
+        set_(
+            self,
+            "weight_range",
+            check_range("weight_range", self.weight_range, 0, 1e6, open_low=True),
+        )
+        set_(self, "mu_range", check_range("mu_range", self.mu_range, 0, 1e6, open_low=True))
+        set_(
+            self,
+            "alpha_start_range_deg",
+            check_range("alpha_start_range_deg", self.alpha_start_range_deg, -180, 180),
+        )
+        set_(
+            self,
+            "alpha_end_range_deg",
+            check_range("alpha_end_range_deg", self.alpha_end_range_deg, -180, 180),
+        )
+        if self.alpha_start_range_deg[1] > self.alpha_end_range_deg[0]:
+            raise ValueError(
+                "alpha_start_range_deg must lie below alpha_end_range_deg, got"
+                f" {self.alpha_start_range_deg} and {self.alpha_end_range_deg}"
+            )
+        step = float(self.alpha_step_deg)
+        if not (np.isfinite(step) and step > 0):
+            raise ValueError(f"alpha_step_deg must be a finite number > 0, got {step}")
+        set_(self, "alpha_step_deg", step)
+        set_(self, "extra_force", check_fraction("extra_force", self.extra_force, closed=True))
+        set_(self, "extra_torque", check_fraction("extra_torque", self.extra_torque, closed=True))
+        if len(self.faces) not in (3, 4):
+            raise ValueError(f"faces must name 3 or 4 faces, got {self.faces}")
+        # Face names are validated by face_point; distinct faces keep the layout valid.
+        if len(set(self.faces)) != len(self.faces):
+            raise ValueError(f"faces must be distinct, got {self.faces}")
+        for face in self.faces:
+            face_point(face)
+
+    @property
+    def max_length(self) -> int:
+        """The longest trajectory the ranges allow, in poses."""
+        span = self.alpha_end_range_deg[1] - self.alpha_start_range_deg[0]
+        return int(np.floor(span / self.alpha_step_deg + 1e-9)) + 1
+
+    def raw(self, rng: np.random.Generator, count: int) -> np.ndarray:
+        """The random numbers of ``count`` scenes, (count, 2 n + 16): two calls to ``rng``,
+        so that drawing for many generators is cheap; :meth:`scenes` maps them to scenes."""
+        # 2 n contact offsets, then cg (3), weight, mu, alpha start and end, extra force (3)
+        # and torque (3) uniform; then the axis (3) normal
+        uniform = rng.random((count, 2 * len(self.faces) + 13))
+        return np.concatenate([uniform, rng.standard_normal((count, 3))], axis=1)
+
+    def scenes(self, raw: np.ndarray) -> SceneBatch:
+        """The scenes of :meth:`raw` numbers (any number of rows, from any generators)."""
+        count, n = raw.shape[0], len(self.faces)
+
+        def uniform(columns: slice, low: Any, high: Any) -> np.ndarray:
+            return low + (high - low) * raw[:, columns]
+
+        offsets = uniform(slice(0, 2 * n), -self.contact_offset, self.contact_offset)
+        u = raw[:, 2 * n :]
+        half = EDGE / 2
+        cg = (2 * u[:, 0:3] - 1) * self.cg_offset * half
+        (w0, w1), (m0, m1) = self.weight_range, self.mu_range
+        weight = w0 + (w1 - w0) * u[:, 3]
+        mu = m0 + (m1 - m0) * u[:, 4]
+        (s0, s1), (e0, e1) = self.alpha_start_range_deg, self.alpha_end_range_deg
+        start = s0 + (s1 - s0) * u[:, 5]
+        end = e0 + (e1 - e0) * u[:, 6]
+        extra_force = (2 * u[:, 7:10] - 1) * self.extra_force * weight[:, None]
+        extra_torque = (2 * u[:, 10:13] - 1) * self.extra_torque * (weight * EDGE)[:, None]
+        axis = raw[:, -3:] / np.linalg.norm(raw[:, -3:], axis=1, keepdims=True)
+        contacts = np.empty((count, n, 3))
+        for i, face in enumerate(self.faces):
+            index, sign = FACES[face]
+            contacts[:, i, index] = sign * half
+            contacts[:, i, [a for a in range(3) if a != index]] = (
+                offsets[:, 2 * i : 2 * i + 2] * half
+            )
+        step = self.alpha_step_deg
+        # The pose count of Trajectory.alphas_deg.
+        length = np.floor((end - start) / step + 1e-9).astype(np.int64) + 1
+        return SceneBatch(
+            contacts,
+            cg,
+            weight,
+            mu,
+            extra_force,
+            extra_torque,
+            axis,
+            start,
+            np.full(count, step),
+            length,
+        )
