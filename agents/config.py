@@ -1,27 +1,38 @@
-"""Training configurations: a YAML file checked against typed dataclasses.
+"""Training configurations: a YAML file checked against typed pydantic models.
 
 A config names the environment (id and constructor keywords), the number of parallel
 environments, the seed, the PPO hyperparameters (SB3's own keyword names, as in rl-zoo3), the
 policy network, the evaluation and checkpoint frequencies and, optionally, an imitation phase in
 which the minimax expert teaches the policy before PPO (behaviour cloning, then DAgger rounds).
 
-Every key is checked: an unknown key, a wrong type, a value out of range or an unknown
-environment id raises a :class:`ValueError` naming the key and what it accepts.
+Every key is checked: an unknown or duplicate key, a missing ``env_id`` or ``total_timesteps``,
+a wrong type, a value out of range, an environment that is not one of grasp_env's, or a config
+that trains nothing raises a :class:`ValueError` naming the key and what it accepts (one line
+per problem). The models are the documentation of every key (docs/agents.md).
 """
 
 from __future__ import annotations
 
-import dataclasses
-import types
-import typing
+import re
 from collections.abc import Mapping
-from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import yaml
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    Field,
+    StrictBool,
+    StrictStr,
+    ValidationError,
+    model_validator,
+)
 
+from grasp_env import ENV_IDS
 from grasp_env.envs.validation import DEFAULT_K_MAX_RATIO
 
 #: The configs shipped with the package (``configs/`` in the repository), by name.
@@ -51,8 +62,40 @@ def config_path(name_or_path: str | Path) -> Path:
     )
 
 
-@dataclass(frozen=True)
-class PolicyConfig:
+# --- the value types YAML gives --------------------------------------------------------------
+
+
+def _integer(value: Any) -> Any:
+    """Integers as YAML writes them: 100000, or 1e6 and 1.0e+6 (floats)."""
+    return int(value) if isinstance(value, float) and value.is_integer() else value
+
+
+Int = Annotated[int, BeforeValidator(_integer)]
+Float = Annotated[float, Field(allow_inf_nan=False)]
+
+
+def _range(kind: type, low: float, high: float, *, low_open: bool = False) -> Any:
+    """``kind`` in [low, high] (or (low, high] with ``low_open``), the range in the message."""
+    interval = f"{'(' if low_open else '['}{low}, {high}]"
+
+    def check(value: Any) -> Any:
+        if not (low < value if low_open else low <= value) or not value <= high:
+            raise ValueError(f"must be in {interval}, got {value!r}")
+        return value
+
+    return Annotated[kind, AfterValidator(check)]
+
+
+class _Section(BaseModel):
+    """Strict: unknown keys are errors, bools and strings are not numbers, frozen."""
+
+    model_config = ConfigDict(extra="forbid", strict=True, frozen=True)
+
+
+# --- the sections ----------------------------------------------------------------------------
+
+
+class PolicyConfig(_Section):
     """The actor-critic network (SB3 ``MlpPolicy``).
 
     Args:
@@ -69,31 +112,21 @@ class PolicyConfig:
             features: grasp).
     """
 
-    net_arch: list[int] = field(default_factory=lambda: [256, 256])
+    net_arch: Annotated[list[_range(Int, 1, 1 << 16)], Field(min_length=1)] = [256, 256]
     activation: Literal["tanh", "relu", "silu"] = "tanh"
-    log_std_init: float = 0.0
+    log_std_init: _range(Float, -20.0, 2.0) = 0.0
     features: Literal["observation", "grasp"] = "observation"
     output: Literal["k", "force_directions"] = "k"
 
-    def __post_init__(self) -> None:
-        if not self.net_arch or any(width < 1 for width in self.net_arch):
-            raise ValueError(f"policy.net_arch must be positive layer widths, got {self.net_arch}")
-        if self.output == "force_directions" and self.features != "grasp":
-            raise ValueError(
-                "policy.output: force_directions needs policy.features: grasp (the head solves "
-                f"for k in the grasp's object frame), got features: {self.features}"
-            )
-        _check_range("policy.log_std_init", self.log_std_init, -20.0, 2.0)
 
-
-@dataclass(frozen=True)
-class PPOConfig:
+class PPOConfig(_Section):
     """PPO hyperparameters, named as SB3's :class:`~stable_baselines3.PPO` keywords.
 
     Args:
         learning_rate: Adam step size (the initial one under a linear schedule).
         lr_schedule: ``constant``, or ``linear`` decay to zero over ``total_timesteps``.
-        n_steps: steps per environment per rollout; a rollout holds n_steps * n_envs samples.
+        n_steps: steps per environment per rollout; a rollout holds n_steps * n_envs samples
+            (at least 2).
         batch_size: minibatch size.
         n_epochs: passes over each rollout.
         gamma: discount. The states do not depend on the actions (the trajectory is fixed),
@@ -106,36 +139,21 @@ class PPOConfig:
         target_kl: stop an update's epochs early past this KL divergence (None: never).
     """
 
-    learning_rate: float = 3e-4
+    learning_rate: _range(Float, 0.0, 1.0, low_open=True) = 3e-4
     lr_schedule: Literal["constant", "linear"] = "constant"
-    n_steps: int = 64
-    batch_size: int = 256
-    n_epochs: int = 10
-    gamma: float = 0.0
-    gae_lambda: float = 0.95
-    clip_range: float = 0.2
-    ent_coef: float = 0.0
-    vf_coef: float = 0.5
-    max_grad_norm: float = 0.5
-    target_kl: float | None = None
-
-    def __post_init__(self) -> None:
-        _check_range("ppo.learning_rate", self.learning_rate, 0.0, 1.0, low_open=True)
-        _check_range("ppo.n_steps", self.n_steps, 1, 1 << 20)
-        _check_range("ppo.batch_size", self.batch_size, 2, 1 << 24)
-        _check_range("ppo.n_epochs", self.n_epochs, 1, 1000)
-        _check_range("ppo.gamma", self.gamma, 0.0, 1.0)
-        _check_range("ppo.gae_lambda", self.gae_lambda, 0.0, 1.0)
-        _check_range("ppo.clip_range", self.clip_range, 0.0, 10.0, low_open=True)
-        _check_range("ppo.ent_coef", self.ent_coef, 0.0, 10.0)
-        _check_range("ppo.vf_coef", self.vf_coef, 0.0, 10.0)
-        _check_range("ppo.max_grad_norm", self.max_grad_norm, 0.0, 1e6, low_open=True)
-        if self.target_kl is not None:
-            _check_range("ppo.target_kl", self.target_kl, 0.0, 10.0, low_open=True)
+    n_steps: _range(Int, 1, 1 << 20) = 64
+    batch_size: _range(Int, 2, 1 << 24) = 256
+    n_epochs: _range(Int, 1, 1000) = 10
+    gamma: _range(Float, 0.0, 1.0) = 0.0
+    gae_lambda: _range(Float, 0.0, 1.0) = 0.95
+    clip_range: _range(Float, 0.0, 10.0, low_open=True) = 0.2
+    ent_coef: _range(Float, 0.0, 10.0) = 0.0
+    vf_coef: _range(Float, 0.0, 10.0) = 0.5
+    max_grad_norm: _range(Float, 0.0, 1e6, low_open=True) = 0.5
+    target_kl: _range(Float, 0.0, 10.0, low_open=True) | None = None
 
 
-@dataclass(frozen=True)
-class ImitationConfig:
+class ImitationConfig(_Section):
     """The minimax expert as teacher, before PPO (:mod:`grasp_env_agents.imitation`).
 
     Round 0 is behaviour cloning: the expert drives the vector environment and every state it
@@ -156,30 +174,21 @@ class ImitationConfig:
             alone, so this term trains on the environment's own reward, exactly.
     """
 
-    rounds: int = 1
-    samples_per_round: int = 100_000
-    epochs: int = 10
-    batch_size: int = 1024
-    learning_rate: float = 1e-3
-    n_envs: int = 256
-    gap_weight: float = 0.0
-
-    def __post_init__(self) -> None:
-        _check_range("imitation.rounds", self.rounds, 1, 1000)
-        _check_range("imitation.samples_per_round", self.samples_per_round, 1, 1 << 30)
-        _check_range("imitation.epochs", self.epochs, 1, 100_000)
-        _check_range("imitation.batch_size", self.batch_size, 1, 1 << 24)
-        _check_range("imitation.learning_rate", self.learning_rate, 0.0, 1.0, low_open=True)
-        _check_range("imitation.n_envs", self.n_envs, 1, 1 << 20)
-        _check_range("imitation.gap_weight", self.gap_weight, 0.0, 1e6)
+    rounds: _range(Int, 1, 1000) = 1
+    samples_per_round: _range(Int, 1, 1 << 30) = 100_000
+    epochs: _range(Int, 1, 100_000) = 10
+    batch_size: _range(Int, 1, 1 << 24) = 1024
+    learning_rate: _range(Float, 0.0, 1.0, low_open=True) = 1e-3
+    n_envs: _range(Int, 1, 1 << 20) = 256
+    gap_weight: _range(Float, 0.0, 1e6) = 0.0
 
 
-@dataclass(frozen=True)
-class TrainConfig:
-    """One training run.
+class TrainConfig(_Section):
+    """One training run. ``env_id`` and ``total_timesteps`` are required: a config says what it
+    trains on and for how long.
 
     Args:
-        env_id: a registered Gymnasium id, e.g. ``grasp_env/CubeGraspRandom-v0``.
+        env_id: one of grasp_env's environment ids, e.g. ``grasp_env/CubeGraspRandom-v0``.
         env_kwargs: keywords for the environment's constructor (training and evaluation).
         n_envs: parallel training environments.
         seed: seeds torch, numpy, Python's ``random`` and the environments.
@@ -193,37 +202,50 @@ class TrainConfig:
             numbers on every machine).
         policy: the network.
         ppo: PPO hyperparameters.
-        imitation: the expert-teacher phase; None (absent) trains PPO from scratch.
+        imitation: the expert-teacher phase; None (absent or null) trains PPO from scratch.
     """
 
-    env_id: str = "grasp_env/CubeGraspRandom-v0"
-    env_kwargs: dict[str, Any] = field(default_factory=dict)
-    n_envs: int = 8
-    seed: int = 0
-    total_timesteps: int = 100_000
-    normalize: bool = False
-    eval_freq: int = 20_000
-    eval_episodes: int = 64
-    checkpoint_freq: int = 50_000
-    torch_threads: int = 1
-    policy: PolicyConfig = field(default_factory=PolicyConfig)
-    ppo: PPOConfig = field(default_factory=PPOConfig)
+    env_id: StrictStr
+    env_kwargs: dict[StrictStr, Any] = {}
+    n_envs: _range(Int, 1, 1 << 20) = 8
+    seed: _range(Int, 0, 2**32 - 1) = 0
+    total_timesteps: _range(Int, 0, 1 << 40)
+    normalize: StrictBool = False
+    eval_freq: _range(Int, 0, 1 << 40) = 20_000
+    eval_episodes: _range(Int, 1, 1 << 20) = 64
+    checkpoint_freq: _range(Int, 0, 1 << 40) = 50_000
+    torch_threads: _range(Int, 1, 1024) = 1
+    policy: PolicyConfig = PolicyConfig()
+    ppo: PPOConfig = PPOConfig()
     imitation: ImitationConfig | None = None
 
-    def __post_init__(self) -> None:
-        _check_range("n_envs", self.n_envs, 1, 1 << 20)
-        _check_range("seed", self.seed, 0, 2**32 - 1)
-        _check_range("total_timesteps", self.total_timesteps, 0, 1 << 40)
-        _check_range("eval_freq", self.eval_freq, 0, 1 << 40)
-        _check_range("eval_episodes", self.eval_episodes, 1, 1 << 20)
-        _check_range("checkpoint_freq", self.checkpoint_freq, 0, 1 << 40)
-        _check_range("torch_threads", self.torch_threads, 1, 1024)
-        check_env_id(self.env_id)
+    @model_validator(mode="after")
+    def _consistent(self) -> TrainConfig:
+        if self.env_id not in ENV_IDS:
+            raise ValueError(
+                f"env_id: {self.env_id!r} is not a grasp_env environment; one of {list(ENV_IDS)}"
+            )
+        if self.total_timesteps == 0 and self.imitation is None:
+            raise ValueError(
+                "nothing to train: total_timesteps is 0 and there is no imitation section;"
+                " set total_timesteps > 0 (PPO steps) or add an imitation section"
+            )
+        if self.ppo.n_steps * self.n_envs < 2:
+            raise ValueError(
+                f"ppo.n_steps * n_envs must be >= 2 (a PPO rollout normalises its advantages"
+                f" over its samples), got {self.ppo.n_steps} * {self.n_envs}"
+            )
+        if self.policy.output == "force_directions" and self.policy.features != "grasp":
+            raise ValueError(
+                "policy.output: force_directions needs policy.features: grasp (the head solves "
+                f"for k in the grasp's object frame), got features: {self.policy.features}"
+            )
         if self.policy.features == "grasp" and self.normalize:
             raise ValueError(
                 "normalize must be false with policy.features: grasp (the grasp features are "
                 "computed from the raw observation)"
             )
+        return self
 
     @property
     def k_max_ratio(self) -> float:
@@ -232,38 +254,81 @@ class TrainConfig:
 
     def to_dict(self) -> dict[str, Any]:
         """Plain data (the YAML written into the run directory)."""
-        return dataclasses.asdict(self)
+        return self.model_dump()
+
+    def replace(self, **changes: Any) -> TrainConfig:
+        """A copy with keys changed, checked like a loaded config; nested keys by dotted path:
+        ``config.replace(seed=1, **{"ppo.learning_rate": 1e-4})``."""
+        return config_from_dict(_with_keys(self.to_dict(), changes))
 
 
-def check_env_id(env_id: str) -> None:
-    """Raise ValueError unless ``env_id`` is registered (importing grasp_env registers ours)."""
-    import gymnasium as gym
+# --- reading and writing ---------------------------------------------------------------------
 
-    import grasp_env  # noqa: F401  (registers the grasp_env/ ids)
 
-    if env_id not in gym.registry:
-        ours = sorted(name for name in gym.registry if name.startswith("grasp_env/"))
-        raise ValueError(f"env_id: unknown environment {env_id!r}; registered grasp ids: {ours}")
+class _Loader(yaml.SafeLoader):
+    """PyYAML's safe loader, with two fixes: a key given twice in one mapping is an error (not
+    the last one silently), and 1e6 and 3e-4 are numbers, as in YAML 1.2 (PyYAML follows YAML
+    1.1, which reads them as strings)."""
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict:
+        seen: dict[Any, int] = {}
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=deep)
+            line = key_node.start_mark.line + 1
+            if key in seen:
+                first = seen[key]
+                raise ValueError(
+                    f"line {line}: duplicate key {key!r} (first given on line {first})"
+                )
+            seen[key] = line
+        return super().construct_mapping(node, deep=deep)
+
+
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$"),
+    list("-+0123456789."),
+)
 
 
 def load_config(path: str | Path, overrides: Mapping[str, Any] | None = None) -> TrainConfig:
-    """Read and check a YAML config; ``overrides`` replace top-level keys (e.g. from the CLI)."""
+    """Read and check a YAML config.
+
+    ``overrides`` replace keys after reading, by dotted path for nested ones
+    (``{"total_timesteps": 0, "ppo.learning_rate": 1e-4}``: the CLI's, a sweep's).
+    """
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"config file {str(path)!r} does not exist")
     try:
-        data = yaml.safe_load(path.read_text())
+        data = yaml.load(path.read_text(), Loader=_Loader)
     except yaml.YAMLError as error:
         raise ValueError(f"config {str(path)!r} is not valid YAML: {error}") from None
-    data = {} if data is None else data
+    except ValueError as error:
+        raise ValueError(f"config {str(path)!r}, {error}") from None
+    if data is None:
+        raise ValueError(
+            f"config {str(path)!r} is empty: a config sets at least env_id and total_timesteps"
+            f" (see the shipped configs {shipped_configs()})"
+        )
     if not isinstance(data, Mapping):
         raise ValueError(f"config {str(path)!r} must be a mapping of keys to values")
-    return config_from_dict({**data, **(overrides or {})})
+    try:
+        return config_from_dict(_with_keys(data, overrides or {}))
+    except ValueError as error:
+        raise ValueError(f"config {str(path)!r}: {error}") from None
 
 
 def config_from_dict(data: Mapping[str, Any]) -> TrainConfig:
     """Build a :class:`TrainConfig` from plain data, checking every key and type."""
-    return _build(TrainConfig, data, "")
+    if not isinstance(data, Mapping):
+        raise ValueError(f"a config must be a mapping of keys, got {type(data).__name__}")
+    try:
+        return TrainConfig.model_validate(data)
+    except ValidationError as error:
+        problems = [_explain(TrainConfig, e) for e in error.errors()]
+        head = "" if len(problems) == 1 else f"{len(problems)} problems:\n  "
+        raise ValueError(head + "\n  ".join(problems)) from None
 
 
 def save_config(config: TrainConfig, path: str | Path) -> None:
@@ -271,78 +336,69 @@ def save_config(config: TrainConfig, path: str | Path) -> None:
     Path(path).write_text(yaml.safe_dump(config.to_dict(), sort_keys=False))
 
 
-# --- checking ------------------------------------------------------------------------------
+def _with_keys(data: Mapping[str, Any], changes: Mapping[str, Any]) -> dict[str, Any]:
+    """``data`` with each dotted key of ``changes`` set (missing sections created)."""
+
+    def set_key(data: Mapping[str, Any], keys: list[str], value: Any) -> dict[str, Any]:
+        head, *rest = keys
+        if rest:
+            inner = data.get(head)
+            value = set_key(inner if isinstance(inner, Mapping) else {}, rest, value)
+        return {**data, head: value}
+
+    result = dict(data)
+    for key, value in changes.items():
+        result = set_key(result, key.split("."), value)
+    return result
 
 
-def _check_range(
-    name: str, value: float, low: float, high: float, *, low_open: bool = False
-) -> None:
-    if not (low < value if low_open else low <= value) or not value <= high:
-        bracket = "(" if low_open else "["
-        raise ValueError(f"{name} must be in {bracket}{low}, {high}], got {value}")
+# --- error messages --------------------------------------------------------------------------
 
 
-def _build(cls: type, data: Any, where: str) -> Any:
-    """Instantiate dataclass ``cls`` from a mapping, checking the keys and their types."""
-    if not isinstance(data, Mapping):
-        name = where.rstrip(".") or "config"
-        raise ValueError(f"{name} must be a mapping, got {type(data).__name__}")
-    hints = typing.get_type_hints(cls)
-    names = [f.name for f in dataclasses.fields(cls)]
-    for key in data:
-        if key not in names:
-            raise ValueError(f"unknown config key {where + str(key)!r}; accepted keys: {names}")
-    values = {key: _convert(hints[key], value, where + key) for key, value in data.items()}
-    return cls(**values)
+def _explain(model: type[BaseModel], error: Mapping[str, Any]) -> str:
+    """One pydantic error as "key: what it accepts, got what it got"."""
+    loc = [part for part in error["loc"] if part != "[key]"]
+    name = "".join(f"[{p}]" if isinstance(p, int) else f".{p}" for p in loc).lstrip(".")
+    kind, got = error["type"], error.get("input")
+    if kind == "value_error":  # a field's range, or TrainConfig's checks (naming their keys)
+        return f"{name} {error['ctx']['error']}" if name else str(error["ctx"]["error"])
+    if kind == "extra_forbidden":
+        section = _section_at(model, loc[:-1])
+        accepted = list(section.model_fields) if section else []
+        return f"unknown config key {name!r}; accepted keys: {accepted}"
+    if kind == "missing":
+        return f"{name}: missing; a config must set it"
+    if kind in ("model_type", "dict_type"):
+        return f"{name} must be a mapping of keys to values, got {got!r}"
+    if kind == "literal_error":
+        return f"{name} must be one of {error['ctx']['expected']}, got {got!r}"
+    if kind == "finite_number":
+        return f"{name} must be a finite number, got {got!r}"
+    what = {
+        "int_type": "an integer",
+        "int_from_float": "an integer",
+        "float_type": "a number",
+        "bool_type": "true or false",
+        "string_type": "a string",
+        "list_type": "a list",
+        "too_short": "a non-empty list",
+    }.get(kind, error["msg"].removeprefix("Input should be ").lower())
+    return f"{name} must be {what}, got {got!r}"
 
 
-def _convert(hint: Any, value: Any, name: str) -> Any:
-    """Check ``value`` against the type hint ``hint``; return it converted (int to float...)."""
-    origin, args = typing.get_origin(hint), typing.get_args(hint)
-    if origin in (typing.Union, types.UnionType):
-        if value is None and type(None) in args:
+def _section_at(model: type[BaseModel], loc: list[Any]) -> type[BaseModel] | None:
+    """The section model at ``loc`` (a path of field names) inside ``model``."""
+    for part in loc:
+        field = model.model_fields.get(part) if isinstance(part, str) else None
+        if field is None:
             return None
-        (inner,) = [a for a in args if a is not type(None)]
-        return _convert(inner, value, name)
-    if dataclasses.is_dataclass(hint):
-        return _build(hint, value, name + ".")
-    if origin is Literal:
-        if value not in args:
-            raise ValueError(f"{name} must be one of {list(args)}, got {value!r}")
-        return value
-    if origin is list:
-        if not isinstance(value, list):
-            raise ValueError(f"{name} must be a list, got {type(value).__name__} {value!r}")
-        return [_convert(args[0], item, f"{name}[{i}]") for i, item in enumerate(value)]
-    if origin is dict:
-        if not isinstance(value, Mapping) or not all(isinstance(k, str) for k in value):
-            raise ValueError(f"{name} must be a mapping with string keys, got {value!r}")
-        return dict(value)
-    if hint is bool:
-        if not isinstance(value, bool):
-            raise ValueError(f"{name} must be true or false, got {value!r}")
-        return value
-    if hint is int:
-        # YAML reads 1e6 as a float (and 1.0e+6 too): accept floats with integer values.
-        if isinstance(value, float) and value.is_integer():
-            value = int(value)
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise ValueError(f"{name} must be an integer, got {value!r}")
-        return value
-    if hint is float:
-        # PyYAML reads 3e-4 (no dot) as a string: accept numeric strings for floats.
-        if isinstance(value, str):
-            try:
-                value = float(value)
-            except ValueError:
-                raise ValueError(f"{name} must be a number, got {value!r}") from None
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise ValueError(f"{name} must be a number, got {value!r}")
-        if value != value or value in (float("inf"), float("-inf")):
-            raise ValueError(f"{name} must be finite, got {value!r}")
-        return float(value)
-    if hint is str:
-        if not isinstance(value, str):
-            raise ValueError(f"{name} must be a string, got {value!r}")
-        return value
-    raise TypeError(f"unsupported config type {hint!r} for {name}")  # a bug in this module
+        inner = [t for t in _types(field.annotation) if isinstance(t, type)]
+        sections = [t for t in inner if issubclass(t, BaseModel)]
+        if not sections:
+            return None
+        model = sections[0]
+    return model
+
+
+def _types(annotation: Any) -> tuple[Any, ...]:
+    return getattr(annotation, "__args__", None) or (annotation,)

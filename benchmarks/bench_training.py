@@ -15,7 +15,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 import time
 
 import numpy as np
@@ -47,9 +46,7 @@ def main() -> None:
         make_vec_env(config.env_id, config.env_kwargs, config.n_envs, seed=0), config
     )
     # CartPole has no grasp to compute features from: the same MLP on its raw observation
-    plain = dataclasses.replace(
-        config, policy=dataclasses.replace(config.policy, features="observation")
-    )
+    plain = config.replace(**{"policy.features": "observation"})
     cartpole = ppo_steps_per_second(sb3_make_vec_env("CartPole-v1", config.n_envs, seed=0), plain)
     print(
         f"PPO ({config.n_envs} envs, {config.policy.net_arch} {config.policy.activation} MLP on "
@@ -104,9 +101,8 @@ def main() -> None:
     default = load_config(DEFAULT_CONFIG)
     rates = {}
     for output in ("k", "force_directions"):
-        policy = dataclasses.replace(default.policy, output=output)
         env = make_vec_env(default.env_id, kwargs, default.n_envs, 0)
-        model = new_model(dataclasses.replace(default, policy=policy), env, run_dir=None)
+        model = new_model(default.replace(**{"policy.output": output}), env, run_dir=None)
         start = time.perf_counter()
         fit(model.policy, obs, labels, 2, 1024, 1e-3, generator, grasp_of(obs), 1.0)
         rates[output] = 2 * len(obs) / (time.perf_counter() - start)

@@ -7,7 +7,6 @@ Tiny runs on the paper's scene (``grasp_env/CubeGrasp-v0``): a few hundred PPO s
 from __future__ import annotations
 
 import csv
-import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -63,11 +62,20 @@ def curve(run: Path) -> list[dict[str, str]]:
         ({"policy": {"activation": "gelu"}}, "policy.activation must be one of"),
         ({"imitation": {"rounds": 0}}, r"imitation.rounds must be in \[1"),
         ({"imitation": [1]}, "imitation must be a mapping"),
-        ({"env_id": "grasp_env/CubeGrab-v0"}, "env_id: unknown environment 'grasp_env/CubeG"),
+        ({"env_id": "grasp_env/CubeGrab-v0"}, "env_id: 'grasp_env/CubeGrab-v0' is not a grasp_env"),
+        # registered with gymnasium, but not ours: it used to fail deep inside SB3
+        ({"env_id": "CartPole-v1"}, "env_id: 'CartPole-v1' is not a grasp_env environment"),
         (
             {"policy": {"output": "force_directions"}},
             "policy.output: force_directions needs policy.features: grasp",
         ),
+        # an SB3 assertion before
+        ({"n_envs": 1, "ppo": {"n_steps": 1}}, r"ppo.n_steps \* n_envs must be >= 2.*got 1 \* 1"),
+        # "trained" nothing and reported a trained agent before
+        ({"total_timesteps": 0, "imitation": None}, "nothing to train: total_timesteps is 0"),
+        ({"ppo": {"learning_rate": float("nan")}}, "ppo.learning_rate must be a finite number"),
+        ({"ppo": {"target_kl": 0}}, r"ppo.target_kl must be in \(0.0, 10.0\], got 0"),
+        ({"policy": {"net_arch": []}}, "policy.net_arch must be a non-empty list"),
     ],
 )
 def test_config_errors_name_the_key(changes, message):
@@ -75,11 +83,57 @@ def test_config_errors_name_the_key(changes, message):
         tiny(**changes)
 
 
-def test_config_numbers_as_yaml_writes_them():
-    # PyYAML reads 3e-4 as a string and 1e6 as a float; both mean what they say.
-    config = tiny(total_timesteps=1e6, ppo={"learning_rate": "3e-4"})
+def test_config_lists_every_problem():
+    with pytest.raises(ValueError, match="3 problems") as error:
+        tiny(n_envs=-1, ppo={"gamma": 2, "n_steps": 0})
+    lines = str(error.value).splitlines()[1:]
+    assert [line.split()[0] for line in lines] == ["n_envs", "ppo.n_steps", "ppo.gamma"]
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("", "is empty: a config sets at least env_id and total_timesteps"),
+        ("# only a comment\n", "is empty"),
+        ("n_envs: 3\n", "2 problems:\n  env_id: missing.*\n  total_timesteps: missing"),
+        (
+            "env_id: grasp_env/CubeGrasp-v0\ntotal_timesteps: 64\n"
+            "ppo:\n  n_steps: 4\n  n_steps: 8\n",
+            "line 5: duplicate key 'n_steps' \\(first given on line 4\\)",
+        ),
+        ("- a list\n", "must be a mapping of keys to values"),
+        ("env_id: [unclosed\n", "is not valid YAML"),
+    ],
+)
+def test_config_file_errors(tmp_path, text, message):
+    path = tmp_path / "config.yaml"
+    path.write_text(text)
+    with pytest.raises(ValueError, match=message):
+        load_config(path)
+
+
+def test_config_numbers_as_yaml_writes_them(tmp_path):
+    # PyYAML follows YAML 1.1, where 3e-4 and 1e6 are strings: they are numbers here.
+    path = tmp_path / "config.yaml"
+    path.write_text(
+        "env_id: grasp_env/CubeGrasp-v0\ntotal_timesteps: 1e6\nppo:\n  learning_rate: 3e-4\n"
+    )
+    config = load_config(path)
     assert config.total_timesteps == 1_000_000
     assert config.ppo.learning_rate == pytest.approx(3e-4)
+    with pytest.raises(ValueError, match=r"total_timesteps must be an integer, got 1\.5"):
+        tiny(total_timesteps=1.5)
+    with pytest.raises(ValueError, match="n_envs must be an integer, got '4'"):
+        tiny(n_envs="4")
+
+
+def test_config_overrides_by_dotted_key(tmp_path):
+    save_config(tiny(), tmp_path / "config.yaml")
+    config = load_config(tmp_path / "config.yaml", {"seed": 9, "ppo.n_epochs": 3})
+    assert (config.seed, config.ppo.n_epochs, config.ppo.n_steps) == (9, 3, 32)
+    with pytest.raises(ValueError, match=r"unknown config key 'ppo\.epochs'"):
+        load_config(tmp_path / "config.yaml", {"ppo.epochs": 3})
+    assert tiny().replace(seed=4) == tiny(seed=4)
 
 
 def test_config_round_trips_through_yaml(tmp_path):
@@ -165,7 +219,7 @@ def test_interrupt_saves_and_resume_continues_the_step_count(tmp_path, monkeypat
     monkeypatch.setattr(RecordEvaluation, "_on_step", record)
     model = train(config, run, resume=True, progress_bar=False)
     assert model.num_timesteps == 256
-    model = train(dataclasses.replace(config, total_timesteps=384), run, resume=True)
+    model = train(config.replace(total_timesteps=384), run, resume=True)
     assert model.num_timesteps == 384
     assert [int(r["env_steps"]) for r in curve(run)] == [0, 128, 256, 384]
     with np.load(run / "eval" / "evaluations.npz") as log:
