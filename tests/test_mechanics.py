@@ -1,4 +1,4 @@
-"""The numpy mechanics core: rotations, scenes, trajectory, forces (DESIGN.md §1)."""
+"""The numpy mechanics core: rotations, scenes, trajectory, forces (docs/design.md, "Mechanics")."""
 
 import math
 

@@ -1,4 +1,4 @@
-"""Pure numpy mechanics of the grasp: no gymnasium, mujoco or torch here (DESIGN.md §3)."""
+"""Pure numpy mechanics of the grasp: no gymnasium, mujoco or torch here (docs/design.md, "Architecture")."""
 
 from .forces import (
     Grasp,

@@ -1,4 +1,4 @@
-"""The grasped object, its contacts and its load (DESIGN.md §1, "Scene")."""
+"""The grasped object, its contacts and its load (docs/design.md, "Mechanics")."""
 
 from __future__ import annotations
 
@@ -152,7 +152,7 @@ class Scene:
 
 
 def _check_layout(contacts: np.ndarray, scale: float) -> None:
-    """Reject layouts whose grasp matrix loses rank (DESIGN.md §1, "Interaction forces")."""
+    """Reject layouts whose grasp matrix loses rank (docs/design.md, "Interaction forces")."""
     for i, j in combinations(range(len(contacts)), 2):
         if np.linalg.norm(contacts[i] - contacts[j]) <= 1e-6 * scale:
             raise ValueError(f"contacts {i} and {j} coincide")

@@ -1,4 +1,4 @@
-"""The quasi-static trajectory (paper §II, DESIGN.md §1 "Paper geometry")."""
+"""The quasi-static trajectory (paper §II; docs/design.md, "Paper geometry")."""
 
 from __future__ import annotations
 
