@@ -326,7 +326,7 @@ def config_from_dict(data: Mapping[str, Any]) -> TrainConfig:
     try:
         return TrainConfig.model_validate(data)
     except ValidationError as error:
-        problems = [_explain(TrainConfig, e) for e in error.errors()]
+        problems = [_explain(e) for e in error.errors()]
         head = "" if len(problems) == 1 else f"{len(problems)} problems:\n  "
         raise ValueError(head + "\n  ".join(problems)) from None
 
@@ -355,50 +355,21 @@ def _with_keys(data: Mapping[str, Any], changes: Mapping[str, Any]) -> dict[str,
 # --- error messages --------------------------------------------------------------------------
 
 
-def _explain(model: type[BaseModel], error: Mapping[str, Any]) -> str:
-    """One pydantic error as "key: what it accepts, got what it got"."""
+def _explain(error: Mapping[str, Any]) -> str:
+    """One pydantic error as "key must be what it accepts, got what it got"."""
     loc = [part for part in error["loc"] if part != "[key]"]
     name = "".join(f"[{p}]" if isinstance(p, int) else f".{p}" for p in loc).lstrip(".")
-    kind, got = error["type"], error.get("input")
+    kind, message = error["type"], error["msg"]
     if kind == "value_error":  # a field's range, or TrainConfig's checks (naming their keys)
-        return f"{name} {error['ctx']['error']}" if name else str(error["ctx"]["error"])
+        return f"{name} {error['ctx']['error']}".strip()
     if kind == "extra_forbidden":
-        section = _section_at(model, loc[:-1])
-        accepted = list(section.model_fields) if section else []
-        return f"unknown config key {name!r}; accepted keys: {accepted}"
+        section: Any = TrainConfig
+        for part in loc[:-1]:  # the section that has no such key, for its accepted keys
+            section = section.model_fields[part].annotation
+            section = next(t for t in getattr(section, "__args__", [section]) if t is not None)
+        return f"unknown config key {name!r}; accepted keys: {list(section.model_fields)}"
     if kind == "missing":
         return f"{name}: missing; a config must set it"
-    if kind in ("model_type", "dict_type"):
-        return f"{name} must be a mapping of keys to values, got {got!r}"
-    if kind == "literal_error":
-        return f"{name} must be one of {error['ctx']['expected']}, got {got!r}"
-    if kind == "finite_number":
-        return f"{name} must be a finite number, got {got!r}"
-    what = {
-        "int_type": "an integer",
-        "int_from_float": "an integer",
-        "float_type": "a number",
-        "bool_type": "true or false",
-        "string_type": "a string",
-        "list_type": "a list",
-        "too_short": "a non-empty list",
-    }.get(kind, error["msg"].removeprefix("Input should be ").lower())
-    return f"{name} must be {what}, got {got!r}"
-
-
-def _section_at(model: type[BaseModel], loc: list[Any]) -> type[BaseModel] | None:
-    """The section model at ``loc`` (a path of field names) inside ``model``."""
-    for part in loc:
-        field = model.model_fields.get(part) if isinstance(part, str) else None
-        if field is None:
-            return None
-        inner = [t for t in _types(field.annotation) if isinstance(t, type)]
-        sections = [t for t in inner if issubclass(t, BaseModel)]
-        if not sections:
-            return None
-        model = sections[0]
-    return model
-
-
-def _types(annotation: Any) -> tuple[Any, ...]:
-    return getattr(annotation, "__args__", None) or (annotation,)
+    if message.startswith("Input should be"):
+        return f"{name} must be {message.removeprefix('Input should be ')}, got {error['input']!r}"
+    return f"{name}: {message}"

@@ -52,16 +52,19 @@ def curve(run: Path) -> list[dict[str, str]]:
     [
         ({"learning_rate": 1e-3}, "unknown config key 'learning_rate'"),
         ({"ppo": {"lr": 1e-3}}, "unknown config key 'ppo.lr'"),
-        ({"n_envs": "4"}, "n_envs must be an integer"),
+        ({"n_envs": "4"}, "n_envs must be a valid integer"),
         ({"n_envs": 0}, r"n_envs must be in \[1"),
-        ({"seed": 1.5}, "seed must be an integer"),
-        ({"normalize": "yes"}, "normalize must be true or false"),
+        ({"seed": 1.5}, "seed must be a valid integer"),
+        ({"normalize": "yes"}, "normalize must be a valid boolean"),
         ({"ppo": {"gamma": 1.5}}, r"ppo.gamma must be in \[0.0, 1.0\]"),
-        ({"ppo": {"learning_rate": "fast"}}, "ppo.learning_rate must be a number"),
-        ({"policy": {"net_arch": [16, "wide"]}}, r"policy.net_arch\[1\] must be an integer"),
-        ({"policy": {"activation": "gelu"}}, "policy.activation must be one of"),
+        ({"ppo": {"learning_rate": "fast"}}, "ppo.learning_rate must be a valid number"),
+        ({"policy": {"net_arch": [16, "wide"]}}, r"policy.net_arch\[1\] must be a valid integer"),
+        (
+            {"policy": {"activation": "gelu"}},
+            "policy.activation must be 'tanh', 'relu' or 'silu', got 'gelu'",
+        ),
         ({"imitation": {"rounds": 0}}, r"imitation.rounds must be in \[1"),
-        ({"imitation": [1]}, "imitation must be a mapping"),
+        ({"imitation": [1]}, "imitation must be a valid dictionary"),
         ({"env_id": "grasp_env/CubeGrab-v0"}, "env_id: 'grasp_env/CubeGrab-v0' is not a grasp_env"),
         # registered with gymnasium, but not ours: it used to fail deep inside SB3
         ({"env_id": "CartPole-v1"}, "env_id: 'CartPole-v1' is not a grasp_env environment"),
@@ -75,7 +78,7 @@ def curve(run: Path) -> list[dict[str, str]]:
         ({"total_timesteps": 0, "imitation": None}, "nothing to train: total_timesteps is 0"),
         ({"ppo": {"learning_rate": float("nan")}}, "ppo.learning_rate must be a finite number"),
         ({"ppo": {"target_kl": 0}}, r"ppo.target_kl must be in \(0.0, 10.0\], got 0"),
-        ({"policy": {"net_arch": []}}, "policy.net_arch must be a non-empty list"),
+        ({"policy": {"net_arch": []}}, "policy.net_arch: List should have at least 1 item"),
     ],
 )
 def test_config_errors_name_the_key(changes, message):
@@ -121,9 +124,9 @@ def test_config_numbers_as_yaml_writes_them(tmp_path):
     config = load_config(path)
     assert config.total_timesteps == 1_000_000
     assert config.ppo.learning_rate == pytest.approx(3e-4)
-    with pytest.raises(ValueError, match=r"total_timesteps must be an integer, got 1\.5"):
+    with pytest.raises(ValueError, match=r"total_timesteps must be a valid integer, got 1\.5"):
         tiny(total_timesteps=1.5)
-    with pytest.raises(ValueError, match="n_envs must be an integer, got '4'"):
+    with pytest.raises(ValueError, match="n_envs must be a valid integer, got '4'"):
         tiny(n_envs="4")
 
 
