@@ -1,0 +1,868 @@
+"""Finger gaits: when to phase a finger out or in along a trajectory (paper §II, docs/gait.md).
+
+The object carries N contact **sites** (object-frame points on its faces); a :class:`~.hand.Hand`
+has F fingers, each of which can push on a site only while the site's normal lies in its
+cone. At every pose each finger touches one site or none. A **gait** says, pose by pose, which
+finger touches which site and which fingers carry load; it obeys the hand's rules:
+
+1. at every pose 3 or 4 fingers carry load (three is the least that can grasp; the minimax
+   solver takes at most four), each on a site it can reach at that pose;
+2. at most one finger changes per pose (one **move**): a finger is **phased out** (lifted) at
+   a pose where it still touches its site, reachable, but carries zero force; it is gone from
+   the next pose on. A finger is **phased in** (placed) on a free site it can reach at a pose
+   where it touches with zero force; it carries load from the next pose on.
+
+The margin of a pose is the certified minimax margin theta_lim - min_k max_i theta_i(k)
+(eq. 2 and 4) of the site set that carries load there, over the action box |k_ij| <= k_max.
+The optimal gait maximises the smallest margin over the whole trajectory; among those it takes
+the fewest moves, then the largest sum of margins. It is found exactly by dynamic programming
+over the hand's states (which finger touches which site), whose moves and values are known
+pose by pose: :func:`optimal_gait`. Run on the certified upper bounds of the margins instead of
+the attained ones, the same programme bounds what any gait could reach, so the gait is
+certified optimal for the discretised trajectory within the gap (:func:`solve_gait`).
+
+States and moves are encoded as integers: a state is an assignment (F,) of a site index to each
+finger (-1: not touching); move 0 keeps the state, move 1 + f N + s toggles finger f on site s
+(lifts it if it is there, places it if finger and site are both free).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from functools import cache
+from itertools import combinations
+
+import numba
+import numpy as np
+from numpy.typing import ArrayLike
+
+from .forces import Grasp, grasp, load_wrench, n_pairs
+from .hand import Hand
+from .minimax import MinimaxResult, solve_minimax
+from .scene import DEFAULT_MU, DEFAULT_WEIGHT, FACES, Scene, face_point
+from .trajectory import PAPER_AXIS, Trajectory
+
+#: Fewest and most fingers that carry load at a pose.
+MIN_LOADED, MAX_LOADED = 3, 4
+#: Most fingers touching at a pose: the loaded ones and one being placed.
+MAX_TOUCHING = MAX_LOADED + 1
+#: The default sites: one per face of the unit cube, off its centre (fractions of the
+#: half-widths, see :func:`~.scene.face_point`), so that the normal lines do not all pass
+#: through the centre of gravity (with face centres every optimum is 0 deg, DESIGN.md §1).
+SITE_FACES = ("-x", "-y", "-z", "+x", "+y", "+z")
+SITE_OFFSETS = ((0.3, 0.1), (-0.2, 0.3), (0.1, -0.3), (0.2, -0.1), (-0.1, 0.2), (0.3, 0.2))
+#: The default centre of gravity, relative to the cube's centre (metres).
+GAIT_CG_OFFSET = (0.05, 0.0, 0.0)
+#: The default long trajectories: the paper's axis over [-90, 90] deg, and a full turn about
+#: the vertical (from the start pose, body diagonal vertical: the cube turns about its own
+#: diagonal, the load fixed in the object's frame).
+PAPER_TURN = Trajectory(tuple(PAPER_AXIS), -90.0, 90.0, 1.0)
+VERTICAL_TURN = Trajectory((0.0, 0.0, 1.0), -180.0, 180.0, 1.0)
+_MAX_SITES = 8
+_MAX_FINGERS = 6  # (N + 1)^F assignment codes: 531,441 for 6 fingers on 8 sites
+_TOL = 1e-9
+
+
+def _default_sites() -> np.ndarray:
+    return np.array([face_point(f, o) for f, o in zip(SITE_FACES, SITE_OFFSETS, strict=True)])
+
+
+@dataclass(frozen=True)
+class GaitScene:
+    """The object, its load and the sites its contacts may use (object frame, box centred at
+    the origin; the load in the world frame, as in :class:`~.scene.Scene`).
+
+    Args:
+        sites: (N, 3) points on the faces of the box, 3 <= N <= 8, each on one face (not an
+            edge); default one per face, off-centre (:data:`SITE_OFFSETS`).
+        size, weight, mu, cg_offset, extra_force, extra_torque: as for :class:`~.scene.Scene`.
+    """
+
+    sites: np.ndarray = field(default_factory=_default_sites)
+    size: float = 1.0
+    weight: float = DEFAULT_WEIGHT
+    mu: float = DEFAULT_MU
+    cg_offset: tuple[float, float, float] = GAIT_CG_OFFSET
+    extra_force: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    extra_torque: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    normals: np.ndarray = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        sites = np.array(self.sites, dtype=float)
+        if sites.ndim != 2 or sites.shape[1] != 3 or not 3 <= len(sites) <= _MAX_SITES:
+            raise ValueError(
+                f"sites must have shape (N, 3), 3 <= N <= {_MAX_SITES}, got {sites.shape}"
+            )
+        if not np.all(np.isfinite(sites)):
+            raise ValueError("sites must be finite")
+        sites.flags.writeable = False
+        object.__setattr__(self, "sites", sites)
+        half = np.broadcast_to(np.asarray(self.size, dtype=float), (3,)) / 2
+        normals = np.zeros_like(sites)
+        for i, c in enumerate(sites):
+            distance = np.abs(c) - half
+            scale = _TOL * max(1.0, float(half.max()))
+            on = np.flatnonzero(np.abs(distance) <= scale)
+            if np.any(distance > scale) or on.size != 1:
+                raise ValueError(
+                    f"site {i} at {c.tolist()} must lie on exactly one face of the box"
+                    f" {(2 * half).tolist()} (not outside it, inside it or on an edge)"
+                )
+            normals[i, on[0]] = -np.sign(c[on[0]])
+        for i, j in combinations(range(len(sites)), 2):
+            if np.linalg.norm(sites[i] - sites[j]) <= 1e-6 * float(half.max()):
+                raise ValueError(f"sites {i} and {j} coincide")
+        normals.flags.writeable = False
+        object.__setattr__(self, "normals", normals)
+        # The scalars and the load, checked as a Scene checks them (on the first three sites;
+        # that they may be collinear is no error here: that set is merely unusable).
+        try:
+            self.scene([0, 1, 2])
+        except ValueError as error:
+            if "collinear" not in str(error):
+                raise
+
+    @classmethod
+    def on_faces(
+        cls,
+        faces: tuple[str, ...] = SITE_FACES,
+        offsets: ArrayLike = SITE_OFFSETS,
+        **kwargs: float | ArrayLike,
+    ) -> GaitScene:
+        """One site per named face, moved from its centre by ``offsets`` (N, 2)."""
+        offsets = np.asarray(offsets, dtype=float)
+        if offsets.shape != (len(faces), 2):
+            raise ValueError(f"offsets must have shape ({len(faces)}, 2), got {offsets.shape}")
+        for face in faces:
+            if face not in FACES:
+                raise ValueError(f"unknown face {face!r}; expected one of {sorted(FACES)}")
+        size = kwargs.get("size", 1.0)
+        sites = np.array([face_point(f, o, size) for f, o in zip(faces, offsets, strict=True)])
+        return cls(sites=sites, **kwargs)  # type: ignore[arg-type]
+
+    @property
+    def n_sites(self) -> int:
+        return len(self.sites)
+
+    @property
+    def friction_limit(self) -> float:
+        return float(np.arctan(self.mu))
+
+    def scene(self, sites: ArrayLike) -> Scene:
+        """The :class:`~.scene.Scene` of the contacts at the given site indices (3 or 4);
+        ValueError if they are collinear (3) or coplanar (4)."""
+        return Scene(
+            contacts=self.sites[np.asarray(sites, dtype=np.intp)],
+            size=self.size,  # type: ignore[arg-type]
+            weight=self.weight,
+            mu=self.mu,
+            cg_offset=self.cg_offset,  # type: ignore[arg-type]
+            extra_force=self.extra_force,  # type: ignore[arg-type]
+            extra_torque=self.extra_torque,  # type: ignore[arg-type]
+        )
+
+
+# ------------------------------------------------------------------------ per-pose values
+
+
+@cache
+def site_sets(n_sites: int) -> tuple[tuple[int, ...], ...]:
+    """Every set of 3 or 4 of ``n_sites`` sites, the threes first, each in increasing order."""
+    return tuple(s for n in (MIN_LOADED, MAX_LOADED) for s in combinations(range(n_sites), n))
+
+
+@dataclass(frozen=True)
+class SetGroup:
+    """The site sets of one size n: their grasps and certified optima at every pose."""
+
+    members: np.ndarray  # (S_n,) indices into site_sets(N)
+    sites: np.ndarray  # (S_n, n) the sites of each set, in increasing order
+    grasp: Grasp  # batched (T, S_n)
+    optimum: MinimaxResult  # batched (T, S_n)
+
+
+@dataclass(frozen=True)
+class SetValues:
+    """The certified minimax of every usable site set at every pose of a trajectory.
+
+    Attributes:
+        sets: the S site sets, :func:`site_sets` (N).
+        margin: (T, S) attained margin theta_lim - max_i theta_i(k*), radians; -inf for a set
+            whose contacts are collinear or coplanar (unusable).
+        margin_bound: (T, S) certified upper bound on any grip's margin (theta_lim minus the
+            solver's lower bound); margin <= margin_bound <= margin + gap.
+        groups: per set size (3, then 4), the grasps and optima of its usable sets.
+    """
+
+    sets: tuple[tuple[int, ...], ...]
+    margin: np.ndarray
+    margin_bound: np.ndarray
+    groups: tuple[SetGroup, ...]
+
+    def _locate(self, set_index: int) -> tuple[SetGroup, int]:
+        for group in self.groups:
+            hit = np.flatnonzero(group.members == set_index)
+            if hit.size:
+                return group, int(hit[0])
+        raise ValueError(f"site set {self.sets[set_index]} is unusable (collinear or coplanar)")
+
+    def grip(self, pose: int, set_index: int) -> tuple[np.ndarray, np.ndarray]:
+        """The certified optimal k (m,) and friction angles (n,) of a set at a pose, for the
+        set's sites in increasing order (pairs as :func:`~.forces.contact_pairs`)."""
+        group, column = self._locate(set_index)
+        return group.optimum.k[pose, column], group.optimum.angles[pose, column]
+
+    def set_grasp(self, set_index: int) -> Grasp:
+        """The grasp (T,) of one set along the trajectory."""
+        group, c = self._locate(set_index)
+        g = group.grasp
+        return Grasp(
+            g.positions[:, c], g.normals[:, c], g.equilibrating[:, c], g.basis[:, c],
+            g.friction_limit,
+        )  # fmt: skip
+
+
+def set_values(scene: GaitScene, rotations: ArrayLike, k_max: float | None = None) -> SetValues:
+    """Solve the certified minimax (:func:`~.minimax.solve_minimax`) of every usable site set
+    at every pose (rotations (T, 3, 3)), each set's poses solved in order, one batch per size.
+
+    ``k_max`` defaults to 2 w, the environments' action box.
+    """
+    rotations = np.asarray(rotations, dtype=float)
+    if rotations.ndim != 3 or rotations.shape[1:] != (3, 3):
+        raise ValueError(f"rotations must have shape (T, 3, 3), got {rotations.shape}")
+    k_max = 2.0 * scene.weight if k_max is None else float(k_max)
+    if not (math.isfinite(k_max) and k_max > 0):
+        raise ValueError(f"k_max must be a finite number > 0 (newtons), got {k_max}")
+    sets = site_sets(scene.n_sites)
+    T = len(rotations)
+    margin = np.full((T, len(sets)), -np.inf)
+    bound = np.full((T, len(sets)), -np.inf)
+    relative = scene.sites - np.asarray(scene.cg_offset)
+    wrench = load_wrench(scene.weight, scene.extra_force, scene.extra_torque)
+    limit = scene.friction_limit
+    groups = []
+    for n in (MIN_LOADED, MAX_LOADED):
+        members = []
+        for index, s in enumerate(sets):
+            if len(s) != n:
+                continue
+            try:
+                scene.scene(s)
+            except ValueError:
+                continue  # collinear or coplanar: this set cannot grasp
+            members.append(index)
+        if not members:
+            continue
+        members = np.array(members)
+        sites = np.array([sets[i] for i in members])
+        # positions (S_n, T, n, 3): each set's poses one after the other, for `follows`
+        g = grasp(
+            relative[sites][:, None], scene.normals[sites][:, None], rotations[None], wrench, limit
+        )
+        follows = np.ones((len(members), T), bool)
+        follows[:, 0] = False
+        optimum = solve_minimax(g, k_max, follows=follows)
+        margin[:, members] = limit - optimum.max_angle.T
+        bound[:, members] = limit - optimum.lower_bound.T
+        swap = lambda a: np.swapaxes(a, 0, 1)  # noqa: E731  (S_n, T, ...) -> (T, S_n, ...)
+        groups.append(
+            SetGroup(
+                members,
+                sites,
+                Grasp(
+                    swap(g.positions),
+                    swap(g.normals),
+                    swap(g.equilibrating),
+                    swap(g.basis),
+                    np.asarray(limit),
+                ),
+                MinimaxResult(
+                    swap(optimum.k),
+                    swap(optimum.angles),
+                    optimum.max_angle.T,
+                    optimum.lower_bound.T,
+                    optimum.status.T,
+                ),
+            )
+        )
+    return SetValues(sets, margin, bound, tuple(groups))
+
+
+def site_reach(scene: GaitScene, hand: Hand, rotations: ArrayLike) -> np.ndarray:
+    """Which finger can push on which site at every pose: (T, F, N) bool."""
+    rotations = np.asarray(rotations, dtype=float)
+    normals = np.einsum("tij,nj->tni", rotations, scene.normals)
+    return hand.reach(normals)
+
+
+# --------------------------------------------------------------------- states and moves
+
+
+@dataclass(frozen=True)
+class GaitStates:
+    """The hand's states (which finger touches which site) and their moves, as tables.
+
+    Attributes:
+        n_fingers, n_sites: F and N.
+        states: (X, F) the site each finger touches (-1: none); 3 to 5 fingers touch.
+        code: ((N + 1)^F,) state index of an assignment's code sum_f (a_f + 1) (N + 1)^f, -1
+            where the assignment is not a state.
+        ptr, move, next, loaded: the valid moves of state x are move[ptr[x]:ptr[x + 1]] (move
+            codes, increasing: keep first), leading to state next[...] with the site set
+            loaded[...] (an index into :func:`site_sets`) carrying load at the pose.
+    """
+
+    n_fingers: int
+    n_sites: int
+    states: np.ndarray
+    code: np.ndarray
+    ptr: np.ndarray
+    move: np.ndarray
+    next: np.ndarray
+    loaded: np.ndarray
+
+    @property
+    def n_moves(self) -> int:
+        return 1 + self.n_fingers * self.n_sites
+
+    def index(self, assignment: ArrayLike) -> int:
+        """The state index of an assignment (F,) of sites (-1: not touching); ValueError if it
+        is no state (a site used twice, fewer than 3 or more than 5 fingers touching)."""
+        a = np.asarray(assignment, dtype=np.int64)
+        if a.shape != (self.n_fingers,) or np.any(a < -1) or np.any(a >= self.n_sites):
+            raise ValueError(
+                f"an assignment gives each of {self.n_fingers} fingers a site in"
+                f" [-1, {self.n_sites - 1}], got {a.tolist()}"
+            )
+        x = int(self.code[int(np.sum((a + 1) * (self.n_sites + 1) ** np.arange(self.n_fingers)))])
+        if x < 0:
+            raise ValueError(
+                f"assignment {a.tolist()} is no state of the hand: sites must differ and"
+                f" {MIN_LOADED} to {MAX_TOUCHING} fingers touch"
+            )
+        return x
+
+
+@numba.njit(cache=True)
+def _enumerate(F, N, set_code):
+    """States, the code table and the moves in CSR form (see :class:`GaitStates`)."""
+    base = N + 1
+    total = base**F
+    code = np.full(total, -1, np.int64)
+    digits = np.empty(F, np.int64)
+    states = np.empty((total, F), np.int64)
+    count = 0
+    for c in range(total):
+        rest = c
+        used = 0
+        touching = 0
+        ok = True
+        for f in range(F):
+            digits[f] = rest % base - 1
+            rest //= base
+            if digits[f] >= 0:
+                bit = 1 << digits[f]
+                if used & bit:
+                    ok = False
+                used |= bit
+                touching += 1
+        if ok and MIN_LOADED <= touching <= MAX_TOUCHING:
+            code[c] = count
+            states[count] = digits
+            count += 1
+    states = states[:count]
+    M = 1 + F * N
+    ptr = np.zeros(count + 1, np.int64)
+    move = np.empty(count * M, np.int64)
+    nxt = np.empty(count * M, np.int64)
+    loaded = np.empty(count * M, np.int64)
+    k = 0
+    power = np.empty(F, np.int64)
+    for f in range(F):
+        power[f] = base**f
+    for x in range(count):
+        a = states[x]
+        used = 0
+        touching = 0
+        c = 0
+        for f in range(F):
+            if a[f] >= 0:
+                used |= 1 << a[f]
+                touching += 1
+            c += (a[f] + 1) * power[f]
+        for m in range(M):
+            if m == 0:  # keep: every touching finger carries load
+                if touching <= MAX_LOADED:
+                    move[k], nxt[k], loaded[k] = 0, x, set_code[used]
+                    k += 1
+                continue
+            f = (m - 1) // N
+            s = (m - 1) % N
+            if a[f] == s:  # lift: zero force now, gone next
+                if MIN_LOADED <= touching - 1 <= MAX_LOADED:
+                    rest = used & ~(1 << s)
+                    move[k], nxt[k], loaded[k] = m, code[c - (s + 1) * power[f]], set_code[rest]
+                    k += 1
+            elif a[f] < 0 and not used & (1 << s) and touching <= MAX_LOADED:
+                # place: touches now with zero force, loaded next
+                move[k], nxt[k], loaded[k] = m, code[c + (s + 1) * power[f]], set_code[used]
+                k += 1
+        ptr[x + 1] = k
+    return states, code, ptr, move[:k].copy(), nxt[:k].copy(), loaded[:k].copy()
+
+
+@cache
+def gait_states(n_fingers: int, n_sites: int) -> GaitStates:
+    """The state and move tables of a hand of F fingers on N sites (cached)."""
+    if not 3 <= n_fingers <= _MAX_FINGERS or not 3 <= n_sites <= _MAX_SITES:
+        raise ValueError(
+            f"a gait needs 3 to {_MAX_FINGERS} fingers and 3 to {_MAX_SITES} sites,"
+            f" got {n_fingers} and {n_sites}"
+        )
+    set_code = np.full(1 << n_sites, -1, np.int64)
+    for i, s in enumerate(site_sets(n_sites)):
+        set_code[sum(1 << j for j in s)] = i
+    arrays = _enumerate(n_fingers, n_sites, set_code)
+    for array in arrays:
+        array.flags.writeable = False
+    return GaitStates(n_fingers, n_sites, *arrays)
+
+
+def move_name(move: int, n_sites: int) -> tuple[int, int] | None:
+    """(finger, site) a move toggles, or None for keep."""
+    return None if move == 0 else ((move - 1) // n_sites, (move - 1) % n_sites)
+
+
+# ----------------------------------------------------------------------- the programme
+
+
+@numba.njit(cache=True)
+def _state_ok(states, reach):
+    """(T, X): every touching finger of state x can reach its site at pose t."""
+    T = reach.shape[0]
+    X, F = states.shape
+    ok = np.ones((T, X), np.bool_)
+    for t in range(T):
+        for x in range(X):
+            for f in range(F):
+                s = states[x, f]
+                if s >= 0 and not reach[t, f, s]:
+                    ok[t, x] = False
+                    break
+    return ok
+
+
+@numba.njit(cache=True)
+def _pose_values(t, states, ptr, move, loaded, margin, reach, ok, out):
+    """out[k]: the margin of pose t after move k (CSR) of its state, -inf where the move is
+    not allowed there (a touching finger out of reach, or a placement out of reach)."""
+    N = reach.shape[2]
+    for x in range(states.shape[0]):
+        for k in range(ptr[x], ptr[x + 1]):
+            v = margin[t, loaded[k]] if ok[t, x] else -np.inf
+            m = move[k]
+            if m > 0:
+                f = (m - 1) // N
+                s = (m - 1) % N
+                if states[x, f] < 0 and not reach[t, f, s]:  # a placement needs reach now
+                    v = -np.inf
+            out[k] = v
+
+
+@numba.njit(cache=True)
+def _programme(states, ptr, move, nxt, loaded, margin, reach, start):
+    """Backward dynamic programme: bottleneck values, then fewest moves and the largest sum of
+    margins among the gaits that keep the best bottleneck; the policy and the start state.
+
+    ``start`` < 0: the best start. Returns (value (T + 1, X), policy (T, X), start, best).
+    """
+    T = margin.shape[0]
+    X = states.shape[0]
+    ok = _state_ok(states, reach)
+    vals = np.empty(move.shape[0])
+    value = np.empty((T + 1, X))
+    value[T] = np.inf
+    first = np.zeros((T, X), np.int64)
+    # pass 1: max over moves of min(margin now, value from the next pose)
+    for t in range(T - 1, -1, -1):
+        _pose_values(t, states, ptr, move, loaded, margin, reach, ok, vals)
+        for x in range(X):
+            best = -np.inf
+            arg = ptr[x]
+            for k in range(ptr[x], ptr[x + 1]):
+                v = min(vals[k], value[t + 1, nxt[k]])
+                if v > best:
+                    best = v
+                    arg = k
+            value[t, x] = best
+            first[t, x] = arg
+    if start < 0:
+        bound = -np.inf
+        for x in range(X):
+            bound = max(bound, value[0, x])
+    else:
+        bound = value[0, start]
+    # pass 2: among continuations that keep every margin >= bound, fewest moves, then the
+    # largest sum of margins (both additive: exact)
+    moves = np.empty((T + 1, X))
+    total = np.empty((T + 1, X))
+    moves[T] = 0.0
+    total[T] = 0.0
+    policy = np.empty((T, X), np.int64)
+    for t in range(T - 1, -1, -1):
+        _pose_values(t, states, ptr, move, loaded, margin, reach, ok, vals)
+        for x in range(X):
+            moves[t, x] = np.inf
+            total[t, x] = -np.inf
+            policy[t, x] = first[t, x]
+            if not value[t, x] >= bound:
+                continue
+            for k in range(ptr[x], ptr[x + 1]):
+                y = nxt[k]
+                if not (vals[k] >= bound and value[t + 1, y] >= bound):
+                    continue
+                c = moves[t + 1, y] + (1.0 if move[k] > 0 else 0.0)
+                s = total[t + 1, y] + vals[k]
+                if c < moves[t, x] or (c == moves[t, x] and s > total[t, x]):
+                    moves[t, x] = c
+                    total[t, x] = s
+                    policy[t, x] = k
+    if start < 0:
+        start = 0
+        for x in range(X):
+            if value[0, x] > value[0, start] or (
+                value[0, x] == value[0, start]
+                and (
+                    moves[0, x] < moves[0, start]
+                    or (moves[0, x] == moves[0, start] and total[0, x] > total[0, start])
+                )
+            ):
+                start = x
+    return value, policy, start, bound
+
+
+@numba.njit(cache=True)
+def _greedy(states, ptr, move, nxt, loaded, margin, reach, start):
+    """The greedy rule, played from ``start`` (< 0: its own best first choice): at each pose
+    the move that maximises the smaller of the margin now and the best margin the next pose
+    then allows (ties: the larger margin now, then fewer moves). Returns (choice (T,) CSR
+    indices, start); choice -1 from where the hand breaks its rules."""
+    T = margin.shape[0]
+    X = states.shape[0]
+    ok = _state_ok(states, reach)
+    vals = np.empty(move.shape[0])
+    ahead = np.empty(move.shape[0])
+    choice = np.full(T, -1, np.int64)
+    _pose_values(0, states, ptr, move, loaded, margin, reach, ok, vals)
+    candidates = np.arange(X) if start < 0 else np.array([start])
+    x = -1
+    best_l = -np.inf
+    best_v = -np.inf
+    for t in range(T):
+        if t + 1 < T:
+            _pose_values(t + 1, states, ptr, move, loaded, margin, reach, ok, ahead)
+        arg = -1
+        for x0 in candidates:
+            for k in range(ptr[x0], ptr[x0 + 1]):
+                v = vals[k]
+                look = v
+                if t + 1 < T:
+                    y = nxt[k]
+                    after = -np.inf
+                    for j in range(ptr[y], ptr[y + 1]):
+                        after = max(after, ahead[j])
+                    look = min(v, after)
+                if arg < 0 or look > best_l or (look == best_l and v > best_v):
+                    best_l, best_v, arg, x = look, v, k, x0
+        if t == 0:
+            start = x
+        if vals[arg] == -np.inf:
+            break  # no allowed move: the hand breaks its rules here
+        choice[t] = arg
+        candidates = np.array([nxt[arg]])
+        vals, ahead = ahead, vals
+    return choice, start
+
+
+@dataclass(frozen=True)
+class Gait:
+    """A gait along T poses.
+
+    Attributes:
+        states: (T,) the hand's state at each pose, before its move (indices of ``table``).
+        moves: (T,) the move made at each pose (0: none; see the module docstring).
+        contacts: (T, F) the site each finger touches at each pose (-1: none), a finger being
+            placed included.
+        loaded: (T, F) bool, which fingers carry load.
+        sets: (T,) the loaded site set (index into :func:`site_sets`).
+        margins: (T,) the margin of each pose, radians.
+        table: the state tables the indices refer to.
+        policy: for the optimal gait, (T, X) an optimal move (CSR index) from every state at
+            every pose; else None.
+
+    From the pose where a gait breaks the hand's rules (no allowed move is left: the hand
+    would lose a site under load or drop below three fingers) its states, sets and contacts
+    are -1 and its margins -inf.
+    """
+
+    states: np.ndarray
+    moves: np.ndarray
+    contacts: np.ndarray
+    loaded: np.ndarray
+    sets: np.ndarray
+    margins: np.ndarray
+    table: GaitStates = field(repr=False)
+    policy: np.ndarray | None = field(default=None, repr=False)
+
+    @property
+    def margin(self) -> float:
+        """The smallest margin along the trajectory, radians."""
+        return float(self.margins.min())
+
+    @property
+    def changes(self) -> int:
+        """Number of phase changes (fingers lifted or placed)."""
+        return int(np.count_nonzero(self.moves))
+
+    def events(self) -> list[tuple[int, str, int, int]]:
+        """(pose, "out" or "in", finger, site) of every phase change."""
+        out = []
+        for t in np.flatnonzero(self.moves):
+            f, s = move_name(int(self.moves[t]), self.table.n_sites)  # type: ignore[misc]
+            kind = "out" if self.table.states[self.states[t], f] == s else "in"
+            out.append((int(t), kind, f, s))
+        return out
+
+
+def _check_inputs(margin: ArrayLike, reach: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
+    margin = np.ascontiguousarray(margin, dtype=float)
+    reach = np.ascontiguousarray(reach, dtype=bool)
+    if reach.ndim != 3 or margin.ndim != 2 or margin.shape[0] != reach.shape[0]:
+        raise ValueError(
+            f"margin must be (T, S) and reach (T, F, N) with the same T, got {margin.shape}"
+            f" and {reach.shape}"
+        )
+    if margin.shape[0] < 1:
+        raise ValueError("a gait needs at least one pose")
+    if margin.shape[1] != len(site_sets(reach.shape[2])):
+        raise ValueError(
+            f"margin must have one column per set of 3 or 4 of the {reach.shape[2]} sites"
+            f" ({len(site_sets(reach.shape[2]))}), got {margin.shape[1]}"
+        )
+    if np.any(np.isnan(margin)) or np.any(margin == np.inf):
+        raise ValueError("margins must be finite or -inf (an unusable set), not NaN or +inf")
+    return margin, reach
+
+
+def _follow(
+    table: GaitStates, start: int, choices: np.ndarray, margin: np.ndarray, reach: np.ndarray
+) -> Gait:
+    """The gait of CSR move indices ``choices`` (T,) from state ``start``, with the margins
+    it earns; it ends (-1, -inf) at the first pose where a choice is not allowed."""
+    T, N = margin.shape[0], table.n_sites
+    ok = _state_ok(table.states, reach)
+    states = np.full(T, -1, np.int64)
+    moves = np.zeros(T, np.int64)
+    contacts = np.full((T, table.n_fingers), -1, np.int64)
+    loaded = np.zeros((T, table.n_fingers), bool)
+    sets = np.full(T, -1, np.int64)
+    margins = np.full(T, -np.inf)
+    x = start
+    for t in range(T):
+        k = int(choices[t])
+        if k < 0 or not ok[t, x]:
+            break
+        a = table.states[x]
+        m = int(table.move[k])
+        lifted = placed = -1
+        if m:
+            f, s = move_name(m, N)  # type: ignore[misc]
+            if a[f] == s:
+                lifted = f
+            elif reach[t, f, s]:
+                placed = f
+            else:
+                break  # a placement out of reach
+        states[t], moves[t] = x, m
+        contacts[t] = a
+        loaded[t] = a >= 0
+        if lifted >= 0:
+            loaded[t, lifted] = False  # zero force while it lifts
+        if placed >= 0:
+            contacts[t, placed] = s  # touches with zero force
+        sets[t] = table.loaded[k]
+        margins[t] = margin[t, sets[t]]
+        x = int(table.next[k])
+    return Gait(states, moves, contacts, loaded, sets, margins, table)
+
+
+def _start_index(table: GaitStates, start: ArrayLike | None) -> int:
+    return -1 if start is None else table.index(start)
+
+
+def _policy_choices(table: GaitStates, policy: np.ndarray, start: int) -> np.ndarray:
+    choices = np.empty(len(policy), np.int64)
+    x = start
+    for t in range(len(policy)):
+        choices[t] = policy[t, x]
+        x = int(table.next[choices[t]])
+    return choices
+
+
+def optimal_gait(margin: ArrayLike, reach: ArrayLike, start: ArrayLike | None = None) -> Gait:
+    """The gait that maximises the smallest margin (then: fewest moves, largest sum).
+
+    Args:
+        margin: (T, S) the margin of every site set (:func:`site_sets`) at every pose, -inf
+            where a set is unusable.
+        reach: (T, F, N) bool, which finger can push on which site at every pose.
+        start: the hand's state at the first pose, an assignment (F,) of sites (-1: none);
+            default the best one.
+
+    Returns:
+        The gait with its ``policy``, optimal from every state: a move that maximises the
+        smallest margin from there on, and among those the gait's secondary choices (fewest
+        moves, largest sum) wherever the gait's own smallest margin can still be kept.
+    """
+    margin, reach = _check_inputs(margin, reach)
+    table = gait_states(reach.shape[1], reach.shape[2])
+    _, policy, x, _ = _programme(
+        table.states, table.ptr, table.move, table.next, table.loaded, margin, reach,
+        _start_index(table, start),
+    )  # fmt: skip
+    policy.flags.writeable = False
+    gait = _follow(table, x, _policy_choices(table, policy, x), margin, reach)
+    return Gait(**{**gait.__dict__, "policy": policy})
+
+
+def greedy_gait(margin: ArrayLike, reach: ArrayLike, start: ArrayLike | None = None) -> Gait:
+    """The greedy baseline: at each pose the move that maximises the smaller of that pose's
+    margin and the best margin the next pose then allows (a one-pose lookahead, so that it
+    lifts a finger before the finger loses its site, where it can); ties: the larger margin
+    now, then fewer moves. Default start: its own best first choice."""
+    margin, reach = _check_inputs(margin, reach)
+    table = gait_states(reach.shape[1], reach.shape[2])
+    choices, x = _greedy(
+        table.states, table.ptr, table.move, table.next, table.loaded, margin, reach,
+        _start_index(table, start),
+    )  # fmt: skip
+    return _follow(table, x, choices, margin, reach)
+
+
+def best_fixed(margin: ArrayLike, reach: ArrayLike) -> Gait:
+    """The best gait without moves: one set of fingers on one set of sites throughout."""
+    margin, reach = _check_inputs(margin, reach)
+    table = gait_states(reach.shape[1], reach.shape[2])
+    ok = _state_ok(table.states, reach)
+    keep = table.ptr[:-1]  # a state's first move: keep, if at most four fingers touch
+    worst = np.where(ok, margin[:, table.loaded[keep]], -np.inf).min(axis=0)
+    worst[table.move[keep] != 0] = -np.inf
+    x = int(np.argmax(worst))
+    return _follow(table, x, np.full(len(margin), keep[x]), margin, reach)
+
+
+def bottleneck_bound(
+    margin_bound: ArrayLike, reach: ArrayLike, start: ArrayLike | None = None
+) -> float:
+    """The best smallest margin any gait could reach with margins ``margin_bound`` (pass 1 of
+    the programme alone): an upper bound on the optimal gait's margin if these bound the
+    margins from above."""
+    margin, reach = _check_inputs(margin_bound, reach)
+    table = gait_states(reach.shape[1], reach.shape[2])
+    _, _, _, bound = _programme(
+        table.states, table.ptr, table.move, table.next, table.loaded, margin, reach,
+        _start_index(table, start),
+    )  # fmt: skip
+    return float(bound)
+
+
+# ------------------------------------------------------------------------- everything
+
+
+@dataclass(frozen=True)
+class GaitSolution:
+    """The certified gait problem along a trajectory, solved.
+
+    Attributes:
+        scene, hand, trajectory: the problem.
+        values: every site set's certified minimax at every pose.
+        reach: (T, F, N) which finger reaches which site.
+        optimal: the optimal gait on the attained margins.
+        bound: the programme's value on the certified upper bounds: no gait has a smallest
+            margin above it; ``optimal.margin <= bound <= optimal.margin + gap``.
+        bound_gait: the gait the programme picks on the upper bounds (its attained margin
+            agrees with the optimal gait's within the gap).
+        greedy: the greedy baseline's gait.
+        fixed: the best gait without moves.
+    """
+
+    scene: GaitScene
+    hand: Hand
+    trajectory: Trajectory
+    values: SetValues
+    reach: np.ndarray
+    optimal: Gait
+    bound: float
+    bound_gait: Gait
+    greedy: Gait
+    fixed: Gait
+
+    @property
+    def gap(self) -> float:
+        """Certificate gap of the optimal gait's margin, radians."""
+        return self.bound - self.optimal.margin
+
+    def grips(self, gait: Gait) -> tuple[np.ndarray, np.ndarray]:
+        """The certified optimal grip of a gait at every pose, per finger pair and per finger:
+        k (T, F (F - 1) / 2) (0 for pairs not both loaded) and friction angles (T, F) (NaN
+        for fingers not loaded); NaN rows after a drop."""
+        F = self.hand.n_fingers
+        pairs = {p: q for q, p in enumerate(combinations(range(F), 2))}
+        T = len(gait.margins)
+        k = np.zeros((T, n_pairs(F)))
+        angles = np.full((T, F), np.nan)
+        for t in range(T):
+            if gait.sets[t] < 0:
+                k[t] = np.nan
+                continue
+            fingers = np.flatnonzero(gait.loaded[t])
+            order = np.argsort(gait.contacts[t, fingers])  # the set's sites increase
+            fingers = fingers[order]
+            kt, at = self.values.grip(t, int(gait.sets[t]))
+            angles[t, fingers] = at
+            for q, (i, j) in enumerate(combinations(range(len(fingers)), 2)):
+                f, g = sorted((fingers[i], fingers[j]))
+                k[t, pairs[(f, g)]] = kt[q]
+        return k, angles
+
+
+def solve_gait(
+    scene: GaitScene | None = None,
+    hand: Hand | None = None,
+    trajectory: Trajectory = PAPER_TURN,
+    k_max: float | None = None,
+    start: ArrayLike | None = None,
+) -> GaitSolution:
+    """The certified optimal gait, its bound, the greedy gait and the best fixed set along a
+    trajectory (defaults: :class:`GaitScene`, :class:`~.hand.Hand`, :data:`PAPER_TURN`,
+    k_max = 2 w)."""
+    scene = GaitScene() if scene is None else scene
+    hand = Hand() if hand is None else hand
+    rotations = trajectory.rotations()
+    values = set_values(scene, rotations, k_max)
+    reach = site_reach(scene, hand, rotations)
+    optimal = optimal_gait(values.margin, reach, start)
+    bound_gait = optimal_gait(values.margin_bound, reach, start)
+    bound = float(bound_gait.margin)
+    # the bound's gait on the attained margins: the same moves, what its grips attain
+    x = int(bound_gait.states[0])
+    attained = bound_gait if x < 0 else _follow(
+        bound_gait.table, x, _policy_choices(bound_gait.table, bound_gait.policy, x),
+        values.margin, reach,
+    )  # fmt: skip
+    return GaitSolution(
+        scene, hand, trajectory, values, reach, optimal, bound, attained,
+        greedy_gait(values.margin, reach, start), best_fixed(values.margin, reach),
+    )  # fmt: skip

@@ -1,0 +1,110 @@
+"""A hand with reach: which contacts each finger can push on, pose by pose (docs/gait.md).
+
+A fingertip pushes along its finger's last link. It can press on a face only while the face's
+inward normal stays within a cone about that direction (its **approach**): further round, the
+fingertip's pad rolls off and the finger's own links meet the face, or its joints run out of
+range. The hand is fixed in the world while the object turns, so a contact that a finger holds
+turns with the object and may leave its finger's cone: before it does, the finger must hand its
+load to the others and lift (the paper's "phasing out").
+
+The default hand is a palm below the object with four fingers around it, each pushing up and
+inwards at the elevation of the grasped corner's faces (their inward normals at the start
+pose, 90 deg - phi = 35.26 deg above the horizontal), a quarter turn apart; and a thumb above,
+pushing straight down. Every finger's cone has the same half-angle, 60 deg by default.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from .trajectory import PHI
+
+#: Elevation of the default fingers' approach: that of the corner faces' inward normals at the
+#: start pose (body diagonal vertical), 90 deg - phi.
+FINGER_ELEVATION_DEG = 90.0 - float(np.rad2deg(PHI))
+
+
+@dataclass(frozen=True)
+class Hand:
+    """Fingers that push along fixed world-frame approach directions, each within a cone.
+
+    Finger f can push on a contact whose inward unit normal n (world frame) satisfies
+    n . a_f >= cos(cone), a_f its approach direction (the direction in which it pushes); it
+    sits on the side -a_f of the object. Fingers are numbered in the order below: first the
+    fingers at ``finger_azimuths_deg``, then the thumb.
+
+    Args:
+        finger_azimuths_deg: azimuths (about world z, from world x) of the fingers'
+            approach directions, degrees; at least one finger.
+        finger_elevation_deg: elevation of the fingers' approach above the horizontal,
+            degrees in [-90, 90] (> 0: they push upwards, from below).
+        thumb: add a thumb that pushes straight down (approach (0, 0, -1)).
+        cone_deg: half-angle of every finger's cone of normals, degrees in (0, 180).
+    """
+
+    finger_azimuths_deg: tuple[float, ...] = (-15.0, 75.0, 165.0, 255.0)
+    finger_elevation_deg: float = FINGER_ELEVATION_DEG
+    thumb: bool = True
+    cone_deg: float = 60.0
+
+    def __post_init__(self) -> None:
+        try:
+            azimuths = tuple(float(a) for a in self.finger_azimuths_deg)
+        except (TypeError, ValueError) as error:
+            raise ValueError(
+                f"finger_azimuths_deg must be numbers (degrees), got {self.finger_azimuths_deg!r}"
+            ) from error
+        object.__setattr__(self, "finger_azimuths_deg", azimuths)
+        if not azimuths or not all(np.isfinite(azimuths)):
+            raise ValueError(f"finger_azimuths_deg must be >= 1 finite angles, got {azimuths}")
+        elevation = float(self.finger_elevation_deg)
+        if not -90.0 <= elevation <= 90.0:
+            raise ValueError(f"finger_elevation_deg must be in [-90, 90], got {elevation}")
+        object.__setattr__(self, "finger_elevation_deg", elevation)
+        cone = float(self.cone_deg)
+        if not 0.0 < cone < 180.0:
+            raise ValueError(f"cone_deg must be in (0, 180) degrees, got {cone}")
+        object.__setattr__(self, "cone_deg", cone)
+        object.__setattr__(self, "thumb", bool(self.thumb))
+        if self.n_fingers > 6:
+            raise ValueError(f"a hand has at most 6 fingers, got {self.n_fingers}")
+
+    @property
+    def n_fingers(self) -> int:
+        return len(self.finger_azimuths_deg) + int(self.thumb)
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """``finger1``, ``finger2``, ... and ``thumb``."""
+        fingers = tuple(f"finger{i + 1}" for i in range(len(self.finger_azimuths_deg)))
+        return fingers + (("thumb",) if self.thumb else ())
+
+    @property
+    def approach(self) -> np.ndarray:
+        """The fingers' unit approach directions a_f, world frame: (F, 3)."""
+        azimuth = np.deg2rad(np.asarray(self.finger_azimuths_deg))
+        elevation = np.deg2rad(self.finger_elevation_deg)
+        fingers = np.stack(
+            [
+                np.cos(elevation) * np.cos(azimuth),
+                np.cos(elevation) * np.sin(azimuth),
+                np.full_like(azimuth, np.sin(elevation)),
+            ],
+            axis=-1,
+        )
+        return np.vstack([fingers, [[0.0, 0.0, -1.0]]]) if self.thumb else fingers
+
+    def reach(self, normals: ArrayLike) -> np.ndarray:
+        """Which finger can push on which contact: (..., F, N) bool from world-frame inward
+        unit normals (..., N, 3) of N contacts."""
+        normals = np.asarray(normals, dtype=float)
+        if normals.ndim < 2 or normals.shape[-1] != 3:
+            raise ValueError(f"normals must have shape (..., N, 3), got {normals.shape}")
+        if not np.all(np.isfinite(normals)):
+            raise ValueError("normals must be finite")
+        cosine = np.einsum("fc,...nc->...fn", self.approach, normals)
+        # a hair of tolerance, so that a normal exactly on the cone counts as inside
+        return cosine >= np.cos(np.deg2rad(self.cone_deg)) - 1e-12

@@ -1,0 +1,418 @@
+"""Finger gaits: the hand's reach, the dynamic programme against brute force over all gaits,
+the certificate, and the long trajectories that need phasing (issue 16)."""
+
+from __future__ import annotations
+
+from itertools import combinations, permutations
+
+import numpy as np
+import pytest
+
+from grasp_env.mechanics import (
+    PAPER_TURN,
+    START_ROTATION,
+    VERTICAL_TURN,
+    GaitScene,
+    Hand,
+    Trajectory,
+    best_fixed,
+    bottleneck_bound,
+    gait_states,
+    greedy_gait,
+    optimal_gait,
+    scene_grasp,
+    site_sets,
+    solve_gait,
+)
+from grasp_env.mechanics.hand import FINGER_ELEVATION_DEG
+
+GAP = 1e-9  # radians: the solver's certificate
+
+# ------------------------------------------------------------------------------ the hand
+
+
+def test_default_hand():
+    hand = Hand()
+    assert hand.n_fingers == 5
+    assert hand.names == ("finger1", "finger2", "finger3", "finger4", "thumb")
+    a = hand.approach
+    np.testing.assert_allclose(np.linalg.norm(a, axis=1), 1.0)
+    np.testing.assert_allclose(a[-1], [0, 0, -1])  # the thumb pushes straight down
+    np.testing.assert_allclose(np.rad2deg(np.arcsin(a[:4, 2])), FINGER_ELEVATION_DEG)
+    np.testing.assert_allclose(FINGER_ELEVATION_DEG, 35.26439, atol=1e-5)
+    # at the start pose finger 1 pushes exactly along the corner face -x's inward normal
+    np.testing.assert_allclose(START_ROTATION @ [1.0, 0.0, 0.0], a[0], atol=1e-12)
+
+
+@pytest.mark.parametrize("cone", [10.0, 60.0, 120.0])
+def test_reach_is_the_cone_of_normals(cone):
+    hand = Hand(finger_azimuths_deg=(30.0,), finger_elevation_deg=20.0, thumb=False, cone_deg=cone)
+    a = hand.approach[0]
+    # normals at angles cone - 0.01 and cone + 0.01 deg from the approach, about any axis
+    rng = np.random.default_rng(0)
+    side = np.cross(a, rng.normal(size=(50, 3)))
+    side /= np.linalg.norm(side, axis=1, keepdims=True)
+    for delta, inside in ((-0.01, True), (0.01, False)):
+        angle = np.deg2rad(cone + delta)
+        normals = np.cos(angle) * a + np.sin(angle) * side
+        assert np.all(hand.reach(normals)[0] == inside)
+    assert hand.reach(a[None])[0, 0]
+
+
+def test_reach_is_batched():
+    hand = Hand()
+    normals = np.random.default_rng(1).normal(size=(7, 2, 6, 3))
+    normals /= np.linalg.norm(normals, axis=-1, keepdims=True)
+    reach = hand.reach(normals)
+    assert reach.shape == (7, 2, 5, 6)
+    cosine = normals @ hand.approach.T  # (7, 2, 6, 5)
+    np.testing.assert_array_equal(reach, np.swapaxes(cosine, -1, -2) >= 0.5 - 1e-12)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"cone_deg": 0.0}, "cone_deg"),
+        ({"cone_deg": 180.0}, "cone_deg"),
+        ({"finger_elevation_deg": 91.0}, "elevation"),
+        ({"finger_azimuths_deg": ()}, "azimuths"),
+        ({"finger_azimuths_deg": (0.0, np.nan)}, "azimuths"),
+        ({"finger_azimuths_deg": "abc"}, "azimuths"),
+        ({"finger_azimuths_deg": tuple(range(6))}, "at most 6"),
+    ],
+)
+def test_bad_hands(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        Hand(**kwargs)
+
+
+def test_bad_reach_inputs():
+    with pytest.raises(ValueError, match="shape"):
+        Hand().reach(np.zeros(3))
+    with pytest.raises(ValueError, match="finite"):
+        Hand().reach(np.full((2, 3), np.nan))
+
+
+# ------------------------------------------------------------------------------ the scene
+
+
+def test_default_scene_has_a_site_per_face():
+    scene = GaitScene()
+    assert scene.n_sites == 6
+    np.testing.assert_array_equal(np.abs(scene.normals).sum(axis=1), 1)
+    np.testing.assert_array_equal(np.abs(scene.normals).sum(axis=0), 2)  # +-x, +-y, +-z
+    # the inward normal points into the box from the site's face
+    assert np.all(np.sum(scene.normals * scene.sites, axis=1) < 0)
+
+
+@pytest.mark.parametrize(
+    ("sites", "match"),
+    [
+        (np.zeros((2, 3)), "shape"),
+        (np.zeros((9, 3)), "shape"),
+        ([[0.5, 0, 0], [0, 0.5, 0], [0, 0, 0.7]], "face"),
+        ([[0.5, 0, 0], [0, 0.5, 0], [0.5, 0.5, 0]], "face"),  # on an edge
+        ([[0.5, 0, 0], [0, 0.5, 0], [0, 0.5, 0]], "coincide"),
+        ([[0.5, 0, 0], [0, 0.5, 0], [0, 0, np.nan]], "finite"),
+    ],
+)
+def test_bad_sites(sites, match):
+    with pytest.raises(ValueError, match=match):
+        GaitScene(sites=np.array(sites, dtype=float))
+
+
+def test_bad_scene_values():
+    with pytest.raises(ValueError, match="mu"):
+        GaitScene(mu=0.0)
+    with pytest.raises(ValueError, match="inside the box"):
+        GaitScene(cg_offset=(0.6, 0, 0))
+
+
+# ----------------------------------------------------------------- brute force, all gaits
+
+
+def touching(a):
+    return [f for f, s in enumerate(a) if s >= 0]
+
+
+def brute_force(margin, reach, start=None):
+    """The best (smallest margin, -moves, sum of margins) over every gait, by enumeration.
+
+    Written from the rules in the gait module's docstring, not from its tables: at each pose
+    every touching finger must reach its site; the move is to keep (all touching fingers
+    carry load), lift a touching finger (zero force now, gone next) or place a free finger on
+    a free site it reaches now (zero force now, loaded next); 3 or 4 fingers carry load.
+    """
+    T, F, N = reach.shape
+    index = {s: i for i, s in enumerate(site_sets(N))}
+    best = (-np.inf, 0, 0.0)
+
+    def walk(t, a, low, moves, total):
+        nonlocal best
+        if t == T:
+            best = max(best, (low, -moves, total))
+            return
+        if any(not reach[t, f, a[f]] for f in touching(a)):
+            return  # a touching finger lost its site
+        options = [(None, a)]
+        for f in range(F):
+            if a[f] >= 0:
+                options.append(((f, "lift"), (*a[:f], -1, *a[f + 1 :])))
+            else:
+                for s in range(N):
+                    if s not in a and reach[t, f, s]:
+                        options.append(((f, "place"), (*a[:f], s, *a[f + 1 :])))
+        for move, after in options:
+            lifted = move is not None and move[1] == "lift"
+            loaded = sorted(a[f] for f in touching(a) if not (lifted and f == move[0]))
+            if not 3 <= len(loaded) <= 4:
+                continue
+            value = margin[t, index[tuple(loaded)]]
+            walk(t + 1, after, min(low, value), moves + (move is not None), total + value)
+
+    starts = [tuple(start)] if start is not None else []
+    if start is None:
+        for count in (3, 4, 5):
+            for fingers in combinations(range(F), count):
+                for sites in permutations(range(N), count):
+                    a = [-1] * F
+                    for f, s in zip(fingers, sites, strict=True):
+                        a[f] = s
+                    starts.append(tuple(a))
+    for a in starts:
+        walk(0, a, np.inf, 0, 0.0)
+    return best
+
+
+def random_case(rng):
+    """Small problems with ties (integer margins), unusable sets and patchy reach."""
+    F = int(rng.integers(3, 6))
+    N = int(rng.integers(3, 6 if F < 5 else 5))
+    T = int(rng.integers(1, 6 if F * N <= 12 else 4))
+    sets = len(site_sets(N))
+    margin = rng.integers(-2, 4, (T, sets)).astype(float)
+    margin[:, rng.random(sets) < 0.15] = -np.inf  # unusable sets (collinear, coplanar)
+    reach = rng.random((T, F, N)) < rng.uniform(0.5, 0.95)
+    return margin, reach
+
+
+def objective(gait):
+    return (gait.margin, -gait.changes, float(gait.margins.sum()))
+
+
+def test_programme_matches_brute_force_on_random_cases():
+    rng = np.random.default_rng(16)
+    feasible = 0
+    for case in range(300):
+        margin, reach = random_case(rng)
+        best = brute_force(margin, reach)
+        gait = optimal_gait(margin, reach)
+        assert gait.margin == best[0], case
+        if best[0] > -np.inf:
+            feasible += 1
+            assert objective(gait) == best, case
+            # the gait itself keeps the rules: replayed by the brute force from its start,
+            # no gait from there beats it
+            assert brute_force(margin, reach, gait.table.states[gait.states[0]]) == best
+            assert greedy_gait(margin, reach).margin <= gait.margin
+            fixed = best_fixed(margin, reach)
+            assert fixed.margin <= gait.margin and fixed.changes == 0
+    assert feasible >= 200  # most cases have a gait: the comparison is not vacuous
+
+
+def test_fixed_set_matches_brute_force():
+    rng = np.random.default_rng(3)
+    for _ in range(60):
+        margin, reach = random_case(rng)
+        _, F, N = reach.shape
+        index = {s: i for i, s in enumerate(site_sets(N))}
+        best = -np.inf
+        for count in (3, 4):
+            for fingers in combinations(range(F), count):
+                for sites in permutations(range(N), count):
+                    if all(reach[:, f, s].all() for f, s in zip(fingers, sites, strict=True)):
+                        best = max(best, margin[:, index[tuple(sorted(sites))]].min())
+        assert best_fixed(margin, reach).margin == best
+
+
+def test_policy_is_optimal_from_every_state():
+    """The policy's move from any state at any pose leads to the best smallest margin from
+    there (the expert acts from states off its own gait too)."""
+    rng = np.random.default_rng(7)
+    checked = 0
+    for _ in range(60):
+        margin, reach = random_case(rng)
+        gait = optimal_gait(margin, reach)
+        table = gait.table
+        T = len(margin)
+        for _ in range(3):
+            t = int(rng.integers(T))
+            x = int(rng.integers(len(table.states)))
+            tail = brute_force(margin[t:], reach[t:], table.states[x])[0]
+            assert optimal_gait(margin[t:], reach[t:], table.states[x]).margin == tail
+            if tail == -np.inf:
+                continue
+            k = gait.policy[t, x]
+            moved = _value_of(table, margin, reach, t, x, k)
+            after = table.states[table.next[k]]
+            then = brute_force(margin[t + 1 :], reach[t + 1 :], after)[0] if t + 1 < T else np.inf
+            assert min(moved, then) == tail
+            checked += 1
+    assert checked >= 50
+
+
+def _value_of(table, margin, reach, t, x, k):
+    """The margin of move k (CSR) from state x at pose t, from the rules directly."""
+    a = table.states[x]
+    move = table.move[k]
+    loaded = [s for s in a if s >= 0]
+    if move:
+        f, s = divmod(move - 1, table.n_sites)
+        if a[f] == s:
+            loaded.remove(s)
+        elif not reach[t, f, s]:
+            return -np.inf
+    if any(s >= 0 and not reach[t, f, s] for f, s in enumerate(a)):
+        return -np.inf
+    return margin[t, site_sets(table.n_sites).index(tuple(sorted(loaded)))]
+
+
+def test_start_state_is_kept():
+    rng = np.random.default_rng(5)
+    for _ in range(40):
+        margin, reach = random_case(rng)
+        table = gait_states(reach.shape[1], reach.shape[2])
+        a = table.states[int(rng.integers(len(table.states)))]
+        gait = optimal_gait(margin, reach, a)
+        assert gait.margin == brute_force(margin, reach, a)[0]
+        if gait.margin > -np.inf:
+            np.testing.assert_array_equal(table.states[gait.states[0]], a)
+
+
+def test_certificate_propagates():
+    """The programme on upper bounds bounds every gait; its gait attains within the gap."""
+    rng = np.random.default_rng(11)
+    for _ in range(100):
+        margin, reach = random_case(rng)
+        margin = margin + rng.uniform(0, 0.3, margin.shape)  # break ties: attained values
+        gap = rng.uniform(0, 0.05, margin.shape)
+        upper = margin + gap
+        best = optimal_gait(margin, reach).margin
+        bound = bottleneck_bound(upper, reach)
+        if best == -np.inf:
+            assert bound == -np.inf
+            continue
+        assert best <= bound <= best + gap.max()
+        # the bound's own gait, on the attained margins, is within the gap of the optimum
+        sets = optimal_gait(upper, reach).sets
+        attained = min(margin[t, s] for t, s in enumerate(sets))
+        along = max(gap[t, s] for t, s in enumerate(sets))
+        assert bound - along - 1e-12 <= attained <= best  # (margin + gap) - gap: rounding
+
+
+# ------------------------------------------------------------------------ bad inputs
+
+
+def test_bad_programme_inputs():
+    reach = np.ones((3, 4, 4), bool)
+    margin = np.zeros((3, len(site_sets(4))))
+    with pytest.raises(ValueError, match="same T"):
+        optimal_gait(margin[:2], reach)
+    with pytest.raises(ValueError, match="one column per set"):
+        optimal_gait(margin[:, :3], reach)
+    with pytest.raises(ValueError, match="NaN"):
+        optimal_gait(np.full_like(margin, np.nan), reach)
+    with pytest.raises(ValueError, match="no state"):
+        optimal_gait(margin, reach, start=[0, 0, 1, 2])
+    with pytest.raises(ValueError, match="no state"):
+        optimal_gait(margin, reach, start=[0, -1, -1, 2])
+    with pytest.raises(ValueError, match="assignment"):
+        optimal_gait(margin, reach, start=[0, 1, 2])
+    with pytest.raises(ValueError, match="fingers"):
+        gait_states(2, 4)
+
+
+# ------------------------------------------------------------- the mechanics of a gait
+
+
+@pytest.fixture(scope="module")
+def coarse():
+    """The paper's axis over [-90, 90] deg in 3 deg steps."""
+    return solve_gait(trajectory=Trajectory(PAPER_TURN.axis, -90.0, 90.0, 3.0))
+
+
+def test_gait_keeps_the_rules(coarse):
+    gait = coarse.optimal
+    hand, scene = coarse.hand, coarse.scene
+    rotations = coarse.trajectory.rotations()
+    normals = np.einsum("tij,nj->tni", rotations, scene.normals)
+    reach = hand.reach(normals)  # from the rotated normals, not from site_reach
+    for t in range(len(rotations)):
+        fingers = np.flatnonzero(gait.contacts[t] >= 0)
+        assert all(reach[t, f, gait.contacts[t, f]] for f in fingers)  # touching: reachable
+        assert 3 <= gait.loaded[t].sum() <= 4
+        assert set(np.flatnonzero(gait.loaded[t])) <= set(fingers)
+        assert len(fingers) - gait.loaded[t].sum() <= 1  # at most one finger changing
+        if t:
+            was, now = gait.contacts[t - 1], gait.contacts[t]
+            changed = np.flatnonzero(was != now)
+            assert len(changed) <= 1
+            for f in changed:  # lifted at t - 1 with zero force, and/or placed at t with none
+                assert was[f] < 0 or not gait.loaded[t - 1, f]
+                assert now[f] < 0 or not gait.loaded[t, f]
+
+
+def test_gait_grips_balance_the_load(coarse):
+    """At every pose the loaded fingers' forces at the certified grip balance the load and
+    their friction angles give the pose's margin; unloaded fingers carry nothing."""
+    gait = coarse.optimal
+    k, angles = coarse.grips(gait)
+    scene, rotations = coarse.scene, coarse.trajectory.rotations()
+    limit = scene.friction_limit
+    for t in range(len(rotations)):
+        fingers = np.flatnonzero(gait.loaded[t])
+        sites = gait.contacts[t, fingers]
+        order = np.argsort(sites)
+        g = scene_grasp(scene.scene(sites[order]), rotations[t])
+        F = scene.scene(sites[order]).n_contacts
+        pairs = list(combinations(range(5), 2))
+        finger_pairs = [tuple(sorted((fingers[order][i], fingers[order][j])))
+                        for i, j in combinations(range(F), 2)]  # fmt: skip
+        kt = np.array([k[t, pairs.index(p)] for p in finger_pairs])
+        P = g.forces(kt)
+        np.testing.assert_allclose(P.sum(axis=0), [0, 0, scene.weight], atol=1e-9)
+        torque = np.cross(g.positions, P).sum(axis=0)
+        np.testing.assert_allclose(torque, 0, atol=1e-9)
+        # a finger the optimum releases (|P_i| ~ 1e-10 w, the cone's apex) has no meaningful
+        # direction; every other finger's angle is recomputed exactly
+        pushing = np.linalg.norm(P, axis=1) > 1e-6 * scene.weight
+        assert pushing.sum() >= 3
+        reported = angles[t, fingers[order]]
+        np.testing.assert_allclose(g.angles(kt)[pushing], reported[pushing], atol=1e-9)
+        assert np.isclose(limit - reported.max(), gait.margins[t], atol=1e-12)
+        assert np.all(np.isnan(angles[t, np.flatnonzero(~gait.loaded[t])]))
+        unused = [q for q, p in enumerate(pairs) if p not in finger_pairs]
+        assert np.all(k[t, unused] == 0)
+        assert np.all(np.abs(kt) <= 2 * scene.weight + 1e-12)
+
+
+def test_certified_on_the_default_scene(coarse):
+    assert coarse.optimal.margin <= coarse.bound <= coarse.optimal.margin + GAP
+    assert abs(coarse.bound_gait.margin - coarse.optimal.margin) <= GAP
+    v = coarse.values
+    assert np.all(v.margin <= v.margin_bound)
+    usable = np.isfinite(v.margin)
+    assert np.all(v.margin_bound[usable] - v.margin[usable] <= GAP)
+
+
+@pytest.mark.parametrize("trajectory", [PAPER_TURN, VERTICAL_TURN], ids=["paper", "vertical"])
+def test_long_trajectories_need_phasing(trajectory):
+    """No fixed set of fingers stays reachable and holding, a gait does; the greedy choice
+    does not."""
+    solution = solve_gait(trajectory=trajectory)
+    assert solution.fixed.margin < 0
+    assert solution.optimal.margin > np.deg2rad(5)
+    assert solution.optimal.changes > 0
+    assert solution.greedy.margin < solution.optimal.margin
+    # friction alone does not force it: ignoring reach, some fixed set holds throughout
+    assert solution.values.margin.min(axis=0).max() > 0
