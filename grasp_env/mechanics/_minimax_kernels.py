@@ -21,7 +21,7 @@ from numba import njit
 #: Accepted certificate gap, radians (1e-6 deg is 1.7e-8 rad).
 GAP_TOL = 1e-9
 #: Offsets below the primal value at which the dual certificate is tried, radians.
-_DELTAS = (1e-11, 1e-10, 1e-9)
+_DELTAS = (1e-11, 1e-10, 5e-10)
 INTERIOR, BOUNDARY, NOT_PUSHING = 0, 1, 2
 APEX, UNCERTIFIED, INVALID = 0, 6, -1  # diagnostic paths (see solve_one)
 #: A released finger (zero force at the optimum) is held at this normal force (normalised),
@@ -745,8 +745,8 @@ def polish(a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu, release, max_
 
 
 @_small
-def dual_vectors(al, T, S, R, Q, ct, st, lg, phi, z, nuc, vf, w):
-    """Smooth fingers' dual vectors at the angle (ct, st) into z; w = sum A_i' (z_i + nu_i v_i)."""
+def dual_vectors(al, T, S, R, Q, ct, st, lg, phi, z, u, w):
+    """Smooth fingers' dual vectors at the angle (ct, st) into z; w = sum A_i' (z_i + u_i)."""
     n, m = al.shape
     for i in range(n):
         if S[i]:
@@ -759,7 +759,7 @@ def dual_vectors(al, T, S, R, Q, ct, st, lg, phi, z, nuc, vf, w):
             if S[i] or R[i]:
                 s += z[i, 0] * al[i, j] + z[i, 1] * T[i, 0, j] + z[i, 2] * T[i, 1, j]
             if Q[i]:
-                s += nuc[i] * (vf[i, 0] * al[i, j] + vf[i, 1] * T[i, 0, j] + vf[i, 2] * T[i, 1, j])
+                s += u[i, 0] * al[i, j] + u[i, 1] * T[i, 0, j] + u[i, 2] * T[i, 1, j]
         w[j] = s
 
 
@@ -768,14 +768,16 @@ def certify(a0, al, tau0, T, K, f, k, t_low, S, R, Q, fixed, lam, eta, nu):
     """Evaluate the weak-duality certificate L(t_low) from the KKT multipliers at k.
 
     For any z_i in the polar cone of {P : theta(P) <= t} (z = l (cos t y b - sin t n),
-    l >= 0, |y| <= 1) and nu_i >= 0, |v_i| = 1: every k in the box with all theta_i <= t
-    and |P_i| <= f satisfies sum z_i.P_i(k) + sum nu_i (v_i.P_i(k) - f) <= 0, so
-        L(t) = sum z_i.F_i + sum nu_i (v_i.F_i - f) - K ||sum A_i' z_i + nu_i A_i' v_i||_1 > 0
+    l >= 0, |y| <= 1) and any u_i: every k in the box with all theta_i <= t and
+    |P_i| <= f satisfies sum z_i.P_i(k) + sum (u_i.P_i(k) - |u_i| f) <= 0, so
+        L(t) = sum z_i.F_i + sum (u_i.F_i - |u_i| f) - K ||sum A_i' (z_i + u_i)||_1 > 0
     proves that no such k exists, i.e. the optimum is > t (>= t for L = 0).
     The KKT multipliers at the optimum t* give L(t*) = 0 only up to rounding, so the dual
-    point is moved to t_low < t*: the cone directions rotate to t_low and a minimum-norm
-    correction of (l_i, angle of y_i, eta_i, nu_i) zeroes the free components of the L1
-    term again; what remains is about (t* - t_low) sum l_i |P_i| > 0.
+    point is moved to t_low < t*: the cone directions rotate to t_low and minimum-norm
+    corrections of (l_i, angle of y_i, eta_i, u_i) zero the free components of the L1 term
+    again (Gauss-Newton: the angles enter non-linearly); what remains is about
+    (t* - t_low) sum l_i |P_i| > 0, and the corrections cost only second-order terms
+    (a dual direction off by d loses about |u_i| f d^2 / 2).
     Returns (L, box_share) where box_share is the box term's share of the certificate.
     """
     n, m = al.shape
@@ -788,18 +790,17 @@ def certify(a0, al, tau0, T, K, f, k, t_low, S, R, Q, fixed, lam, eta, nu):
     z = np.zeros((n, 3))  # dual vectors in the finger frames (normal, b, c)
     lg = np.zeros(n)
     phi = np.zeros(n)
-    vf = np.zeros((n, 3))
-    nuc = np.zeros(n)
+    u = np.zeros((n, 3))  # force-limit duals nu_i P_i / |P_i|
     for i in range(n):
         Pn = sqrt(a[i] ** 2 + rho[i] ** 2)
         if S[i]:
             lg[i] = max(0.0, lam[i]) / Pn
             phi[i] = atan2(tau[i, 1], tau[i, 0])
         if Q[i]:
-            vf[i, 0] = a[i] / Pn
-            vf[i, 1] = tau[i, 0] / Pn
-            vf[i, 2] = tau[i, 1] / Pn
-            nuc[i] = max(0.0, nu[i])
+            scale_u = max(0.0, nu[i]) / Pn
+            u[i, 0] = a[i] * scale_u
+            u[i, 1] = tau[i, 0] * scale_u
+            u[i, 2] = tau[i, 1] * scale_u
         if R[i]:
             for c in range(3):
                 z[i, c] = eta[i, c]
@@ -819,7 +820,6 @@ def certify(a0, al, tau0, T, K, f, k, t_low, S, R, Q, fixed, lam, eta, nu):
                 lg[i] = x0 / st
                 phi[i] = atan2(z[i, 2], z[i, 1])
     w = np.zeros(m)
-    dual_vectors(al, T, Sm, Rm, Q, ct, st, lg, phi, z, nuc, vf, w)
     free = np.empty(m, dtype=np.int64)
     nf = 0
     for j in range(m):
@@ -828,10 +828,13 @@ def certify(a0, al, tau0, T, K, f, k, t_low, S, R, Q, fixed, lam, eta, nu):
             nf += 1
     ncols = 0
     for i in range(n):
-        ncols += 2 * Sm[i] + 3 * Rm[i] + Q[i]
-    if nf > 0 and ncols > 0:
+        ncols += 2 * Sm[i] + 3 * Rm[i] + 3 * Q[i]
+    J = np.zeros((m, 20))
+    G = np.empty((m, m))
+    y = np.empty(m)
+    for _ in range(4 if nf > 0 and ncols > 0 else 0):
         # minimum-norm correction J dc = -w_free
-        J = np.zeros((m, 16))
+        dual_vectors(al, T, Sm, Rm, Q, ct, st, lg, phi, z, u, w)
         col = 0
         for i in range(n):
             if Sm[i]:
@@ -841,20 +844,14 @@ def certify(a0, al, tau0, T, K, f, k, t_low, S, R, Q, fixed, lam, eta, nu):
                     J[p, col] = -st * al[i, j] + ct * (cp * T[i, 0, j] + sp * T[i, 1, j])
                     J[p, col + 1] = lg[i] * ct * (cp * T[i, 1, j] - sp * T[i, 0, j])
                 col += 2
-            if Rm[i]:
+            for _twice in range(int(Rm[i]) + int(Q[i])):  # z_i of a released finger, then u_i
                 for c in range(3):
                     for p in range(nf):
                         j = free[p]
                         J[p, col] = al[i, j] if c == 0 else T[i, c - 1, j]
                     col += 1
-            if Q[i]:
-                for p in range(nf):
-                    j = free[p]
-                    J[p, col] = vf[i, 0] * al[i, j] + vf[i, 1] * T[i, 0, j] + vf[i, 2] * T[i, 1, j]
-                col += 1
-        G = np.empty((nf, nf))
-        y = np.empty(nf)
         big = 0.0
+        residual = 0.0
         for p in range(nf):
             for q in range(nf):
                 s = 0.0
@@ -863,29 +860,33 @@ def certify(a0, al, tau0, T, K, f, k, t_low, S, R, Q, fixed, lam, eta, nu):
                 G[p, q] = s
             big = max(big, G[p, p])
             y[p] = -w[free[p]]
+            residual = max(residual, abs(y[p]))
+        if residual == 0.0:
+            break
         for p in range(nf):
             G[p, p] += 1e-12 * big
-        if lu_solve(G, y, nf):
-            col = 0
-            for i in range(n):
-                if Sm[i]:
-                    d_l = 0.0
-                    d_p = 0.0
+        if not lu_solve(G, y, nf):
+            break
+        col = 0
+        for i in range(n):
+            if Sm[i]:
+                d_l = 0.0
+                d_p = 0.0
+                for p in range(nf):
+                    d_l += J[p, col] * y[p]
+                    d_p += J[p, col + 1] * y[p]
+                lg[i] = max(0.0, lg[i] + d_l)
+                phi[i] += d_p
+                col += 2
+            if Rm[i]:
+                for c in range(3):
                     for p in range(nf):
-                        d_l += J[p, col] * y[p]
-                        d_p += J[p, col + 1] * y[p]
-                    lg[i] = max(0.0, lg[i] + d_l)
-                    phi[i] += d_p
-                    col += 2
-                if Rm[i]:
-                    for c in range(3):
-                        for p in range(nf):
-                            z[i, c] += J[p, col] * y[p]
-                        col += 1
-                if Q[i]:
+                        z[i, c] += J[p, col] * y[p]
+                    col += 1
+            if Q[i]:
+                for c in range(3):
                     for p in range(nf):
-                        nuc[i] += J[p, col] * y[p]
-                    nuc[i] = max(0.0, nuc[i])
+                        u[i, c] += J[p, col] * y[p]
                     col += 1
     # released fingers' duals must lie in the polar cone |z_b,c| <= cot(t) (-z_n)
     kappa = ct / max(st, 1e-300)
@@ -903,7 +904,7 @@ def certify(a0, al, tau0, T, K, f, k, t_low, S, R, Q, fixed, lam, eta, nu):
                     z[i, 0] = -s
                     z[i, 1] *= kappa * s / r
                     z[i, 2] *= kappa * s / r
-    dual_vectors(al, T, Sm, Rm, Q, ct, st, lg, phi, z, nuc, vf, w)
+    dual_vectors(al, T, Sm, Rm, Q, ct, st, lg, phi, z, u, w)
     value = 0.0
     size = 0.0  # the terms' magnitudes, for the box share
     for i in range(n):
@@ -912,7 +913,8 @@ def certify(a0, al, tau0, T, K, f, k, t_low, S, R, Q, fixed, lam, eta, nu):
             value += term
             size += abs(term)
         if Q[i]:
-            term = nuc[i] * (vf[i, 0] * a0[i] + vf[i, 1] * tau0[i, 0] + vf[i, 2] * tau0[i, 1] - f)
+            un = sqrt(u[i, 0] ** 2 + u[i, 1] ** 2 + u[i, 2] ** 2)
+            term = u[i, 0] * a0[i] + u[i, 1] * tau0[i, 0] + u[i, 2] * tau0[i, 1] - un * f
             value += term
             size += abs(term)
     box = 0.0
@@ -996,6 +998,81 @@ def release_start(a0, al, tau0, T, K, i, release, k_from, k):
 
 
 @_jit
+def polish_degenerate(a0, al, tau0, T, K, f, k, k_in, S, R, Q, fixed, lam, eta, nu):
+    """:func:`polish` once more with one constraint fewer, where the sets hold more
+    equations than there are unknowns (free k_j and t): at such a degenerate optimum
+    (e.g. three equal angles and two fingers at the force limit, with three k_j free) one
+    of them is weakly active, its multiplier zero, and dropping it leaves the same optimum
+    a regular KKT point. Tries each candidate in turn from k_in; returns t, or -1."""
+    n, m = al.shape
+    count = 0
+    unknowns = 1
+    ns = 0
+    for i in range(n):
+        count += S[i] + 3 * R[i] + Q[i]
+        ns += S[i]
+    for j in range(m):
+        unknowns += fixed[j] == 0
+    if count <= unknowns:
+        return -1.0
+    lam0 = lam.copy()
+    eta0 = eta.copy()
+    nu0 = nu.copy()
+    a = np.empty(n)
+    tau = np.empty((n, 2))
+    rho = np.empty(n)
+    theta = np.empty(n)
+    for c in range(2 * n + m):
+        if c < n:
+            member = S[c] and ns > 1
+        elif c < 2 * n:
+            member = Q[c - n]
+        else:
+            member = fixed[c - 2 * n] != 0
+        if not member:
+            continue
+        side = 0
+        if c < n:
+            S[c] = False
+        elif c < 2 * n:
+            Q[c - n] = False
+        else:
+            side = fixed[c - 2 * n]
+            fixed[c - 2 * n] = 0
+        copy_into(k, k_in, m)
+        copy_into(lam, lam0, n)
+        copy_into(nu, nu0, n)
+        for i in range(n):
+            for q in range(3):
+                eta[i, q] = eta0[i, q]
+        t = polish(a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu, RELEASE, 12, 12)
+        if t >= 0.0:
+            # a KKT point of the original sets: multipliers >= 0, the dropped one holds
+            evaluate(k, a0, al, tau0, T, a, tau, rho, theta)
+            ok = True
+            for i in range(n):
+                ok = ok and not (S[i] and lam[i] < -1e-12) and not (Q[i] and nu[i] < -1e-12)
+            if c < n:
+                ok = ok and theta[c] <= t + 1e-12
+            elif c < 2 * n:
+                ok = ok and sqrt(a[c - n] ** 2 + rho[c - n] ** 2) <= f * (1.0 + 1e-12)
+            else:
+                ok = ok and abs(k[c - 2 * n]) <= K * (1.0 + 1e-12)
+            if ok:
+                return t
+        if c < n:
+            S[c] = True
+        elif c < 2 * n:
+            Q[c - n] = True
+        else:
+            fixed[c - 2 * n] = side
+    copy_into(k, k_in, m)
+    copy_into(lam, lam0, n)
+    copy_into(nu, nu0, n)
+    return -1.0
+
+
+@_jit
 def finish(a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu, settle_by):
     """Polish the KKT point for the given sets, repairing them, then certify it.
 
@@ -1013,6 +1090,8 @@ def finish(a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu, settle_by):
     k_in = k.copy()
     for _ in range(6):
         t = polish(a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu, RELEASE, 12, settle_by)
+        if t < 0.0:
+            t = polish_degenerate(a0, al, tau0, T, K, f, k, k_in, S, R, Q, fixed, lam, eta, nu)
         if t < 0.0:
             for j in range(m):
                 k[j] = k_in[j]
@@ -1415,15 +1494,18 @@ def force_certificate(a0, al, tau0, T, K, f, k):
 
 
 @_jit
-def fallback(a0, al, tau0, T, K, f, k, gap):
+def fallback(a0, al, tau0, T, K, f, k, gap, centre):
     """Robust certified minimax: Dinkelbach iterations on t over the convex cone problem.
 
     At a fixed t < 90 deg, v(t) = min over (k, s) of s subject to ct |tau_i| <= st a_i + w_i s
     (box, force limits) is negative exactly when some k has every theta_i < t; each v(t) is
     solved by the barrier method. From above, t <- max_i theta_i(k_t) with the weights
     w_i = |P_i(k)| of the previous point (Crouzeix-Ferland-Schaible) converges
-    superlinearly; the barrier dual at t slightly below the result certifies it.
-    k (in/out) starts inside the box. Returns (t_up, lower, status, box_share).
+    superlinearly. Each barrier starts from the best point moved 1% towards a centre of the
+    box and the force limits (a point on their boundary would leave Newton's method a
+    Hessian too ill-conditioned to move). k (in/out) starts inside the box; centre
+    (out) is that centre.
+    Returns (t_up, lower, status, box_share); lower < 0 unless NOT_PUSHING is decided.
     """
     n, m = al.shape
     dim = m + 1
@@ -1436,50 +1518,70 @@ def fallback(a0, al, tau0, T, K, f, k, gap):
     tau = np.empty((n, 2))
     rho = np.empty(n)
     theta = np.empty(n)
+    for j in range(m):
+        centre[j] = 0.0  # inside the box and (when f is finite) the force limits
     inner = 1.0 - 1e-9
     for j in range(m):
         k[j] = min(K * inner, max(-K * inner, k[j]))
-    evaluate(k, a0, al, tau0, T, a, tau, rho, theta)
     if f < inf:
+        # phase I: min s subject to |P_i| <= f + s, to a centred point
+        evaluate(k, a0, al, tau0, T, a, tau, rho, theta)
+        excess = -inf
+        for i in range(n):
+            excess = max(excess, sqrt(a[i] ** 2 + rho[i] ** 2) - f)
+        for j in range(m):
+            x[j] = k[j]
+        x[m] = max(excess, 0.0) + f
+        tb = barrier_solve(a0, al, tau0, T, K, f, 0.0, wts, 0.0, x, 1e-4 * f, -inf, 1.0 / f)
+        if x[m] >= -1e-9 * f:
+            # the limits may admit no k: converge, then certify (k: the least excess)
+            barrier_solve(a0, al, tau0, T, K, f, 0.0, wts, 0.0, x, 1e-14 * f, -inf, tb)
+            for j in range(m):
+                k[j] = min(K * inner, max(-K * inner, x[j]))
+            if x[m] >= 0.0:
+                L = force_certificate(a0, al, tau0, T, K, f, k)
+                return pi, (pi / 2 if L > 0.0 else 0.0), NOT_PUSHING, 0.0
+        for j in range(m):
+            centre[j] = x[j]
+        evaluate(k, a0, al, tau0, T, a, tau, rho, theta)
         excess = -inf
         for i in range(n):
             excess = max(excess, sqrt(a[i] ** 2 + rho[i] ** 2) - f)
         if excess > -1e-9 * f:
-            # phase I: a point strictly inside the force limits
-            for j in range(m):
-                x[j] = k[j]
-            x[m] = excess + 1.0
-            barrier_solve(a0, al, tau0, T, K, f, 0.0, wts, 0.0, x, 1e-14, -1e-6 * f, 1.0)
-            for j in range(m):
-                k[j] = min(K * inner, max(-K * inner, x[j]))
-            if x[m] >= 0.0:
-                # no k meets the force limits (k is the least excess): certified if L > 0
-                L = force_certificate(a0, al, tau0, T, K, f, k)
-                return pi, (pi / 2 if L > 0.0 else 0.0), NOT_PUSHING, 0.0
+            copy_into(k, centre, m)
     t_best = evaluate(k, a0, al, tau0, T, a, tau, rho, theta)
     k_best = k.copy()
     if t_best >= pi / 2:
-        # can every finger push? v(pi/2) < 0 iff some k has all a_i > 0
+        # can every finger push? v(pi/2) < 0 iff some k has all a_i > 0; the barrier's
+        # duals certify v(pi/2) > 0 once its gap is below v (tried as the gap closes: at a
+        # tight gap rounding spoils them)
         for j in range(m):
-            x[j] = k[j]
+            x[j] = 0.99 * k[j] + 0.01 * centre[j]
         s0 = -inf
+        evaluate(x, a0, al, tau0, T, a, tau, rho, theta)
         for i in range(n):
             s0 = max(s0, -a[i])
         x[m] = s0 + 1.0
-        tb = barrier_solve(a0, al, tau0, T, K, f, pi / 2, wts, 1.0, x, 1e-13, -inf, 1.0)
+        tb = 1.0
+        L = -1.0
+        share = 0.0
+        for tight in (1e-3, 1e-5, 1e-7, 1e-9, 1e-11, 1e-13):
+            tb = barrier_solve(a0, al, tau0, T, K, f, pi / 2, wts, 1.0, x, tight, -inf, tb)
+            if x[m] < 0.0:
+                break
+            barrier_duals(x, a0, al, tau0, T, K, f, pi / 2, wts, tb, z, nuv, nus)
+            L, share = dual_value(a0, al, tau0, T, K, f, pi / 2, z, nuv, nus)
+            if L > 0.0:
+                break
         t_try = evaluate(x, a0, al, tau0, T, a, tau, rho, theta)
         if t_try < pi / 2:
             t_best = t_try
             copy_into(k_best, x, m)
         else:
-            barrier_duals(x, a0, al, tau0, T, K, f, pi / 2, wts, tb, z, nuv, nus)
-            L, share = dual_value(a0, al, tau0, T, K, f, pi / 2, z, nuv, nus)
-            copy_into(k, x, m)
             if t_try < t_best:
                 t_best = t_try
-            else:
-                copy_into(k, k_best, m)
-            return t_best, (pi / 2 if L >= 0.0 else 0.0), NOT_PUSHING, share
+                copy_into(k, x, m)
+            return t_best, (pi / 2 if L > 0.0 else 0.0), NOT_PUSHING, share
     t = t_best
     for _ in range(40):
         evaluate(k_best, a0, al, tau0, T, a, tau, rho, theta)
@@ -1488,12 +1590,13 @@ def fallback(a0, al, tau0, T, K, f, k, gap):
             wts[i] = sqrt(a[i] ** 2 + rho[i] ** 2)
             big = max(big, wts[i])
         ct, st = cos(t), sin(t)
+        for j in range(m):
+            x[j] = min(K * inner, max(-K * inner, 0.99 * k_best[j] + 0.01 * centre[j]))
+        evaluate(x, a0, al, tau0, T, a, tau, rho, theta)
         s0 = -inf
         for i in range(n):
             wts[i] = max(wts[i], 1e-3 * big)
             s0 = max(s0, (ct * rho[i] - st * a[i]) / wts[i])
-        for j in range(m):
-            x[j] = min(K * inner, max(-K * inner, k_best[j]))
         x[m] = s0 + 1e-3
         barrier_solve(a0, al, tau0, T, K, f, t, wts, 1.0, x, gap, -inf, 1e3)
         t_new = evaluate(x, a0, al, tau0, T, a, tau, rho, theta)
@@ -1735,14 +1838,184 @@ def try_push(a0, al, tau0, T, K, f, k_sqp, state, k_best):
             return
 
 
+@_jit
+def certify_min_slack(a0, al, tau0, T, K, f, t, wts, x, tol):
+    """The certificate L(t) (:func:`certify`) at x = (k, s), the minimiser of the cone
+    problem v(t) = min s (see :func:`fallback`) with s > 0.
+
+    Its sets are read off x (within ``tol``) and its multipliers are the least-squares
+    stationarity multipliers there (sum l_i w_i = 1), so that certify's correction starts
+    from the dual of v(t) and L(t) is about v(t) > 0: the barrier's own duals are spoilt by
+    rounding (1 / slack) near the optimum, its primal point is not. Returns (L, box_share).
+    """
+    n, m = al.shape
+    a = np.empty(n)
+    tau = np.empty((n, 2))
+    rho = np.empty(n)
+    theta = np.empty(n)
+    k = x[:m].copy()
+    evaluate(k, a0, al, tau0, T, a, tau, rho, theta)
+    ct, st = cos(t), sin(t)
+    S = np.zeros(n, dtype=np.bool_)
+    R = np.zeros(n, dtype=np.bool_)
+    Q = np.zeros(n, dtype=np.bool_)
+    fixed = np.zeros(m, dtype=np.int64)
+    P = np.empty(n)
+    big = 0.0
+    for i in range(n):
+        P[i] = sqrt(a[i] ** 2 + rho[i] ** 2)
+        big = max(big, P[i])
+    for i in range(n):
+        # a finger at the cone's apex has a dual anywhere in the polar cone (3 unknowns)
+        R[i] = P[i] < 1e-6 * big
+        S[i] = not R[i] and (ct * rho[i] - st * a[i]) / wts[i] >= x[m] - tol
+        Q[i] = f < inf and P[i] >= f * (1.0 - tol)
+    for j in range(m):
+        fixed[j] = 1 if k[j] >= K * (1.0 - tol) else (-1 if k[j] <= -K * (1.0 - tol) else 0)
+    # columns: d(z_i . A_i)/d l_i for the cones, A_i for the apex fingers' z_i, v_i . A_i
+    # for the force limits (free rows only)
+    cols = np.zeros((m, 4 * n))
+    nc = 0
+    for i in range(n):
+        if S[i]:
+            u0 = tau[i, 0] / rho[i] if rho[i] > 0.0 else 1.0
+            u1 = tau[i, 1] / rho[i] if rho[i] > 0.0 else 0.0
+            for j in range(m):
+                if fixed[j] == 0:
+                    cols[j, nc] = -st * al[i, j] + ct * (u0 * T[i, 0, j] + u1 * T[i, 1, j])
+            nc += 1
+    ns = nc
+    for i in range(n):
+        if R[i]:
+            for c in range(3):
+                for j in range(m):
+                    if fixed[j] == 0:
+                        cols[j, nc] = al[i, j] if c == 0 else T[i, c - 1, j]
+                nc += 1
+    for i in range(n):
+        if Q[i]:
+            for j in range(m):
+                if fixed[j] == 0:
+                    cols[j, nc] = (a[i] * al[i, j] + tau[i, 0] * T[i, 0, j]) / P[i]
+                    cols[j, nc] += tau[i, 1] * T[i, 1, j] / P[i]
+            nc += 1
+    if ns == 0:
+        return -1.0, 0.0
+    A = np.zeros((nc + 1, nc + 1))
+    b = np.zeros(nc + 1)
+    diag = 0.0
+    for p in range(nc):
+        for q in range(nc):
+            v = 0.0
+            for j in range(m):
+                v += cols[j, p] * cols[j, q]
+            A[p, q] = v
+        diag = max(diag, A[p, p])
+    for p in range(nc):
+        A[p, p] += 1e-12 * diag + 1e-300
+    c = 0
+    for i in range(n):
+        if S[i]:
+            A[c, nc] = wts[i]
+            A[nc, c] = wts[i]
+            c += 1
+    b[nc] = 1.0
+    if not lu_solve(A, b, nc + 1):
+        return -1.0, 0.0
+    lam = np.zeros(n)
+    nu = np.zeros(n)
+    eta = np.zeros((n, 3))
+    c = 0
+    for i in range(n):
+        if S[i]:
+            lam[i] = b[c] * P[i]  # certify takes l_i = lam_i / |P_i|
+            c += 1
+    for i in range(n):
+        if R[i]:
+            for q in range(3):
+                eta[i, q] = b[c]
+                c += 1
+    for i in range(n):
+        if Q[i]:
+            nu[i] = b[c]
+            c += 1
+    return certify(a0, al, tau0, T, K, f, k, t, S, R, Q, fixed, lam, eta, nu)
+
+
+@_jit
+def bisect(a0, al, tau0, T, K, f, k_best, centre, lo, hi):
+    """Bisection on t over the cone problem v(t) (see :func:`fallback`), each step decided
+    by the barrier's primal point (v(t) < 0: a better grip) or by a dual certificate
+    (:func:`certify_min_slack`: no k reaches t). k_best (in/out) attains hi; each barrier
+    starts from it moved 1% towards ``centre`` (see :func:`fallback`); returns the
+    bracket (lo, hi, box_share). Steps aim just below hi first, where a near-optimal hi
+    needs only one; a step that is decided neither way (rounding, at the last few 1e-10 rad)
+    moves the next one down, so lo is always certified and hi always attained.
+    """
+    n, m = al.shape
+    a = np.empty(n)
+    tau = np.empty((n, 2))
+    rho = np.empty(n)
+    theta = np.empty(n)
+    wts = np.empty(n)
+    x = np.empty(m + 1)
+    share = 0.0
+    top = hi  # the next t is below top (above it, steps are undecided or attained)
+    inner = 1.0 - 1e-9
+    for it in range(80):
+        if hi - lo <= 0.5 * GAP_TOL or top <= lo:
+            break
+        t = max(0.5 * (lo + top), top - (2.0**it) * 1e-10)
+        evaluate(k_best, a0, al, tau0, T, a, tau, rho, theta)
+        big = 0.0
+        for i in range(n):
+            wts[i] = sqrt(a[i] ** 2 + rho[i] ** 2)
+            big = max(big, wts[i])
+        for i in range(n):
+            wts[i] = max(wts[i], 1e-3 * big)
+        for j in range(m):
+            x[j] = min(K * inner, max(-K * inner, 0.99 * k_best[j] + 0.01 * centre[j]))
+        evaluate(x, a0, al, tau0, T, a, tau, rho, theta)
+        ct, st = cos(t), sin(t)
+        s0 = -inf
+        for i in range(n):
+            s0 = max(s0, (ct * rho[i] - st * a[i]) / wts[i])
+        x[m] = s0 + 1e-3
+        tb = 1e3
+        decided = False
+        for tight in (1e-8, 1e-11, 1e-13):
+            tb = barrier_solve(a0, al, tau0, T, K, f, t, wts, 1.0, x, tight, -inf, tb)
+            if x[m] < 0.0:
+                t_new = evaluate(x, a0, al, tau0, T, a, tau, rho, theta)
+                if t_new < hi:
+                    hi = t_new
+                    copy_into(k_best, x, m)
+                top = min(top, hi)
+                decided = True
+                break
+            for tol in (1e-9, 1e-11, 1e-7):
+                L, box = certify_min_slack(a0, al, tau0, T, K, f, t, wts, x, tol)
+                if L > 0.0:
+                    lo = t
+                    share = box
+                    decided = True
+                    break
+            if decided:
+                break
+        if not decided:
+            top = t
+    return lo, hi, share
+
+
 @_inline
 def try_fallback(a0, al, tau0, T, K, f, k_start, state, k_best):
-    """The robust primal of :func:`fallback`, then the KKT certificate."""
+    """The robust primal of :func:`fallback`, then the KKT certificate, then bisection."""
     n = al.shape[0]
     k = k_start.copy()
     lam = np.full(n, 1.0 / n)
     eta = np.zeros((n, 3))
-    t_up, low, status, share = fallback(a0, al, tau0, T, K, f, k, 1e-8)
+    centre = np.empty(k.shape[0])
+    t_up, low, status, share = fallback(a0, al, tau0, T, K, f, k, 1e-11, centre)
     if fold(state, k_best, k, t_up, max(low, 0.0), status, 5) or status == NOT_PUSHING:
         return
     k_fallback = k.copy()
@@ -1753,6 +2026,18 @@ def try_fallback(a0, al, tau0, T, K, f, k_start, state, k_best):
         t_up, low, share = finish_from(a0, al, tau0, T, K, f, k, lam, eta, tol, tol)
         if fold(state, k_best, k, t_up, low, BOUNDARY if share > 1e-9 else INTERIOR, 5):
             return
+    # the certified bisection, from the best point so far and the best bound
+    a = np.empty(n)
+    tau = np.empty((n, 2))
+    rho = np.empty(n)
+    theta = np.empty(n)
+    copy_into(k, k_fallback, k.shape[0])
+    t_up = evaluate(k, a0, al, tau0, T, a, tau, rho, theta)
+    if state[0] < t_up:
+        copy_into(k, k_best, k.shape[0])
+        t_up = state[0]
+    lo, hi, share = bisect(a0, al, tau0, T, K, f, k, centre, max(state[1], 0.0), t_up)
+    fold(state, k_best, k, hi, lo, BOUNDARY if share > 1e-9 else INTERIOR, 8)
 
 
 @_inline
@@ -1762,8 +2047,8 @@ def solve_one(F, E, N, K_in, f_in, k, theta, k_near, near):
     near: k_near (newtons) is the optimum of a nearby grasp (the previous pose of a
     trajectory): Newton's method starts there, with the sets it nearly has, first.
     path (diagnostic): 0 apex, 1 direct Newton, 2 SQP, 3 released finger, 4 SQP restarted,
-    5 fallback, 6 not certified to GAP_TOL, 7 from the nearby optimum; -1 (INVALID) if an
-    input is NaN or inf.
+    5 fallback, 6 not certified to GAP_TOL, 7 from the nearby optimum, 8 bisection;
+    -1 (INVALID) if an input is NaN or inf.
     """
     n = F.shape[0]
     m = E.shape[0]

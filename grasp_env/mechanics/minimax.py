@@ -17,17 +17,25 @@ lies in the cone |P_i - (n_i . P_i) n_i| <= tan(t) (n_i . P_i), convex in k. The
    (``follows``), Newton's method starts from the previous pose's optimum and the sets it
    nearly has, first: 19 poses in 20 of the random environment's trajectories need no more.
 2. **Certificate.** Weak duality: for weights l_i >= 0 and |y_i| <= 1 the vectors
-   z_i = l_i (cos t B_i y_i - sin t n_i) satisfy z_i . P <= 0 for every P in the cone, so if
-       L(t) = sum_i z_i . F_i - k_max || sum_i A_i' z_i ||_1 > 0
-   no k in the box has every theta_i <= t (the minimum over the box of an affine function).
-   The KKT multipliers at the optimum t* give L(t*) = 0 only in exact arithmetic; moved to
-   t* - 1e-11 rad and corrected so that the free components of the L1 term vanish, they give
-   L > 0: ``lower_bound`` is that t, computed, not assumed (force limits and released
-   fingers add their own dual terms). At t = 90 deg the same bound certifies NOT_PUSHING.
-3. **Fallback.** Whatever is not certified to 1e-9 rad goes to a robust method: Dinkelbach
+   z_i = l_i (cos t B_i y_i - sin t n_i) satisfy z_i . P <= 0 for every P in the cone, and
+   for any u_i, u_i . P - |u_i| f_max <= 0 for every |P| <= f_max, so if
+       L(t) = sum_i (z_i + u_i) . F_i - |u_i| f_max  -  k_max || sum_i A_i' (z_i + u_i) ||_1 > 0
+   no k in the box has every theta_i <= t within the force limits (the minimum over the box
+   of an affine function). The KKT multipliers at the optimum t* give L(t*) = 0 only in
+   exact arithmetic; moved to t* - 1e-11 rad and corrected (Gauss-Newton, minimum norm) so
+   that the free components of the L1 term vanish, they give L > 0: ``lower_bound`` is that
+   t, computed, not assumed (released fingers add their own dual terms). The corrections
+   cost only second-order terms because every dual direction may turn (u_i is a full
+   3-vector, not a multiple of P_i / |P_i|). At t = 90 deg the same bound certifies NOT_PUSHING.
+3. **Fallback.** Whatever is not certified to 1e-9 rad goes to robust methods: Dinkelbach
    iterations on t (with Crouzeix-Ferland-Schaible weights) over the convex cone problem at
-   fixed t, each solved by a log-barrier interior-point method, then stage 2 again. It also
-   decides NOT_PUSHING and infeasible force limits.
+   fixed t, each solved by a log-barrier method started 1% towards a centre of the box and
+   the force limits; stage 2 from its point (where the optimum is degenerate, with more
+   active constraints than unknowns, Newton's method drops the weakly active one); and, last,
+   bisection on t, each step decided by the barrier's primal point or by the certificate of
+   stage 2 built at the minimiser of the cone problem (the barrier's own duals are spoilt by
+   rounding below about 1e-6 rad). It also decides NOT_PUSHING and infeasible force limits,
+   each with its certificate.
 
 Forces are scaled by the largest equilibrating force inside the kernels, so the tolerances
 mean the same for any weight. The kernels compile once (about a minute) into numba's cache.
