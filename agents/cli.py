@@ -19,6 +19,7 @@ SUMMARIES = {
     "evaluate": "compare a trained agent with the minimax expert and baselines",
     "verify": "check grip forces in MuJoCo physics along a trajectory",
     "bench": "run the speed benchmarks in benchmarks/",
+    "gait": "when to phase fingers out and in: the certified optimal gait along a long rotation",
 }
 
 

@@ -416,3 +416,39 @@ def test_long_trajectories_need_phasing(trajectory):
     assert solution.greedy.margin < solution.optimal.margin
     # friction alone does not force it: ignoring reach, some fixed set holds throughout
     assert solution.values.margin.min(axis=0).max() > 0
+
+
+# ------------------------------------------------------------------------- the command
+
+
+def test_gait_command(tmp_path, capsys):
+    import csv
+
+    from grasp_env_agents.cli import main
+
+    out = tmp_path / "gait"
+    assert main(["gait", "--out", str(out), "--alpha-step", "10"]) == 0
+    printed = capsys.readouterr().out
+    assert "optimal gait: worst margin" in printed and "greedy gait" in printed
+    assert (out / "gait.png").stat().st_size > 10_000
+    rows = list(csv.DictReader((out / "gait.csv").open()))
+    assert [float(r["alpha_deg"]) for r in rows] == list(range(-90, 91, 10))
+    names = Hand().names
+    for row in rows:
+        loaded = [n for n in names if row[f"theta_{n}_deg"]]
+        assert 3 <= len(loaded) <= 4
+        assert all(row[f"site_{n}"] for n in loaded)  # a loaded finger touches a site
+        theta = max(float(row[f"theta_{n}_deg"]) for n in loaded)
+        assert np.isclose(float(row["theta_max_deg"]), theta, atol=1e-7)
+        limit = np.rad2deg(np.arctan(0.5))
+        assert np.isclose(float(row["margin_deg"]), limit - theta, atol=1e-7)
+        assert row["status"] in ("interior", "boundary", "not_pushing")
+    assert any(row["event"] for row in rows)  # it phases fingers
+
+
+def test_gait_command_refuses_bad_options(capsys):
+    from grasp_env_agents.cli import main
+
+    assert main(["gait", "--cone", "200", "--no-plots"]) == 2
+    assert "cone_deg" in capsys.readouterr().err
+    assert main(["gait", "--k-max", "-1", "--no-plots"]) == 2

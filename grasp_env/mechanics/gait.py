@@ -814,28 +814,70 @@ class GaitSolution:
         """Certificate gap of the optimal gait's margin, radians."""
         return self.bound - self.optimal.margin
 
+    def _poses(self, gait: Gait):
+        """(t, fingers in the set's site order, grasp of the set at t, its optimal k) of every
+        pose the gait holds."""
+        for t in range(len(gait.margins)):
+            if gait.sets[t] < 0:
+                continue
+            fingers = np.flatnonzero(gait.loaded[t])
+            fingers = fingers[np.argsort(gait.contacts[t, fingers])]  # the set's sites increase
+            group, column = self.values._locate(int(gait.sets[t]))
+            g = group.grasp
+            pose = Grasp(
+                g.positions[t, column],
+                g.normals[t, column],
+                g.equilibrating[t, column],
+                g.basis[t, column],
+                g.friction_limit,
+            )
+            yield t, fingers, pose, group.optimum.k[t, column], group.optimum.angles[t, column]
+
     def grips(self, gait: Gait) -> tuple[np.ndarray, np.ndarray]:
         """The certified optimal grip of a gait at every pose, per finger pair and per finger:
-        k (T, F (F - 1) / 2) (0 for pairs not both loaded) and friction angles (T, F) (NaN
-        for fingers not loaded); NaN rows after a drop."""
+        k (T, F (F - 1) / 2), pairs (f, g) f < g as :func:`~.forces.contact_pairs` (F), 0 for
+        pairs not both loaded, and friction angles (T, F), NaN for fingers not loaded; NaN
+        rows after the gait breaks the rules."""
         F = self.hand.n_fingers
         pairs = {p: q for q, p in enumerate(combinations(range(F), 2))}
         T = len(gait.margins)
-        k = np.zeros((T, n_pairs(F)))
+        k = np.where((gait.sets >= 0)[:, None], 0.0, np.nan) * np.ones((T, n_pairs(F)))
         angles = np.full((T, F), np.nan)
-        for t in range(T):
-            if gait.sets[t] < 0:
-                k[t] = np.nan
-                continue
-            fingers = np.flatnonzero(gait.loaded[t])
-            order = np.argsort(gait.contacts[t, fingers])  # the set's sites increase
-            fingers = fingers[order]
-            kt, at = self.values.grip(t, int(gait.sets[t]))
+        for t, fingers, _, kt, at in self._poses(gait):
             angles[t, fingers] = at
             for q, (i, j) in enumerate(combinations(range(len(fingers)), 2)):
-                f, g = sorted((fingers[i], fingers[j]))
-                k[t, pairs[(f, g)]] = kt[q]
+                k[t, pairs[tuple(sorted((fingers[i], fingers[j])))]] = kt[q]
         return k, angles
+
+    def statuses(self, gait: Gait) -> np.ndarray:
+        """The minimax :class:`~.minimax.Status` of the loaded set at every pose (T,) int8,
+        -1 after the gait breaks the rules."""
+        status = np.full(len(gait.margins), -1, np.int8)
+        for t in np.flatnonzero(gait.sets >= 0):
+            group, column = self.values._locate(int(gait.sets[t]))
+            status[t] = group.optimum.status[t, column]
+        return status
+
+    def forces(self, gait: Gait) -> np.ndarray:
+        """Each finger's contact force P_f on the object at the gait's grip, world frame,
+        newtons: (T, F, 3), zero for fingers not loaded (a finger being lifted or placed
+        touches with zero force), NaN after the gait breaks the rules."""
+        T, F = gait.loaded.shape
+        forces = np.where((gait.sets >= 0)[:, None, None], 0.0, np.nan) * np.ones((T, F, 3))
+        for t, fingers, pose, kt, _ in self._poses(gait):
+            forces[t, fingers] = pose.forces(kt)
+        return forces
+
+    def positions(self, gait: Gait) -> np.ndarray:
+        """World-frame positions of the sites the fingers touch, relative to the centre of
+        gravity, p = R (c - g): (T, F, 3), NaN where a finger touches nothing."""
+        rotations = self.trajectory.rotations()
+        relative = self.scene.sites - np.asarray(self.scene.cg_offset)
+        world = np.einsum("tij,nj->tni", rotations, relative)  # (T, N, 3)
+        sites = np.maximum(gait.contacts, 0)
+        out = np.take_along_axis(world, sites[..., None], axis=1)
+        out[gait.contacts < 0] = np.nan
+        return out
 
 
 def solve_gait(
