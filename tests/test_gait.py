@@ -141,7 +141,8 @@ def brute_force(margin, reach, start=None):
     Written from the rules in the gait module's docstring, not from its tables: at each pose
     every touching finger must reach its site; the move is to keep (all touching fingers
     carry load), lift a touching finger (zero force now, gone next) or place a free finger on
-    a free site it reaches now (zero force now, loaded next); 3 or 4 fingers carry load.
+    a free site it reaches now (zero force now, loaded next); 3 or 4 fingers touch, 3 or 4
+    carry load.
     """
     T, F, N = reach.shape
     index = {s: i for i, s in enumerate(site_sets(N))}
@@ -158,7 +159,7 @@ def brute_force(margin, reach, start=None):
         for f in range(F):
             if a[f] >= 0:
                 options.append(((f, "lift"), (*a[:f], -1, *a[f + 1 :])))
-            else:
+            elif len(touching(a)) < 4:  # at most four fingers touch
                 for s in range(N):
                     if s not in a and reach[t, f, s]:
                         options.append(((f, "place"), (*a[:f], s, *a[f + 1 :])))
@@ -172,7 +173,7 @@ def brute_force(margin, reach, start=None):
 
     starts = [tuple(start)] if start is not None else []
     if start is None:
-        for count in (3, 4, 5):
+        for count in (3, 4):
             for fingers in combinations(range(F), count):
                 for sites in permutations(range(N), count):
                     a = [-1] * F

@@ -5,12 +5,14 @@ has F fingers, each of which can push on a site only while the site's normal lie
 cone. At every pose each finger touches one site or none. A **gait** says, pose by pose, which
 finger touches which site and which fingers carry load; it obeys the hand's rules:
 
-1. at every pose 3 or 4 fingers carry load (three is the least that can grasp; the minimax
-   solver takes at most four), each on a site it can reach at that pose;
+1. at every pose 3 or 4 fingers touch the object (three is the least that can grasp; the
+   minimax solver takes at most four), each on a site it can reach at that pose;
 2. at most one finger changes per pose (one **move**): a finger is **phased out** (lifted) at
    a pose where it still touches its site, reachable, but carries zero force; it is gone from
    the next pose on. A finger is **phased in** (placed) on a free site it can reach at a pose
-   where it touches with zero force; it carries load from the next pose on.
+   where it touches with zero force; it carries load from the next pose on. So a lift needs
+   four fingers touching (three carry the load meanwhile) and a placement three (the placed
+   finger makes four); every other touching finger carries load.
 
 The margin of a pose is the certified minimax margin theta_lim - min_k max_i theta_i(k)
 (eq. 2 and 4) of the site set that carries load there, over the action box |k_ij| <= k_max.
@@ -45,8 +47,8 @@ from .trajectory import PAPER_AXIS, Trajectory
 
 #: Fewest and most fingers that carry load at a pose.
 MIN_LOADED, MAX_LOADED = 3, 4
-#: Most fingers touching at a pose: the loaded ones and one being placed.
-MAX_TOUCHING = MAX_LOADED + 1
+#: Most fingers touching at a pose (one of them may be being lifted or placed).
+MAX_TOUCHING = MAX_LOADED
 #: The default sites: one per face of the unit cube, off its centre (fractions of the
 #: half-widths, see :func:`~.scene.face_point`), so that the normal lines do not all pass
 #: through the centre of gravity (with face centres every optimum is 0 deg, DESIGN.md §1).
@@ -306,7 +308,7 @@ class GaitStates:
 
     Attributes:
         n_fingers, n_sites: F and N.
-        states: (X, F) the site each finger touches (-1: none); 3 to 5 fingers touch.
+        states: (X, F) the site each finger touches (-1: none); 3 or 4 fingers touch.
         code: ((N + 1)^F,) state index of an assignment's code sum_f (a_f + 1) (N + 1)^f, -1
             where the assignment is not a state.
         ptr, move, next, loaded: the valid moves of state x are move[ptr[x]:ptr[x + 1]] (move
@@ -329,7 +331,7 @@ class GaitStates:
 
     def index(self, assignment: ArrayLike) -> int:
         """The state index of an assignment (F,) of sites (-1: not touching); ValueError if it
-        is no state (a site used twice, fewer than 3 or more than 5 fingers touching)."""
+        is no state (a site used twice, fewer than 3 or more than 4 fingers touching)."""
         a = np.asarray(assignment, dtype=np.int64)
         if a.shape != (self.n_fingers,) or np.any(a < -1) or np.any(a >= self.n_sites):
             raise ValueError(
@@ -394,9 +396,8 @@ def _enumerate(F, N, set_code):
             c += (a[f] + 1) * power[f]
         for m in range(M):
             if m == 0:  # keep: every touching finger carries load
-                if touching <= MAX_LOADED:
-                    move[k], nxt[k], loaded[k] = 0, x, set_code[used]
-                    k += 1
+                move[k], nxt[k], loaded[k] = 0, x, set_code[used]
+                k += 1
                 continue
             f = (m - 1) // N
             s = (m - 1) % N
@@ -405,7 +406,7 @@ def _enumerate(F, N, set_code):
                     rest = used & ~(1 << s)
                     move[k], nxt[k], loaded[k] = m, code[c - (s + 1) * power[f]], set_code[rest]
                     k += 1
-            elif a[f] < 0 and not used & (1 << s) and touching <= MAX_LOADED:
+            elif a[f] < 0 and not used & (1 << s) and touching < MAX_TOUCHING:
                 # place: touches now with zero force, loaded next
                 move[k], nxt[k], loaded[k] = m, code[c + (s + 1) * power[f]], set_code[used]
                 k += 1
@@ -544,46 +545,37 @@ def _programme(states, ptr, move, nxt, loaded, margin, reach, start):
 
 
 @numba.njit(cache=True)
-def _greedy(states, ptr, move, nxt, loaded, margin, reach, start):
-    """The greedy rule, played from ``start`` (< 0: its own best first choice): at each pose
-    the move that maximises the smaller of the margin now and the best margin the next pose
-    then allows (ties: the larger margin now, then fewer moves). Returns (choice (T,) CSR
-    indices, start); choice -1 from where the hand breaks its rules."""
+def _greedy(states, ptr, move, nxt, loaded, margin, reach):
+    """The greedy rule from every state at every pose: the move that maximises the smaller of
+    the margin now and the best margin the next pose then allows (ties: the larger margin now,
+    then fewer moves). Returns (policy (T, X) CSR indices, score (T, X) of each choice)."""
     T = margin.shape[0]
     X = states.shape[0]
     ok = _state_ok(states, reach)
     vals = np.empty(move.shape[0])
-    ahead = np.empty(move.shape[0])
-    choice = np.full(T, -1, np.int64)
-    _pose_values(0, states, ptr, move, loaded, margin, reach, ok, vals)
-    candidates = np.arange(X) if start < 0 else np.array([start])
-    x = -1
-    best_l = -np.inf
-    best_v = -np.inf
+    best = np.full((T + 1, X), np.inf)  # the best margin each state allows at each pose
     for t in range(T):
-        if t + 1 < T:
-            _pose_values(t + 1, states, ptr, move, loaded, margin, reach, ok, ahead)
-        arg = -1
-        for x0 in candidates:
-            for k in range(ptr[x0], ptr[x0 + 1]):
-                v = vals[k]
-                look = v
-                if t + 1 < T:
-                    y = nxt[k]
-                    after = -np.inf
-                    for j in range(ptr[y], ptr[y + 1]):
-                        after = max(after, ahead[j])
-                    look = min(v, after)
-                if arg < 0 or look > best_l or (look == best_l and v > best_v):
-                    best_l, best_v, arg, x = look, v, k, x0
-        if t == 0:
-            start = x
-        if vals[arg] == -np.inf:
-            break  # no allowed move: the hand breaks its rules here
-        choice[t] = arg
-        candidates = np.array([nxt[arg]])
-        vals, ahead = ahead, vals
-    return choice, start
+        _pose_values(t, states, ptr, move, loaded, margin, reach, ok, vals)
+        for x in range(X):
+            b = -np.inf
+            for k in range(ptr[x], ptr[x + 1]):
+                b = max(b, vals[k])
+            best[t, x] = b
+    policy = np.empty((T, X), np.int64)
+    score = np.empty((T, X))
+    for t in range(T):
+        _pose_values(t, states, ptr, move, loaded, margin, reach, ok, vals)
+        for x in range(X):
+            arg = ptr[x]
+            top = -np.inf
+            now = -np.inf
+            for k in range(ptr[x], ptr[x + 1]):
+                look = min(vals[k], best[t + 1, nxt[k]])
+                if k == ptr[x] or look > top or (look == top and vals[k] > now):
+                    top, now, arg = look, vals[k], k
+            policy[t, x] = arg
+            score[t, x] = top
+    return policy, score
 
 
 @dataclass(frozen=True)
@@ -599,8 +591,8 @@ class Gait:
         sets: (T,) the loaded site set (index into :func:`site_sets`).
         margins: (T,) the margin of each pose, radians.
         table: the state tables the indices refer to.
-        policy: for the optimal gait, (T, X) an optimal move (CSR index) from every state at
-            every pose; else None.
+        policy: for the optimal and the greedy gait, (T, X) the move (CSR index) their rule
+            takes from every state at every pose; else None.
 
     From the pose where a gait breaks the hand's rules (no allowed move is left: the hand
     would lose a site under load or drop below three fingers) its states, sets and contacts
@@ -741,14 +733,17 @@ def greedy_gait(margin: ArrayLike, reach: ArrayLike, start: ArrayLike | None = N
     """The greedy baseline: at each pose the move that maximises the smaller of that pose's
     margin and the best margin the next pose then allows (a one-pose lookahead, so that it
     lifts a finger before the finger loses its site, where it can); ties: the larger margin
-    now, then fewer moves. Default start: its own best first choice."""
+    now, then fewer moves. Default start: its own best first choice. Its ``policy`` is the
+    greedy rule from every state at every pose."""
     margin, reach = _check_inputs(margin, reach)
     table = gait_states(reach.shape[1], reach.shape[2])
-    choices, x = _greedy(
-        table.states, table.ptr, table.move, table.next, table.loaded, margin, reach,
-        _start_index(table, start),
-    )  # fmt: skip
-    return _follow(table, x, choices, margin, reach)
+    policy, score = _greedy(
+        table.states, table.ptr, table.move, table.next, table.loaded, margin, reach
+    )
+    policy.flags.writeable = False
+    x = int(np.argmax(score[0])) if start is None else table.index(start)
+    gait = _follow(table, x, _policy_choices(table, policy, x), margin, reach)
+    return Gait(**{**gait.__dict__, "policy": policy})
 
 
 def best_fixed(margin: ArrayLike, reach: ArrayLike) -> Gait:
