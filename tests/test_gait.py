@@ -356,8 +356,7 @@ def test_gait_keeps_the_rules(coarse):
         assert len(fingers) - gait.loaded[t].sum() <= 1  # at most one finger changing
         if t:
             was, now = gait.contacts[t - 1], gait.contacts[t]
-            changed = np.flatnonzero(was != now)
-            assert len(changed) <= 1
+            changed = np.flatnonzero(was != now)  # a lift at t - 1 and a placement at t
             for f in changed:  # lifted at t - 1 with zero force, and/or placed at t with none
                 assert was[f] < 0 or not gait.loaded[t - 1, f]
                 assert now[f] < 0 or not gait.loaded[t, f]
