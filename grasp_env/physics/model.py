@@ -1,14 +1,25 @@
 """The MuJoCo model of a scene: the box on a free joint and one force-driven fingertip per contact.
 
-The settings are those that make MuJoCo's verdict agree with the analytic friction cone
-(DESIGN.md §2): elliptic cones, a high impratio and stiff contacts so that a grasp inside the cone
-does not creep, noslip iterations to enforce the cone exactly, 1 ms steps, and the dense
-Jacobian (MuJoCo 4.0.0's sparse factorisation has a bug, fixed in 4.0.1).
+**Units.** The statics are scale-free (forces in units of the weight w, lengths in units of the
+box's largest edge L; DESIGN.md §1), so the model is the scene scaled to a 1 N box of largest edge
+1: the object's mass is 1 / G, every force is divided by w and every length by L. Any accepted
+weight or size then gives the same well-conditioned model (a 1e-9 N weight would otherwise give
+MuJoCo masses below its mjMINVAL). For L = 1 m the dynamics are the real ones; for another L they
+are the real ones with time scaled by sqrt(L), which leaves the quasi-static verdict unchanged.
 
-Each fingertip is a small sphere on a body with three world-axis slide joints, gravity
-compensated and driven by three force motors, so ``ctrl`` is exactly the commanded contact force
-P_i (world frame). Each touches the box through one explicit contact pair with the scene's mu;
-nothing else collides.
+**Frame.** The model's world is the *hand's* frame, which turns with the object along a
+trajectory (docs/physics.md): the object rests at the identity orientation with its centre of
+gravity at the origin, and the load (the weight and any extra wrench, turned into the object's
+frame) is an applied force at its centre of gravity (``xfrc_applied``), not MuJoCo's gravity.
+Gravity is zero, so the fingertips need no gravity compensation.
+
+**Contacts.** The settings are those that make MuJoCo's verdict agree with the analytic friction
+cone (DESIGN.md §2): elliptic cones, a high impratio and stiff contacts so that a grasp inside
+the cone does not creep, noslip iterations to enforce the cone exactly, and the dense Jacobian
+(MuJoCo 4.0.0's sparse factorisation has a bug, fixed in 4.0.1). Each fingertip is a small sphere
+on a body with three slide joints, driven by three force motors, so ``ctrl`` is exactly the
+commanded contact force P_i. Each touches the box through one explicit contact pair with the
+scene's mu; nothing else collides.
 """
 
 from __future__ import annotations
@@ -18,40 +29,73 @@ from numpy.typing import ArrayLike
 
 from grasp_env.mechanics import Scene, matrix_quaternion
 
-#: Standard gravity, m/s^2: the object's mass is weight / G so that MuJoCo's gravity gives it
-#: the scene's weight along world -z.
+#: Standard gravity, m/s^2: the object's mass is 1 / G, so that a 1 N load accelerates it as
+#: the real weight accelerates the real box.
 G = 9.81
-#: Simulation step, seconds.
-TIMESTEP = 1e-3
 #: Fingertip sphere radius as a fraction of the box's smallest edge: small enough to be a point
 #: contact, large enough to see.
 TIP_RADIUS = 0.02
 #: Fingertip mass as a fraction of the object's: light, so that a finger whose force leaves the
 #: cone accelerates along the face quickly and the slip shows within the hold.
-TIP_MASS = 0.02
+TIP_MASS = 1e-3
 #: The fingertips start this deep inside the face, as a fraction of the tip radius: at zero
 #: distance MuJoCo makes no contact on the first step.
-TIP_PENETRATION = 0.005
+TIP_PENETRATION = 5e-7
+#: A finger out of contact (released, or lifted in a gait) is parked this far off its face, in
+#: tip radii: out of reach of the box.
+PARK_DISTANCE = 3.0
 #: The object's rotational inertia is this many times a uniform box's. Statics do not depend on
 #: it, and a large one slows the rotational instability of pure force control (DESIGN.md §2):
-#: with fixed world-frame forces, a small rotation of the object changes the torque of every
-#: contact force, which rotates it further.
-INERTIA_SCALE = 100.0
-#: Friction cone drawn per contact: its height as a fraction of the box's smallest edge.
-CONE_HEIGHT = 0.3
+#: with fixed forces, a small rotation of the object changes the torque of every contact force,
+#: which rotates it further.
+INERTIA_SCALE = 1e4
+#: Friction cone drawn per contact: the length of its slant side as a fraction of the box's
+#: smallest edge. A fixed slant keeps the cone finite for any mu (a fixed height would not).
+CONE_SLANT = 0.35
+#: The drawn cone's half-angle is atan(mu) clamped to this range, degrees: a thinner cone has no
+#: volume for MuJoCo's mesh compiler (and would not show), a wider one is a flat disc.
+CONE_ANGLE_RANGE_DEG = (0.5, 89.5)
 #: Contact softness: stiff (time constant 5 ms, critically damped) and nearly hard impedance.
 SOLREF = "0.005 1"
 SOLIMP = "0.95 0.99 0.001 0.5 2"
 
 
-def _vec(values: np.ndarray) -> str:
+def _vec(values: ArrayLike) -> str:
     return " ".join(f"{float(v):.17g}" for v in np.ravel(values))
 
 
-def cone_vertices(friction_limit: float, height: float, segments: int = 32) -> np.ndarray:
-    """A friction cone of half-angle ``friction_limit``: apex at the origin, axis +z."""
+def length_unit(scene: Scene) -> float:
+    """L, the model's unit of length: the box's largest edge."""
+    return float(np.max(scene.size))
+
+
+def model_size(scene: Scene) -> np.ndarray:
+    """The box's edge lengths in the model, (3,): the largest is 1."""
+    return np.asarray(scene.size, dtype=float) / length_unit(scene)
+
+
+def tip_radius(scene: Scene) -> float:
+    """The fingertip radius in the model's units."""
+    return TIP_RADIUS * float(np.min(model_size(scene)))
+
+
+def model_contacts(scene: Scene) -> np.ndarray:
+    """The contact points relative to the box centre in the model's units, (n, 3)."""
+    return np.asarray(scene.contacts) / length_unit(scene)
+
+
+def model_cg(scene: Scene) -> np.ndarray:
+    """The centre of gravity relative to the box centre in the model's units, (3,)."""
+    return np.asarray(scene.cg_offset) / length_unit(scene)
+
+
+def cone_vertices(friction_limit: float, slant: float, segments: int = 32) -> np.ndarray:
+    """A friction cone of half-angle ``friction_limit`` (clamped to
+    :data:`CONE_ANGLE_RANGE_DEG`) and slant side ``slant``: apex at the origin, axis +z."""
+    low, high = np.radians(CONE_ANGLE_RANGE_DEG)
+    angle = float(np.clip(friction_limit, low, high))
     angles = np.linspace(0.0, 2 * np.pi, segments, endpoint=False)
-    radius = height * np.tan(friction_limit)
+    radius, height = slant * np.sin(angle), slant * np.cos(angle)
     rim = np.stack(
         [radius * np.cos(angles), radius * np.sin(angles), np.full(segments, height)], -1
     )
@@ -69,61 +113,76 @@ def _z_to(direction: np.ndarray) -> np.ndarray:
     return np.concatenate([[np.cos(half)], np.sin(half) * axis / s])
 
 
-def tip_radius(scene: Scene) -> float:
-    return TIP_RADIUS * float(np.min(scene.size))
-
-
 def check_rotation(rotation: ArrayLike) -> np.ndarray:
     """``rotation`` as a (3, 3) float array, or a ValueError saying what is wrong with it."""
-    rotation = np.asarray(rotation, dtype=float)
-    if rotation.shape != (3, 3):
-        raise ValueError(f"rotation must be a (3, 3) matrix, got shape {rotation.shape}")
-    if not np.all(np.isfinite(rotation)):
+    return check_rotations(rotation, single=True)
+
+
+def check_rotations(rotations: ArrayLike, single: bool = False) -> np.ndarray:
+    """``rotations`` as a (T, 3, 3) float array (or (3, 3) with ``single``), or a ValueError."""
+    rotations = np.asarray(rotations, dtype=float)
+    shape = "a (3, 3) matrix" if single else "an array of (3, 3) matrices, shape (T, 3, 3)"
+    if (single and rotations.shape != (3, 3)) or (
+        not single and (rotations.ndim != 3 or rotations.shape[1:] != (3, 3) or not rotations.size)
+    ):
+        raise ValueError(f"rotation must be {shape}, got shape {rotations.shape}")
+    if not np.all(np.isfinite(rotations)):
         raise ValueError("rotation must be finite (got NaN or inf)")
-    if not np.allclose(rotation.T @ rotation, np.eye(3), atol=1e-6) or np.linalg.det(rotation) < 0:
+    gram = np.swapaxes(rotations, -1, -2) @ rotations
+    if not np.allclose(gram, np.eye(3), atol=1e-6) or np.any(np.linalg.det(rotations) < 0):
         raise ValueError("rotation must be a proper rotation matrix (orthonormal, det = +1)")
-    return rotation
+    return rotations
 
 
-def check_forces(forces: ArrayLike, n_contacts: int) -> np.ndarray:
-    """``forces`` as an (n, 3) float array, or a ValueError saying what is wrong with them."""
+def check_forces(forces: ArrayLike, n_contacts: int, leading: tuple[int, ...] = ()) -> np.ndarray:
+    """``forces`` as a (*leading, n, 3) float array, or a ValueError saying what is wrong."""
     forces = np.asarray(forces, dtype=float)
-    if forces.shape != (n_contacts, 3):
+    shape = (*leading, n_contacts, 3)
+    if forces.shape != shape:
         raise ValueError(
-            f"contact_forces must have shape ({n_contacts}, 3), one world-frame force per"
-            f" finger, got {forces.shape}"
+            f"contact_forces must have shape {shape}, one world-frame force per finger, got"
+            f" {forces.shape}"
         )
     if not np.all(np.isfinite(forces)):
         raise ValueError("contact_forces must be finite (got NaN or inf)")
     return forces
 
 
-def pose_qpos(scene: Scene, rotation: np.ndarray) -> np.ndarray:
-    """qpos of the model of ``scene``: the object at ``rotation`` with its centre of gravity at
-    the world origin, and each fingertip just inside its face at the contact point."""
+def tip_positions(scene: Scene, in_contact: np.ndarray) -> np.ndarray:
+    """Object-frame fingertip centres in the model's units, (n, 3): just inside the face at the
+    contact point for a finger in contact, :data:`PARK_DISTANCE` radii off it otherwise."""
+    radius = tip_radius(scene)
+    standoff = np.where(in_contact, radius * (1 - TIP_PENETRATION), radius * PARK_DISTANCE)
+    return model_contacts(scene) - standoff[:, None] * scene.normals
+
+
+def world_qpos(
+    scene: Scene, rotation: np.ndarray, in_contact: np.ndarray | None = None
+) -> np.ndarray:
+    """qpos of the model with the object at ``rotation`` (world frame, for drawing): its centre
+    of gravity at the origin, each fingertip at its contact (or parked off it)."""
+    if in_contact is None:
+        in_contact = np.ones(scene.n_contacts, dtype=bool)
     qpos = np.zeros(7 + 3 * scene.n_contacts)
-    qpos[:3] = -rotation @ scene.cg_offset
+    qpos[:3] = -rotation @ model_cg(scene)
     qpos[3:7] = matrix_quaternion(rotation)
-    positions = scene.relative_contacts() @ rotation.T
-    normals = scene.normals @ rotation.T
-    standoff = tip_radius(scene) * (1 - TIP_PENETRATION)
-    qpos[7:] = (positions - standoff * normals).ravel()
+    qpos[7:] = ((tip_positions(scene, in_contact) - model_cg(scene)) @ rotation.T).ravel()
     return qpos
 
 
-def build_mjcf(scene: Scene) -> str:
+def build_mjcf(scene: Scene, timestep: float = 2e-3, visual: bool = False) -> str:
     """The MJCF text of ``scene``'s model (see the module docstring).
 
     The object body's frame is the box centre; its centre of gravity is the scene's
     ``cg_offset``. Joint positions (the object's pose, the fingertips' centres) are set per
-    check, so one model serves every orientation. The friction cones are visual only
-    (``contype = conaffinity = 0``, group 2) and open outwards from each contact, so the
-    finger's push, drawn ending at the contact, lies inside its cone exactly when it holds.
+    run, so one model serves every orientation. With ``visual`` the model also carries what
+    :class:`~grasp_env.physics.GraspView` draws: a sky, lights and the friction cones (visual
+    only: ``contype = conaffinity = 0``, group 2), which open outwards from each contact, so
+    the finger's push, drawn ending at the contact, lies inside its cone exactly when it holds.
     """
-    size = np.asarray(scene.size, dtype=float)
-    mass = scene.weight / G
-    # Uniform-box inertia about the centre of gravity: any positive inertia would do for a
-    # static check; this one keeps the dynamics plausible.
+    size = model_size(scene)
+    mass = 1.0 / G
+    # Uniform-box inertia about the centre of gravity, scaled (see INERTIA_SCALE).
     inertia = (
         INERTIA_SCALE
         * mass
@@ -135,23 +194,11 @@ def build_mjcf(scene: Scene) -> str:
     radius = tip_radius(scene)
     tip_mass = TIP_MASS * mass
     tip_inertia = 0.4 * tip_mass * radius**2
-    cone_height = CONE_HEIGHT * float(np.min(size))
-    extent = float(np.max(size))
-
-    assets = [
-        '<texture name="sky" type="skybox" builtin="gradient" rgb1="0.85 0.9 0.95"'
-        ' rgb2="0.35 0.45 0.55" width="64" height="256"/>',
-        f'<mesh name="cone" vertex="{_vec(cone_vertices(scene.friction_limit, cone_height))}"/>',
-    ]
-    cones, fingers, pairs, motors = [], [], [], []
-    for i, (contact, normal) in enumerate(zip(scene.contacts, scene.normals, strict=True)):
-        cones.append(
-            f'<geom name="cone{i}" type="mesh" mesh="cone" pos="{_vec(contact)}"'
-            f' quat="{_vec(_z_to(-normal))}" contype="0" conaffinity="0" group="2"'
-            ' rgba="0.2 0.8 0.2 0.35"/>'
-        )
+    contacts = model_contacts(scene)
+    fingers, pairs, motors, cones = [], [], [], []
+    for i, (contact, normal) in enumerate(zip(contacts, scene.normals, strict=True)):
         fingers.append(
-            f'<body name="finger{i}" gravcomp="1">'
+            f'<body name="finger{i}">'
             + "".join(
                 f'<joint name="finger{i}_{a}" type="slide" axis="{_vec(np.eye(3)[j])}"/>'
                 for j, a in enumerate("xyz")
@@ -168,29 +215,42 @@ def build_mjcf(scene: Scene) -> str:
             f' solref="{SOLREF}" solimp="{SOLIMP}"/>'
         )
         motors.extend(f'<motor name="finger{i}_{a}" joint="finger{i}_{a}"/>' for a in "xyz")
+        cones.append(
+            f'<geom name="cone{i}" type="mesh" mesh="cone" pos="{_vec(contact)}"'
+            f' quat="{_vec(_z_to(-normal))}" contype="0" conaffinity="0" group="2"'
+            ' rgba="0.2 0.8 0.2 0.35"/>'
+        )
+    visuals = assets = light = ""
+    if visual:
+        slant = CONE_SLANT * float(np.min(size))
+        assets = (
+            '<asset><texture name="sky" type="skybox" builtin="gradient" rgb1="0.85 0.9 0.95"'
+            ' rgb2="0.35 0.45 0.55" width="64" height="256"/>'
+            f'<mesh name="cone" vertex="{_vec(cone_vertices(scene.friction_limit, slant))}"/>'
+            "</asset>"
+        )
+        visuals = "".join(cones)
+        light = '<light pos="1 -1 3" dir="-1 1 -3" diffuse="0.5 0.5 0.5"/>'
 
     return f"""<mujoco model="grasp">
   <compiler angle="radian" autolimits="true"/>
-  <option timestep="{TIMESTEP}" gravity="0 0 {-G}" cone="elliptic" impratio="100"
+  <option timestep="{timestep:.17g}" gravity="0 0 0" cone="elliptic" impratio="100"
           noslip_iterations="20" jacobian="dense"/>
   <visual>
     <global offwidth="1280" offheight="1280"/>
     <map znear="0.01" zfar="50"/>
     <headlight ambient="0.4 0.4 0.4" diffuse="0.6 0.6 0.6"/>
   </visual>
-  <statistic center="0 0 0" extent="{extent:.17g}"/>
-  <asset>
-    {"".join(assets)}
-  </asset>
+  <statistic center="0 0 0" extent="1"/>
+  {assets}
   <worldbody>
-    <light pos="{_vec([extent, -extent, 3 * extent])}" dir="{_vec([-1, 1, -3])}"
-           diffuse="0.5 0.5 0.5"/>
+    {light}
     <body name="object">
       <freejoint name="object"/>
-      <inertial pos="{_vec(scene.cg_offset)}" mass="{mass:.17g}" diaginertia="{_vec(inertia)}"/>
+      <inertial pos="{_vec(model_cg(scene))}" mass="{mass:.17g}" diaginertia="{_vec(inertia)}"/>
       <geom name="box" type="box" size="{_vec(size / 2)}" rgba="0.55 0.7 0.95 0.45"
             contype="0" conaffinity="0"/>
-      {"".join(cones)}
+      {visuals}
     </body>
     {"".join(fingers)}
   </worldbody>

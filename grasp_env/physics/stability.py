@@ -1,35 +1,74 @@
-"""Grasp stability checked in MuJoCo physics: does a set of contact forces hold the box?
+"""Grasp stability checked in MuJoCo physics: do a set of contact forces hold the box at a pose?
 
-One check (DESIGN.md §2): place the box at the given orientation with its centre of gravity at
-the world origin and the fingertips just inside its faces; drive the fingertips with the
-commanded forces; settle briefly with a high friction coefficient (so that building up the
-contact forces cannot itself cause slip); switch to the scene's mu; hold, and measure how far
-each fingertip slides along its face. The grasp holds when no fingertip slides more than
-``slip_threshold``, every fingertip stays in contact, and the object stays put (moves at most
-``drift_threshold``: forces that do not balance the load carry it away, fingers and all).
+One check (DESIGN.md §2, docs/physics.md): the box at rest with its centre of gravity at the
+origin, the fingertips just inside its faces, the commanded forces and the load applied; a
+settle with a high friction coefficient (so that building up the contact forces cannot itself
+cause slip); then a hold at the scene's mu, measuring how far each fingertip slides along its
+face. The grasp holds when no fingertip in contact slides more than ``slip_threshold``, none
+leaves its face by more than that, and the object stays put: its centre of gravity moves at most
+``drift_threshold`` and it turns at most ``rotation_threshold_deg`` (forces that do not balance
+the load carry it away, fingers and all).
+
+A finger whose commanded force is at most ``released_force`` x w (an optimum that releases it)
+carries no load: it is reported as released and not judged (its force is still applied), so it
+is not a lost hold; a finger declared out of contact (``in_contact``) is parked off its face.
+
+Checks of many poses run in parallel (``check_batch``): ``mujoco.rollout`` steps them on a
+thread pool, and the verdicts do not depend on the number of threads.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-import mujoco
 import numpy as np
 from numpy.typing import ArrayLike
 
-from grasp_env.mechanics import Scene, matrix_quaternion
+from grasp_env.mechanics import Scene
 
-from .model import build_mjcf, check_forces, check_rotation, pose_qpos
+from .model import check_forces, check_rotations
+from .motion import Motion, plan_motion
+from .simulation import PhysicsModel, Trace, simulate
 
-# Defaults of the check (DESIGN.md §2), all overridable as StabilityChecker keywords.
+# Defaults of the check and of the continuous rollout (docs/physics.md), all overridable as
+# StabilityChecker and TrajectoryChecker keywords. Lengths are in units of the box's largest
+# edge L, forces in units of the weight w.
 SETTINGS: dict[str, float] = {
+    "timestep": 0.002,  #: seconds per MuJoCo step (at most 2.5 ms: half the contact's 5 ms)
     "settle_time": 0.05,  #: seconds at ``settle_mu`` before the real mu applies
     "settle_mu": 10.0,  #: friction coefficient while the contact forces build up
-    "hold_time": 0.5,  #: seconds held at the scene's mu
-    "slip_threshold": 1e-4,  #: metres of tangential slip along a face that count as slipping
-    "drift_threshold": 1e-3,  #: metres the object may move: more means forces out of balance
-    "check_interval": 0.05,  #: seconds between slip checks (the check stops at the first slip)
+    "hold_time": 0.2,  #: seconds held at the (last) pose at the scene's mu
+    "slip_threshold": 1e-4,  #: slide along a face (or lift off it) that counts as slipping, L
+    "drift_threshold": 1e-3,  #: distance the centre of gravity may move, L
+    "rotation_threshold_deg": 0.1,  #: angle the object may turn, degrees
+    "released_force": 1e-4,  #: a finger pushing at most this, in units of w, is released
+    "time_per_degree": 0.05,  #: rollout: seconds per degree the object turns between poses
+    "min_segment_time": 0.05,  #: rollout: least seconds between two poses
 }
+#: The contact's time constant (model.SOLREF) must span at least two steps.
+MAX_TIMESTEP = 0.0025
+
+
+def check_settings(settings: dict[str, float]) -> dict[str, float]:
+    """The defaults updated with ``settings``, or a ValueError naming a bad key or value."""
+    unknown = set(settings) - set(SETTINGS)
+    if unknown:
+        raise ValueError(f"unknown physics settings {sorted(unknown)}; expected {sorted(SETTINGS)}")
+    merged = dict(SETTINGS)
+    for name, value in settings.items():
+        try:
+            merged[name] = float(value)
+        except (TypeError, ValueError) as error:
+            raise ValueError(f"{name} must be a finite number > 0, got {value!r}") from error
+    for name, value in merged.items():
+        if not np.isfinite(value) or value <= 0:
+            raise ValueError(f"{name} must be a finite number > 0, got {value}")
+    if merged["timestep"] > MAX_TIMESTEP:
+        raise ValueError(
+            f"timestep must be in (0, {MAX_TIMESTEP}] s (the contact's time constant spans two"
+            f" steps), got {merged['timestep']}"
+        )
+    return merged
 
 
 @dataclass(frozen=True)
@@ -37,19 +76,23 @@ class PhysicsReport:
     """The outcome of one MuJoCo check.
 
     Attributes:
-        holds: no fingertip slid more than the slip threshold, none lost contact, and the object
-            stayed put (drift within the drift threshold; more means the forces do not balance
-            the load).
-        slip: (n,) tangential slide of each fingertip along its face during the hold, metres.
-        contact_lost: (n,) whether fingertip i was out of contact at the end.
-        drift: displacement of the object's centre of gravity during the hold, metres.
-        rotation_deg: rotation of the object during the hold, degrees.
-        time: simulated seconds of hold (shorter than the full hold when it slipped early).
+        holds: no fingertip in contact slid or lifted off more than the slip threshold, and the
+            object stayed put (drift and rotation within their thresholds; more means the forces
+            do not balance the load).
+        slip: (n,) largest tangential slide of each fingertip along its face during the hold,
+            metres (0 for a released finger).
+        contact_lost: (n,) whether fingertip i, commanded to push, left its face.
+        released: (n,) whether finger i carries no load (out of contact, or commanded at most
+            ``released_force`` x w): not judged, not a failure.
+        drift: largest displacement of the object's centre of gravity during the hold, metres.
+        rotation_deg: largest rotation of the object during the hold, degrees.
+        time: simulated seconds of hold.
     """
 
     holds: bool
     slip: np.ndarray
     contact_lost: np.ndarray
+    released: np.ndarray
     drift: float
     rotation_deg: float
     time: float
@@ -60,10 +103,40 @@ class PhysicsReport:
             "holds": bool(self.holds),
             "slip": [float(s) for s in self.slip],
             "contact_lost": [bool(c) for c in self.contact_lost],
+            "released": [bool(r) for r in self.released],
             "drift": float(self.drift),
             "rotation_deg": float(self.rotation_deg),
             "time": float(self.time),
         }
+
+
+def pose_report(
+    scene: Scene, motion: Motion, trace: Trace, settings: dict[str, float]
+) -> PhysicsReport:
+    """The verdict of a one-pose run (see the module docstring); lengths back in metres."""
+    length = float(np.max(scene.size))
+    hold = slice(motion.settle_steps, None)
+    slip = trace.slip[hold].max(axis=0)
+    lost = trace.gap[hold].max(axis=0) > settings["slip_threshold"]
+    released = ~motion.loaded[-1]
+    drift = float(trace.drift[hold].max())
+    rotation = float(np.degrees(trace.rotation[hold].max()))
+    holds = (
+        not trace.diverged
+        and np.all(slip <= settings["slip_threshold"])
+        and not np.any(lost)
+        and drift <= settings["drift_threshold"]
+        and rotation <= settings["rotation_threshold_deg"]
+    )
+    return PhysicsReport(
+        holds=bool(holds),
+        slip=length * slip,
+        contact_lost=lost & ~released,
+        released=released,
+        drift=length * drift,
+        rotation_deg=rotation,
+        time=(len(motion) - motion.settle_steps) * settings["timestep"],
+    )
 
 
 class StabilityChecker:
@@ -71,108 +144,69 @@ class StabilityChecker:
 
     Args:
         scene: the grasp to simulate.
+        threads: rollout threads for :meth:`check_batch` (default: every available core).
         **settings: overrides of :data:`SETTINGS` (positive finite numbers).
     """
 
-    def __init__(self, scene: Scene, **settings: float) -> None:
+    def __init__(self, scene: Scene, threads: int | None = None, **settings: float) -> None:
         if not isinstance(scene, Scene):
             raise ValueError(f"scene must be a grasp_env.mechanics.Scene, got {type(scene)}")
-        unknown = set(settings) - set(SETTINGS)
-        if unknown:
-            raise ValueError(
-                f"unknown StabilityChecker settings {sorted(unknown)}; expected {sorted(SETTINGS)}"
-            )
-        self.settings = {**SETTINGS, **{k: float(v) for k, v in settings.items()}}
-        for name, value in self.settings.items():
-            if not np.isfinite(value) or value <= 0:
-                raise ValueError(f"{name} must be a finite number > 0, got {value}")
+        self.settings = check_settings(settings)
         self.scene = scene
-        self.model = mujoco.MjModel.from_xml_string(build_mjcf(scene))
-        self.data = mujoco.MjData(self.model)
-        n = scene.n_contacts
-        self._object = self.model.body("object").id
-        self._fingers = np.array([self.model.body(f"finger{i}").id for i in range(n)])
-        self._pairs = np.array([self.model.pair(f"contact{i}").id for i in range(n)])
-        self._tips = np.array([self.model.geom(f"tip{i}").id for i in range(n)])
-        self._friction = self.model.pair_friction.copy()
-        dt = self.model.opt.timestep
-        self._settle_steps = max(1, round(self.settings["settle_time"] / dt))
-        self._chunk_steps = max(1, round(self.settings["check_interval"] / dt))
-        self._chunks = max(1, round(self.settings["hold_time"] / (self._chunk_steps * dt)))
+        self.threads = threads
+        self.physics: PhysicsModel | None = PhysicsModel(
+            scene, self.settings["timestep"], self.settings["settle_mu"]
+        )
+
+    @property
+    def model(self):
+        """The MuJoCo model at the scene's mu (the settle runs on a copy)."""
+        return None if self.physics is None else self.physics.model
 
     def reset(self) -> None:
-        """Restore MuJoCo's model and data exactly to their state after construction."""
-        mujoco.mj_resetData(self.model, self.data)
-        self.model.pair_friction[:] = self._friction
+        """Nothing to do: every check starts from the same state, whatever came before."""
 
     def close(self) -> None:
-        """Release the model and data (the checker is unusable afterwards)."""
-        self.model = self.data = None  # type: ignore[assignment]
+        """Release the models (the checker is unusable afterwards)."""
+        self.physics = None
 
-    def check(self, rotation: ArrayLike, contact_forces: ArrayLike) -> PhysicsReport:
+    def check(
+        self,
+        rotation: ArrayLike,
+        contact_forces: ArrayLike,
+        in_contact: ArrayLike | None = None,
+    ) -> PhysicsReport:
         """Simulate ``contact_forces`` (n, 3), applied by the fingers on the object in the world
-        frame, at orientation ``rotation`` (3, 3), and report whether the grasp holds."""
-        if self.model is None:
-            raise ValueError("this StabilityChecker is closed")
-        rotation = check_rotation(rotation)
+        frame, at orientation ``rotation`` (3, 3), and report whether the grasp holds.
+        ``in_contact`` (n,) bool says which fingers touch (default: those commanded a force)."""
+        rotation = np.asarray(rotation, dtype=float)
+        check_rotations(rotation, single=True)
         forces = check_forces(contact_forces, self.scene.n_contacts)
-        model, data = self.model, self.data
-        self.reset()
-        data.qpos[:] = pose_qpos(self.scene, rotation)
-        data.ctrl[:] = forces.ravel()
-        data.xfrc_applied[self._object] = np.concatenate(
-            [self.scene.extra_force, self.scene.extra_torque]
+        contact = None if in_contact is None else np.asarray(in_contact)[None]
+        return self.check_batch(rotation[None], forces[None], contact, threads=1)[0]
+
+    def check_batch(
+        self,
+        rotations: ArrayLike,
+        contact_forces: ArrayLike,
+        in_contact: ArrayLike | None = None,
+        threads: int | None = None,
+    ) -> list[PhysicsReport]:
+        """:meth:`check` of B poses at once, (B, 3, 3) and (B, n, 3) (and (B, n)), in parallel
+        on ``threads`` rollout threads (default: the checker's)."""
+        if self.physics is None:
+            raise ValueError("this StabilityChecker is closed")
+        rotations = check_rotations(rotations)
+        forces = check_forces(contact_forces, self.scene.n_contacts, (len(rotations),))
+        contact = [None] * len(rotations) if in_contact is None else np.asarray(in_contact)
+        motions = [
+            plan_motion(self.scene, r[None], f[None], None if c is None else c[None], self.settings)
+            for r, f, c in zip(rotations, forces, contact, strict=True)
+        ]
+        traces = simulate(
+            [(self.physics, m) for m in motions], self.threads if threads is None else threads
         )
-        model.pair_friction[self._pairs, :2] = self.settings["settle_mu"]
-        mujoco.mj_step(model, data, nstep=self._settle_steps)
-        model.pair_friction[self._pairs, :2] = self._friction[self._pairs, :2]
-        # Measure from here: the settle only pressed the fingertips into the faces.
-        anchor = self._tips_in_object_frame()
-        start_com = data.xipos[self._object].copy()
-        start_rot = data.xmat[self._object].reshape(3, 3).copy()
-
-        slip = np.zeros(self.scene.n_contacts)
-        lost = np.zeros(self.scene.n_contacts, dtype=bool)
-        steps = 0
-        for _ in range(self._chunks):
-            mujoco.mj_step(model, data, nstep=self._chunk_steps)
-            steps += self._chunk_steps
-            moved = self._tips_in_object_frame() - anchor
-            along = (
-                moved - np.sum(moved * self.scene.normals, -1, keepdims=True) * self.scene.normals
-            )
-            slip = np.linalg.norm(along, axis=-1)
-            lost = ~self._in_contact()
-            if not np.all(np.isfinite(slip)):
-                raise FloatingPointError("MuJoCo diverged: non-finite state in the check")
-            if np.any(slip > self.settings["slip_threshold"]) or np.any(lost):
-                break  # the verdict is certain: no need to simulate the rest of the hold
-
-        turn = matrix_quaternion(data.xmat[self._object].reshape(3, 3) @ start_rot.T)
-        drift = float(np.linalg.norm(data.xipos[self._object] - start_com))
-        holds = (
-            np.all(slip <= self.settings["slip_threshold"])
-            and not np.any(lost)
-            and drift <= self.settings["drift_threshold"]
-        )
-        return PhysicsReport(
-            holds=bool(holds),
-            slip=slip,
-            contact_lost=lost,
-            drift=drift,
-            rotation_deg=float(np.degrees(2 * np.arctan2(np.linalg.norm(turn[1:]), turn[0]))),
-            time=steps * model.opt.timestep,
-        )
-
-    def _tips_in_object_frame(self) -> np.ndarray:
-        data = self.data
-        rot = data.xmat[self._object].reshape(3, 3)
-        return (data.xpos[self._fingers] - data.xpos[self._object]) @ rot
-
-    def _in_contact(self) -> np.ndarray:
-        """Whether each fingertip touches the box now (an active contact of its pair)."""
-        touching = np.zeros(self.scene.n_contacts, dtype=bool)
-        geoms = self.data.contact.geom[: self.data.ncon]
-        for i, tip in enumerate(self._tips):
-            touching[i] = np.any(geoms == tip)
-        return touching
+        return [
+            pose_report(self.scene, m, t, self.settings)
+            for m, t in zip(motions, traces, strict=True)
+        ]

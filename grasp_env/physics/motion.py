@@ -1,0 +1,217 @@
+"""The motion a MuJoCo run carries out, step by step, in the model's frame and units.
+
+Pure numpy (no MuJoCo here): the same per-step forces are judged analytically (friction angles)
+and simulated, so both verdicts judge the same forces (docs/physics.md, "The motion").
+
+A trajectory of T poses R_t with per-pose finger forces P_t (world frame) becomes:
+
+1. a settle at pose 0 (``settle_time``; the simulation runs it at a high friction coefficient
+   so that building up the contact forces cannot itself cause slip);
+2. one segment per pair of successive poses, lasting ``time_per_degree`` per degree turned (at
+   least ``min_segment_time``): the orientation turns along the geodesic from R_t to R_{t+1}
+   (for a trajectory about one axis, Rot(b, s da) R_t), so the load, fixed in the world, turns in
+   the object's frame; the finger forces follow the grip continuously;
+3. a hold at the last pose (``hold_time``).
+
+**The grip between poses.** In the object's frame the contacts are fixed, so the grasp matrix G
+is constant and only the load turns. Each pose's forces split into the equilibrating part
+F(t) = G^+ (-(f_t, tau_t)) (over the fingers in contact) and the rest, P_t - F(t), which lies in
+G's null space (the interaction forces, sum k_ij e_ij, for forces that balance the load). Between
+poses the equilibrating part is exact for the turned load and the rest is interpolated linearly:
+P(s) = F(s) + (1 - s) (P_t - F(t)) + s (P_{t+1} - F(t+1)). So the forces balance the load at
+every step, exactly as the analytic grasp does, and for the same finger set this is the linear
+interpolation of the interaction scalars k. Forces that do not balance the load at the poses do
+not at the steps between either (their residual is interpolated too).
+
+**Fingers in contact** (the hook for finger-phasing gaits): ``in_contact`` (T, n), default
+all. A finger leaving contact between t and t + 1 ramps its force to zero over the segment and
+is lifted at its end; a finger joining is placed at the segment's start and its force ramps up
+from zero; the others hold.
+
+**Released fingers.** A finger in contact whose force is at most ``released_force`` x w at a
+step carries no load worth the name (an optimum that releases a finger leaves it about 1e-11 w):
+neither verdict judges it there, and it is not a lost hold. Its force is still applied. (A
+fingertip pushing with a millionth of the weight is at the mercy of every tremor of the contact
+solver; what matters is that the object it no longer holds stays put.)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from grasp_env.mechanics import Scene, axis_angle_matrix, friction_angles, grasp_matrix
+from grasp_env.mechanics import matrix_quaternion as _quaternion
+
+from .model import check_forces, check_rotations, length_unit, model_cg, model_contacts
+
+#: Largest number of simulation steps of one run (a guard against a mistyped setting).
+MAX_STEPS = 2_000_000
+
+
+@dataclass(frozen=True)
+class Motion:
+    """A run, step by step (N steps), in the model's frame and units.
+
+    Attributes:
+        forces: (N, n, 3) each finger's commanded force on the object, object frame, units of w.
+        load: (N, 6) the load on the object about its centre of gravity, object frame: force in
+            units of w, torque in units of w L.
+        contact: (N, n) whether each finger is in contact (placed) during the step.
+        loaded: (N, n) in contact and pushing with more than ``released_force`` x w: the
+            fingers both verdicts judge at the step.
+        pose: (N,) the pose coordinate of the step: t + s between poses t and t + 1.
+        rotations: (N, 3, 3) the world orientation of the object the step stands for.
+        settle_steps: the first ``settle_steps`` steps are the settle at pose 0.
+    """
+
+    forces: np.ndarray
+    load: np.ndarray
+    contact: np.ndarray
+    loaded: np.ndarray
+    pose: np.ndarray
+    rotations: np.ndarray
+    settle_steps: int
+
+    def __len__(self) -> int:
+        return len(self.pose)
+
+    @property
+    def n_poses(self) -> int:
+        return round(float(self.pose[-1])) + 1
+
+    @property
+    def pose_index(self) -> np.ndarray:
+        """(N,) the pose whose interval each step belongs to (nearest pose); -1 while settling."""
+        index = np.floor(self.pose + 0.5).astype(int)
+        index[: self.settle_steps] = -1
+        return index
+
+    def friction_angles(self, scene: Scene) -> np.ndarray:
+        """(N, n) the analytic friction angle of each finger's force at each step, radians; 0 for
+        a finger not loaded (out of contact or released)."""
+        angles = friction_angles(self.forces, scene.normals)
+        return np.where(self.loaded, angles, 0.0)
+
+
+def _load(scene: Scene, rotations: np.ndarray) -> np.ndarray:
+    """The load (..., 6) in the object frame at world orientations (..., 3, 3), model units."""
+    w, length = scene.weight, length_unit(scene)
+    force = np.array([0.0, 0.0, -w]) + scene.extra_force
+    # Row vectors: x @ R is R^T x, the world vector in the object's frame.
+    return np.concatenate(
+        [(force / w) @ rotations, (scene.extra_torque / (w * length)) @ rotations], axis=-1
+    )
+
+
+def _geodesic(start: np.ndarray, end: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, float]:
+    """Orientations (S, 3, 3) at fractions ``s`` along the shortest turn from ``start`` to
+    ``end``, and the angle of that turn, radians."""
+    q = _quaternion(start.T @ end)  # w >= 0: the turn of at most pi
+    sine = float(np.linalg.norm(q[1:]))
+    angle = 2.0 * float(np.arctan2(sine, q[0]))
+    if sine < 1e-15:
+        return np.broadcast_to(start, (len(s), 3, 3)).copy(), 0.0
+    return start @ axis_angle_matrix(q[1:] / sine, s * angle), angle
+
+
+def released(forces: np.ndarray, weight: float, released_force: float) -> np.ndarray:
+    """Fingers whose force is at most ``released_force`` x w: they carry no load."""
+    return np.linalg.norm(forces, axis=-1) <= released_force * weight
+
+
+def plan_motion(
+    scene: Scene,
+    rotations: ArrayLike,
+    forces: ArrayLike,
+    in_contact: ArrayLike | None,
+    settings: dict[str, float],
+) -> Motion:
+    """The run that carries ``forces`` (T, n, 3, world frame, newtons) along ``rotations``
+    (T, 3, 3) with fingers ``in_contact`` (T, n; None: every finger), under ``settings``
+    (``timestep``, ``settle_time``, ``hold_time``, ``time_per_degree``, ``min_segment_time``,
+    ``released_force``)."""
+    rotations = check_rotations(rotations)
+    n_poses, n = len(rotations), scene.n_contacts
+    forces = check_forces(forces, n, (n_poses,))
+    free = released(forces, scene.weight, settings["released_force"])
+    if in_contact is None:
+        contact = np.ones((n_poses, n), dtype=bool)
+    else:
+        contact = np.asarray(in_contact)
+        if contact.shape != (n_poses, n) or contact.dtype != bool:
+            raise ValueError(
+                f"in_contact must be a boolean array of shape ({n_poses}, {n}), got"
+                f" {contact.dtype} {contact.shape}"
+            )
+        pushing = ~contact & ~free
+        if np.any(pushing):
+            t, i = np.argwhere(pushing)[0]
+            raise ValueError(
+                f"finger {i} is out of contact at pose {t} but its force is"
+                f" {np.linalg.norm(forces[t, i]):.6g} N: a finger out of contact carries none"
+            )
+    dt = settings["timestep"]
+    settle = max(1, round(settings["settle_time"] / dt))
+    hold = max(1, round(settings["hold_time"] / dt))
+    # Row vectors: P @ R is R^T P, the force in the object's frame; in units of w.
+    pose_forces = np.einsum("tnc,tcd->tnd", forces, rotations) / scene.weight
+    pose_forces[~contact] = 0.0
+    pose_load = _load(scene, rotations)
+    positions = model_contacts(scene) - model_cg(scene)
+    pinvs: dict[tuple[bool, ...], np.ndarray] = {}
+
+    def equilibrating(active: np.ndarray, load: np.ndarray) -> np.ndarray:
+        """G_A^+ (-load) over the active fingers, (S, |A|, 3): exact least squares for any A."""
+        key = tuple(bool(a) for a in active)
+        if key not in pinvs:
+            pinvs[key] = np.linalg.pinv(grasp_matrix(positions[active]))
+        return (-load @ pinvs[key].T).reshape(len(load), -1, 3)
+
+    parts = {
+        "forces": [np.repeat(pose_forces[:1], settle, 0)],
+        "load": [np.repeat(pose_load[:1], settle, 0)],
+        "contact": [np.repeat(contact[:1], settle, 0)],
+        "pose": [np.zeros(settle)],
+        "rotations": [np.repeat(rotations[:1], settle, 0)],
+    }
+    total = settle + hold
+    for t in range(n_poses - 1):
+        _, angle = _geodesic(rotations[t], rotations[t + 1], np.zeros(1))
+        duration = max(
+            settings["min_segment_time"], np.degrees(angle) * settings["time_per_degree"]
+        )
+        steps = max(1, round(duration / dt))
+        total += steps
+        if total > MAX_STEPS:
+            raise ValueError(
+                f"the run would take more than {MAX_STEPS} steps: lower time_per_degree,"
+                " min_segment_time or the number of poses"
+            )
+        s = np.arange(1, steps + 1) / steps
+        turned, _ = _geodesic(rotations[t], rotations[t + 1], s)
+        load = _load(scene, turned)
+        active = contact[t] | contact[t + 1]
+        ends = equilibrating(active, pose_load[t : t + 2])
+        rest = pose_forces[t : t + 2][:, active] - ends  # (2, |A|, 3), null space of G_A
+        step_forces = np.zeros((steps, n, 3))
+        step_forces[:, active] = (
+            equilibrating(active, load)
+            + (1 - s)[:, None, None] * rest[0]
+            + s[:, None, None] * rest[1]
+        )
+        parts["forces"].append(step_forces)
+        parts["load"].append(load)
+        parts["contact"].append(np.repeat(active[None], steps, 0))
+        parts["pose"].append(t + s)
+        parts["rotations"].append(turned)
+    parts["forces"].append(np.repeat(pose_forces[-1:], hold, 0))
+    parts["load"].append(np.repeat(pose_load[-1:], hold, 0))
+    parts["contact"].append(np.repeat(contact[-1:], hold, 0))
+    parts["pose"].append(np.full(hold, n_poses - 1.0))
+    parts["rotations"].append(np.repeat(rotations[-1:], hold, 0))
+    steps = {name: np.concatenate(values) for name, values in parts.items()}
+    steps["loaded"] = steps["contact"] & ~released(steps["forces"], 1.0, settings["released_force"])
+    return Motion(**steps, settle_steps=settle)

@@ -1,0 +1,238 @@
+"""The grasp carried through a whole trajectory in one MuJoCo simulation (docs/physics.md).
+
+One run settles the grasp at the first pose, then turns the load quasi-statically in the object's
+frame from pose to pose while the finger forces follow the grip continuously
+(:mod:`grasp_env.physics.motion`), and holds at the last pose. Slip, drift and rotation
+accumulate over the whole run. The analytic side judges the very forces MuJoCo applies, at every
+step (the intermediate alphas included), so the two verdicts are about the same motion.
+
+The report gives, per pose (the steps nearer to that pose than to its neighbours), the analytic
+verdict (every finger in contact within its cone) and MuJoCo's (no finger slid or lifted off
+more than the slip threshold, and the object did not move or turn more than the drift and
+rotation thresholds, within that interval); for the whole trajectory, the same with the
+measures accumulated from the start; and where each verdict first failed.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from grasp_env.mechanics import Scene
+
+from .motion import Motion, plan_motion
+from .simulation import PhysicsModel, Trace, simulate
+from .stability import check_settings
+
+
+@dataclass(frozen=True)
+class RolloutReport:
+    """The outcome of one continuous rollout of T poses.
+
+    Attributes:
+        holds: MuJoCo's verdict on the whole run: no fingertip in contact slid or lifted off
+            more than the slip threshold since it was placed, and the object's drift and
+            rotation since the settle stayed within their thresholds.
+        predicted_holds: the analytic verdict: at every step, every finger in contact within
+            its friction cone.
+        pose_holds: (T,) MuJoCo's verdict within each pose's interval (the increments there).
+        pose_predicted: (T,) the analytic verdict within each pose's interval.
+        max_angle_deg: (T,) the largest friction angle of a finger in contact over each pose's
+            interval, degrees.
+        margin_deg: atan(mu) minus the largest friction angle over the whole run, degrees.
+        slip: (T, n) each fingertip's slide since it was placed, at the end of each pose's
+            interval, metres.
+        drift: (T,) the centre of gravity's displacement since the settle, metres.
+        rotation_deg: (T,) the object's rotation since the settle, degrees.
+        first_failure: the pose coordinate (t + s between poses t and t + 1) where MuJoCo's
+            accumulated measures first crossed a threshold; None if they never did.
+        predicted_first_failure: the pose coordinate where a friction angle first passed the
+            limit; None if none did.
+        time: simulated seconds after the settle.
+        motion, trace: the run's steps and measurements (for plots and video).
+    """
+
+    holds: bool
+    predicted_holds: bool
+    pose_holds: np.ndarray
+    pose_predicted: np.ndarray
+    max_angle_deg: np.ndarray
+    margin_deg: float
+    slip: np.ndarray
+    drift: np.ndarray
+    rotation_deg: np.ndarray
+    first_failure: float | None
+    predicted_first_failure: float | None
+    time: float
+    motion: Motion = field(repr=False, compare=False)
+    trace: Trace = field(repr=False, compare=False)
+
+    @property
+    def agrees(self) -> bool:
+        return self.holds == self.predicted_holds
+
+    def as_dict(self) -> dict:
+        """Plain Python values (the per-step motion and trace left out)."""
+        return {
+            "holds": bool(self.holds),
+            "predicted_holds": bool(self.predicted_holds),
+            "pose_holds": [bool(h) for h in self.pose_holds],
+            "pose_predicted": [bool(h) for h in self.pose_predicted],
+            "max_angle_deg": [float(a) for a in self.max_angle_deg],
+            "margin_deg": float(self.margin_deg),
+            "slip": self.slip.tolist(),
+            "drift": [float(d) for d in self.drift],
+            "rotation_deg": [float(r) for r in self.rotation_deg],
+            "first_failure": self.first_failure,
+            "predicted_first_failure": self.predicted_first_failure,
+            "time": float(self.time),
+        }
+
+
+def rollout_report(
+    scene: Scene, motion: Motion, trace: Trace, settings: dict[str, float]
+) -> RolloutReport:
+    """The per-pose and trajectory verdicts of a run (see the module docstring)."""
+    length = float(np.max(scene.size))
+    limit = scene.friction_limit
+    settle = motion.settle_steps
+    poses = motion.pose_index
+    n_poses = motion.n_poses
+    angles = motion.friction_angles(scene)[settle:]
+    largest = angles.max(axis=-1)
+    slip, gap = trace.slip[settle:], trace.gap[settle:]
+    drift, turn = trace.drift[settle:], trace.rotation[settle:]
+    pose, index = motion.pose[settle:], poses[settle:]
+    threshold = settings["slip_threshold"]
+    rotation_limit = np.radians(settings["rotation_threshold_deg"])
+    failing = (
+        (slip.max(axis=-1) > threshold)
+        | (gap.max(axis=-1) > threshold)
+        | (drift > settings["drift_threshold"])
+        | (turn > rotation_limit)
+    )
+    if trace.diverged:
+        failing[-1] = True
+    passing_limit = largest > limit
+
+    # Per pose: the steps of its interval, measured from the step before it.
+    starts = np.searchsorted(index, np.arange(n_poses))
+    ends = np.searchsorted(index, np.arange(n_poses), side="right")
+    pose_holds = np.ones(n_poses, dtype=bool)
+    max_angle = np.zeros(n_poses)
+    for t, (a, b) in enumerate(zip(starts, ends, strict=True)):
+        before = max(a - 1, 0)
+        grew = slip[a:b].max(axis=0) - np.where(trace.measured[settle + before], slip[before], 0)
+        pose_holds[t] = not (
+            np.any(grew > threshold)
+            or np.any(gap[a:b] > threshold)
+            or drift[a:b].max() - drift[before] > settings["drift_threshold"]
+            or turn[a:b].max() - turn[before] > rotation_limit
+            or (trace.diverged and b == len(index))
+        )
+        max_angle[t] = largest[a:b].max()
+    last = ends - 1
+
+    def first(flags: np.ndarray) -> float | None:
+        return float(pose[np.argmax(flags)]) if flags.any() else None
+
+    return RolloutReport(
+        holds=not failing.any(),
+        predicted_holds=not passing_limit.any(),
+        pose_holds=pose_holds,
+        pose_predicted=max_angle <= limit,
+        max_angle_deg=np.degrees(max_angle),
+        margin_deg=float(np.degrees(limit - largest.max())),
+        slip=length * np.maximum.accumulate(slip, axis=0)[last],
+        drift=length * drift[last],
+        rotation_deg=np.degrees(turn[last]),
+        first_failure=first(failing),
+        predicted_first_failure=first(passing_limit),
+        time=len(pose) * settings["timestep"],
+        motion=motion,
+        trace=trace,
+    )
+
+
+class TrajectoryChecker:
+    """Carries grips through trajectories of ``scene`` in MuJoCo (see the module docstring).
+
+    Args:
+        scene: the grasp to simulate.
+        threads: rollout threads for :meth:`check_batch` (default: every available core).
+        **settings: overrides of :data:`grasp_env.physics.SETTINGS`.
+    """
+
+    def __init__(self, scene: Scene, threads: int | None = None, **settings: float) -> None:
+        if not isinstance(scene, Scene):
+            raise ValueError(f"scene must be a grasp_env.mechanics.Scene, got {type(scene)}")
+        self.settings = check_settings(settings)
+        self.scene = scene
+        self.threads = threads
+        self.physics: PhysicsModel | None = PhysicsModel(
+            scene, self.settings["timestep"], self.settings["settle_mu"]
+        )
+
+    def close(self) -> None:
+        """Release the models (the checker is unusable afterwards)."""
+        self.physics = None
+
+    def plan(
+        self, rotations: ArrayLike, contact_forces: ArrayLike, in_contact: ArrayLike | None = None
+    ) -> Motion:
+        """The steps a run of this grip takes (see :func:`grasp_env.physics.motion.plan_motion`)."""
+        return plan_motion(self.scene, rotations, contact_forces, in_contact, self.settings)
+
+    def check(
+        self, rotations: ArrayLike, contact_forces: ArrayLike, in_contact: ArrayLike | None = None
+    ) -> RolloutReport:
+        """Carry ``contact_forces`` (T, n, 3; world frame, newtons, the fingers' forces on the
+        object at each pose) along ``rotations`` (T, 3, 3) in one simulation. ``in_contact``
+        (T, n) bool says which fingers touch at each pose (default: those commanded a force);
+        see :mod:`grasp_env.physics.motion` for how fingers leave and join."""
+        return self.check_batch([(rotations, contact_forces, in_contact)], threads=1)[0]
+
+    def check_batch(
+        self,
+        grips: Sequence[tuple[ArrayLike, ArrayLike, ArrayLike | None]],
+        threads: int | None = None,
+    ) -> list[RolloutReport]:
+        """:meth:`check` of several (rotations, contact_forces, in_contact) grips, in parallel
+        on ``threads`` rollout threads (default: the checker's)."""
+        if self.physics is None:
+            raise ValueError("this TrajectoryChecker is closed")
+        motions = [self.plan(*grip) for grip in grips]
+        traces = simulate(
+            [(self.physics, m) for m in motions], self.threads if threads is None else threads
+        )
+        return [
+            rollout_report(self.scene, m, t, self.settings)
+            for m, t in zip(motions, traces, strict=True)
+        ]
+
+
+def check_trajectories(
+    cases: Sequence[tuple[Scene, ArrayLike, ArrayLike, ArrayLike | None]],
+    threads: int | None = None,
+    **settings: float,
+) -> list[RolloutReport]:
+    """Rollouts of (scene, rotations, contact_forces, in_contact) cases over many scenes, all in
+    parallel (runs of the same number of fingers share rollout calls)."""
+    settings = check_settings(settings)
+    physics: dict[int, PhysicsModel] = {}
+    runs = []
+    for scene, rotations, forces, contact in cases:
+        if id(scene) not in physics:
+            physics[id(scene)] = PhysicsModel(scene, settings["timestep"], settings["settle_mu"])
+        runs.append((physics[id(scene)], plan_motion(scene, rotations, forces, contact, settings)))
+    reports: list[RolloutReport | None] = [None] * len(runs)
+    for n in sorted({p.n for p, _ in runs}):
+        which = [r for r, (p, _) in enumerate(runs) if p.n == n]
+        traces = simulate([runs[r] for r in which], threads)
+        for r, trace in zip(which, traces, strict=True):
+            model, motion = runs[r]
+            reports[r] = rollout_report(model.scene, motion, trace, settings)
+    return reports  # type: ignore[return-value]

@@ -1,0 +1,285 @@
+"""Running motions in MuJoCo, many at once: ``mujoco.rollout`` steps them in C on a thread pool
+(it releases the GIL), and the measurements are taken afterwards from the states of every step.
+
+A batch of runs steps in lockstep through chunks of steps. Chunks end where the settle ends (the
+settle runs on a copy of the model with a high friction coefficient) and where a finger is
+placed or lifted in any run: between chunks those fingertips are moved (a placed one to its
+contact, just inside the face; a lifted one to its parking place off the face). Shorter runs
+are padded by holding their last step, and measured over their own steps only.
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+import threading
+from dataclasses import dataclass
+
+import mujoco
+import mujoco.rollout
+import numpy as np
+
+from grasp_env.mechanics import Scene, quaternion_matrix
+
+from .model import (
+    TIP_PENETRATION,
+    build_mjcf,
+    model_cg,
+    model_contacts,
+    tip_positions,
+    tip_radius,
+)
+from .motion import Motion
+
+_STATE = mujoco.mjtState.mjSTATE_FULLPHYSICS
+_CONTROL = mujoco.mjtState.mjSTATE_CTRL | mujoco.mjtState.mjSTATE_XFRC_APPLIED
+#: Controls of a batch are built this many (run x step) rows at a time, to bound memory.
+_ROWS_PER_BATCH = 60_000
+
+
+def available_cores() -> int:
+    """The cores this process may run on."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not Linux
+        return os.cpu_count() or 1
+
+
+_pools: dict[int, mujoco.rollout.Rollout] = {}
+_pools_lock = threading.Lock()
+
+
+def _pool(threads: int) -> mujoco.rollout.Rollout:
+    """A persistent rollout thread pool (0 threads: run on the calling thread)."""
+    with _pools_lock:
+        if threads not in _pools:
+            _pools[threads] = mujoco.rollout.Rollout(nthread=threads)
+        return _pools[threads]
+
+
+class PhysicsModel:
+    """A scene's MuJoCo models (at the scene's mu, and the settle's) and their layout.
+
+    Args:
+        scene: the grasp.
+        timestep: simulation step, seconds.
+        settle_mu: friction coefficient while the contact forces build up.
+    """
+
+    def __init__(self, scene: Scene, timestep: float, settle_mu: float) -> None:
+        self.scene = scene
+        xml = build_mjcf(scene, timestep=timestep)
+        self.model = mujoco.MjModel.from_xml_string(xml)
+        self.settle_model = mujoco.MjModel.from_xml_string(xml)
+        self.settle_model.pair_friction[:, :2] = settle_mu
+        n = scene.n_contacts
+        self.n = n
+        self.nq, self.nv = self.model.nq, self.model.nv
+        self.nstate = mujoco.mj_stateSize(self.model, _STATE)
+        self.ncontrol = mujoco.mj_stateSize(self.model, _CONTROL)
+        self.object = self.model.body("object").id
+        self.radius = tip_radius(scene)
+        self.contacts = model_contacts(scene)
+        self.cg = model_cg(scene)
+        self.placed = tip_positions(scene, np.ones(n, dtype=bool))
+        self.parked = tip_positions(scene, np.zeros(n, dtype=bool))
+        self._data: list[mujoco.MjData] = []
+
+    def data(self, count: int) -> list[mujoco.MjData]:
+        """``count`` MjData of this model (one per rollout thread), kept for reuse."""
+        while len(self._data) < count:
+            self._data.append(mujoco.MjData(self.model))
+        return self._data[:count]
+
+    def initial_state(self, contact: np.ndarray) -> np.ndarray:
+        """The full physics state at rest: the object at the identity, centre of gravity at
+        the origin, fingers in ``contact`` just inside their faces, the others parked."""
+        data = self.data(1)[0]
+        mujoco.mj_resetData(self.model, data)
+        data.qpos[:3] = -self.cg
+        data.qpos[3] = 1.0
+        data.qpos[7:] = (np.where(contact[:, None], self.placed, self.parked) - self.cg).ravel()
+        state = np.empty(self.nstate)
+        mujoco.mj_getState(self.model, data, state, _STATE)
+        return state
+
+
+@dataclass(frozen=True)
+class Trace:
+    """What a run measured, step by step (the state after each of its N steps).
+
+    Lengths in the model's units (the box's largest edge L), angles in radians.
+
+    Attributes:
+        qpos: (N, nq) the model's positions (the object's free joint, then the fingertips).
+        slip: (N, n) each fingertip's slide along its face since it last became loaded (the
+            end of the settle for the fingers loaded from the start); 0 while not loaded.
+        gap: (N, n) how far each fingertip's surface is off its face (negative: pressed in);
+            0 while not loaded.
+        drift: (N,) displacement of the object's centre of gravity since the settle.
+        rotation: (N,) rotation of the object since the settle.
+        measured: (N, n) whether finger i was loaded (judged) at the step.
+        diverged: MuJoCo stopped on a warning (an unstable simulation) before the end.
+    """
+
+    qpos: np.ndarray
+    slip: np.ndarray
+    gap: np.ndarray
+    drift: np.ndarray
+    rotation: np.ndarray
+    measured: np.ndarray
+    diverged: bool
+
+
+def _rotation_angle(relative: np.ndarray) -> np.ndarray:
+    """The angle of rotation matrices (..., 3, 3), radians (accurate near zero)."""
+    skew = np.stack(
+        [
+            relative[..., 2, 1] - relative[..., 1, 2],
+            relative[..., 0, 2] - relative[..., 2, 0],
+            relative[..., 1, 0] - relative[..., 0, 1],
+        ],
+        -1,
+    )
+    trace = relative[..., 0, 0] + relative[..., 1, 1] + relative[..., 2, 2]
+    return np.arctan2(0.5 * np.linalg.norm(skew, axis=-1), 0.5 * (trace - 1.0))
+
+
+def _measure(physics: PhysicsModel, motion: Motion, qpos: np.ndarray, diverged: bool) -> Trace:
+    """The measurements of one run from its positions after every step."""
+    scene, settle = physics.scene, motion.settle_steps
+    position = qpos[:, :3]
+    rotation = quaternion_matrix(qpos[:, 3:7])  # (N, 3, 3), object to model world
+    tips = qpos[:, 7:].reshape(len(qpos), physics.n, 3)
+    # Row vectors: (x - p) @ R is R^T (x - p), the fingertips in the object's frame.
+    local = np.einsum("tnc,tcd->tnd", tips - position[:, None], rotation)
+    normals = scene.normals
+    gap = -np.sum((local - physics.contacts) * normals, -1) - physics.radius
+    measured = motion.loaded.copy()
+    measured[:settle] = False
+    # Each finger's slide is measured from where it was when it last became loaded: the end of
+    # the settle for the fingers loaded from the start.
+    start = measured.copy()
+    start[1:] &= ~measured[:-1]
+    steps = np.arange(len(qpos))[:, None]
+    since = np.maximum.accumulate(np.where(start, steps, 0), axis=0)
+    reference = np.maximum(since - 1, settle - 1)
+    anchor = np.take_along_axis(local, reference[..., None], axis=0)
+    moved = local - anchor
+    along = moved - np.sum(moved * normals, -1, keepdims=True) * normals
+    slip = np.where(measured, np.linalg.norm(along, axis=-1), 0.0)
+    cg = position + rotation @ physics.cg
+    drift = np.linalg.norm(cg - cg[settle - 1], axis=-1)
+    turn = _rotation_angle(rotation @ rotation[settle - 1].T)
+    if not np.all(np.isfinite(slip)) or not np.all(np.isfinite(drift)):
+        diverged = True
+    return Trace(
+        qpos=qpos,
+        slip=slip,
+        gap=np.where(measured, gap, 0.0),
+        drift=drift,
+        rotation=turn,
+        measured=measured,
+        diverged=diverged,
+    )
+
+
+def _controls(physics: PhysicsModel, motion: Motion, length: int) -> np.ndarray:
+    """(length, ncontrol) rows of ctrl then xfrc_applied, padded by holding the last step."""
+    steps = len(motion)
+    controls = np.zeros((length, physics.ncontrol))
+    nu = 3 * physics.n
+    controls[:steps, :nu] = motion.forces.reshape(steps, nu)
+    start = nu + 6 * physics.object
+    controls[:steps, start : start + 6] = motion.load
+    controls[steps:] = controls[steps - 1]
+    return controls
+
+
+def _move_fingers(
+    physics: PhysicsModel, state: np.ndarray, place: np.ndarray, lift: np.ndarray
+) -> None:
+    """Place (at the contact, just inside the face) or lift (to the parking place) fingers in
+    the full physics ``state``, moving with the object (its velocity at that point)."""
+    nq = physics.nq
+    qpos, qvel = state[1 : 1 + nq], state[1 + nq : 1 + nq + physics.nv]
+    position, rotation = qpos[:3], quaternion_matrix(qpos[3:7])
+    velocity, spin = qvel[:3], rotation @ qvel[3:6]  # free joint: angular velocity is local
+    for i in np.flatnonzero(place | lift):
+        local = physics.placed[i] if place[i] else physics.parked[i]
+        tip = position + rotation @ local
+        qpos[7 + 3 * i : 10 + 3 * i] = tip
+        qvel[6 + 3 * i : 9 + 3 * i] = velocity + np.cross(spin, tip - position)
+
+
+def simulate(runs: list[tuple[PhysicsModel, Motion]], threads: int | None = None) -> list[Trace]:
+    """Run each (model, motion) pair and measure it (see the module docstring).
+
+    ``threads`` (default: every available core) is the rollout thread pool's size. The runs
+    must share the number of fingers; the result does not depend on ``threads``.
+    """
+    if not runs:
+        return []
+    if len({physics.n for physics, _ in runs}) != 1:
+        raise ValueError("the runs of one simulate() call must share the number of fingers")
+    threads = available_cores() if threads is None else int(threads)
+    if threads < 1:
+        raise ValueError(f"threads must be >= 1, got {threads}")
+    traces: list[Trace] = []
+    length = max(len(motion) for _, motion in runs)
+    per_batch = max(1, _ROWS_PER_BATCH // length)
+    for start in range(0, len(runs), per_batch):
+        traces.extend(_simulate_batch(runs[start : start + per_batch], threads))
+    return traces
+
+
+def _simulate_batch(runs: list[tuple[PhysicsModel, Motion]], threads: int) -> list[Trace]:
+    physics0 = runs[0][0]
+    count = len(runs)
+    length = max(len(motion) for _, motion in runs)
+    settle = runs[0][1].settle_steps
+    if any(motion.settle_steps != settle for _, motion in runs):
+        raise ValueError("the runs of one batch must share the settle")
+    contact = np.zeros((count, length, physics0.n), dtype=bool)
+    for b, (_, motion) in enumerate(runs):
+        contact[b, : len(motion)] = motion.contact
+        contact[b, len(motion) :] = motion.contact[-1]
+    place = np.zeros_like(contact)
+    place[:, 1:] = contact[:, 1:] & ~contact[:, :-1]
+    lift = np.zeros_like(contact)
+    lift[:, 1:] = ~contact[:, 1:] & contact[:, :-1]
+    events = np.flatnonzero(np.any(place | lift, axis=(0, 2)))
+    bounds = sorted({0, settle, length, *events.tolist()})
+    controls = np.stack([_controls(physics, motion, length) for physics, motion in runs])
+    state = np.stack([physics.initial_state(motion.contact[0]) for physics, motion in runs])
+    nthread = min(threads, count)
+    pool = _pool(nthread if nthread > 1 else 0)
+    data = physics0.data(max(1, nthread))
+    qpos = np.empty((count, length, physics0.nq))
+    times = np.empty((count, length))
+    for a, b in itertools.pairwise(bounds):
+        for r in np.flatnonzero(np.any(place[:, a] | lift[:, a], axis=-1)):
+            _move_fingers(runs[r][0], state[r], place[r, a], lift[r, a])
+        models = [physics.settle_model if a < settle else physics.model for physics, _ in runs]
+        states, _ = pool.rollout(
+            models,
+            data,
+            state,
+            np.ascontiguousarray(controls[:, a:b]),
+            control_spec=_CONTROL,
+        )
+        qpos[:, a:b] = states[..., 1 : 1 + physics0.nq]
+        times[:, a:b] = states[..., 0]
+        state = np.ascontiguousarray(states[:, -1])
+    dt = physics0.model.opt.timestep
+    expected = dt * np.arange(1, length + 1)
+    traces = []
+    for r, (physics, motion) in enumerate(runs):
+        steps = len(motion)
+        # MuJoCo's rollout stops stepping (the clock stands still) on a warning.
+        diverged = not np.allclose(times[r, :steps], expected[:steps], rtol=0, atol=dt / 4)
+        traces.append(_measure(physics, motion, qpos[r, :steps], diverged))
+    return traces
+
+
+__all__ = ["TIP_PENETRATION", "PhysicsModel", "Trace", "available_cores", "simulate"]
