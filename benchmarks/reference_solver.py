@@ -31,7 +31,12 @@ SOLVER_OPTIONS = {
 
 @dataclass
 class ReferenceResult:
-    """Bracket [lower, upper] around the optimal max angle (radians) and a k attaining upper."""
+    """Bracket [lower, upper] around the optimal max angle (radians) and a k attaining upper.
+
+    upper is the max angle of k itself (in the box; within the force limits to Clarabel's
+    tolerance), so it is an attained value even where the bisection's last feasible t is
+    not (Clarabel's tolerances are absolute: with a tiny box they move t by about 1e-9 rad).
+    """
 
     lower: float
     upper: float
@@ -126,4 +131,8 @@ class ConeBisection:
                 upper, k_upper = mid, k
             else:
                 lower = mid
-        return ReferenceResult(lower, upper, k_upper * scale, False)
+        k = np.clip(k_upper * scale, -k_max, k_max)
+        forces = equilibrating + np.einsum("m,mnc->nc", k, basis)
+        tangential = np.linalg.norm(np.cross(forces, normals), axis=-1)
+        attained = float(np.max(np.arctan2(tangential, np.sum(forces * normals, axis=-1))))
+        return ReferenceResult(lower, max(upper, attained), k, False)

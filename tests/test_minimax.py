@@ -57,14 +57,14 @@ def references() -> dict[tuple[int, bool], ConeBisection]:
 #: Seeded random scans of each kind (issue 14's wide ranges unless named otherwise):
 #: (fingers, force limit, k_max / w range, scenes checked for certificates, of them against cvxpy)
 SCANS = {
-    "3 fingers": (3, False, (0.5, 3.0), 300, 12),
-    "4 fingers": (4, False, (0.5, 3.0), 300, 12),
-    "3 fingers, f_max": (3, True, (0.5, 3.0), 300, 16),
-    "4 fingers, f_max": (4, True, (0.5, 3.0), 300, 16),
-    "3 fingers, tiny box": (3, False, (1e-9, 1e-9), 100, 6),
-    "4 fingers, tiny box, f_max": (4, True, (1e-9, 1e-9), 100, 6),
-    "3 fingers, boundary optima": (3, False, (0.02, 0.1), 100, 8),
-    "4 fingers, boundary optima, f_max": (4, True, (0.02, 0.1), 100, 8),
+    "3 fingers": (3, False, (0.5, 3.0), 300, 6),
+    "4 fingers": (4, False, (0.5, 3.0), 300, 6),
+    "3 fingers, f_max": (3, True, (0.5, 3.0), 300, 8),
+    "4 fingers, f_max": (4, True, (0.5, 3.0), 300, 8),
+    "3 fingers, tiny box": (3, False, (1e-9, 1e-9), 100, 3),
+    "4 fingers, tiny box, f_max": (4, True, (1e-9, 1e-9), 100, 3),
+    "3 fingers, boundary optima": (3, False, (0.02, 0.1), 100, 4),
+    "4 fingers, boundary optima, f_max": (4, True, (0.1, 0.3), 100, 4),
 }
 
 
@@ -82,11 +82,13 @@ def test_scan_against_conic_reference(references, kind: str) -> None:
     failures, largest = reference_failures(scenes, result, np.arange(compared), references)
     assert failures == []
     assert largest <= TOLERANCE
-    if "boundary" in kind:
-        assert np.mean(result.status == Status.BOUNDARY) > 0.5
+    if "boundary" in kind:  # (small boxes leave many four-finger grasps not pushing)
+        boundary = result.status == Status.BOUNDARY
+        assert boundary.sum() >= 10
+        assert np.mean(boundary[result.status != Status.NOT_PUSHING]) > 0.5
 
 
-@pytest.mark.parametrize(("n", "count", "seed"), [(3, 40, 1), (4, 24, 2)])
+@pytest.mark.parametrize(("n", "count", "seed"), [(3, 16, 1), (4, 8, 2)])
 def test_matches_conic_reference(references, n: int, count: int, seed: int) -> None:
     """The paper's neighbourhood: optimal max angle within 1e-6 deg of the cone bisection."""
     rng = np.random.default_rng(seed)
@@ -250,14 +252,75 @@ def test_following_poses_reach_the_same_certified_optima(n: int, f_max: float | 
         np.testing.assert_array_equal(alone.k, warm.k[e])
 
 
-def test_zero_load_is_finite() -> None:
-    """No load at all: zero forces are optimal, and nothing is NaN."""
-    scene = Scene()
+@pytest.mark.parametrize(("n", "f_max"), [(3, None), (3, 1.0), (4, None), (4, 1.0)])
+def test_zero_load(n: int, f_max: float | None) -> None:
+    """No load at all: k = 0 holds it with no force, every angle 0, certified; nothing NaN."""
+    scene = Scene.on_faces(PAPER_FACES if n == 3 else FOUR_FINGER_FACES)
     g = grasp(scene.relative_contacts(), scene.normals, START_ROTATION, load_wrench(0.0), 0.5)
-    result = solve_minimax(g, 1.0)
-    for array in (result.k, result.angles, result.lower_bound):
-        assert np.all(np.isfinite(array))
-    assert result.max_angle <= 1e-9
+    for result in (solve_minimax(g, 1.0, f_max), solve_minimax(stack_of(g, 3), 1.0, f_max)):
+        for array in (result.k, result.angles, result.lower_bound):
+            assert np.all(np.isfinite(array))
+        assert np.all(result.k == 0) and np.all(result.max_angle == 0)
+        assert np.all(result.gap == 0) and np.all(result.status == Status.INTERIOR)
+
+
+def stack_of(g: Grasp, count: int) -> Grasp:
+    return Grasp(*(np.stack([getattr(g, f.name)] * count) for f in fields(Grasp)))
+
+
+@pytest.mark.parametrize("n", [3, 4])
+def test_any_weight_gives_the_same_angles(n: int) -> None:
+    """Weights from 1e-300 to 1e300 N with k_max and f_max in proportion: the same angles
+    (the solver works in units of the load; squaring the forces would under- or overflow)."""
+    rng = np.random.default_rng(30 + n)
+    faces = PAPER_FACES if n == 3 else FOUR_FINGER_FACES
+    offsets, cg = rng.uniform(-0.5, 0.5, (n, 2)), rng.uniform(-0.1, 0.1, 3)
+    rotation = pose_rotation(PAPER_AXIS, 0.2)
+
+    def solve(weight: float, f_ratio: float | None) -> object:
+        scene = Scene.on_faces(faces, offsets=offsets, weight=weight, cg_offset=cg)
+        f_max = None if f_ratio is None else f_ratio * weight
+        return solve_minimax(scene_grasp(scene, rotation), 2 * weight, f_max)
+
+    free = solve(1.0, None)
+    scene = Scene.on_faces(faces, offsets=offsets, cg_offset=cg, weight=1.0)
+    binding = 0.9 * np.linalg.norm(scene_grasp(scene, rotation).forces(free.k), axis=-1).max()
+    for f_ratio in (None, binding):
+        unit = solve(1.0, f_ratio)
+        assert unit.status != Status.NOT_PUSHING and unit.gap <= GAP
+        for weight in 10.0 ** np.arange(-300, 301, 50):
+            result = solve(weight, f_ratio)
+            assert result.status == unit.status and 0 <= result.gap <= GAP
+            np.testing.assert_allclose(result.angles, unit.angles, rtol=0, atol=2 * GAP)
+            np.testing.assert_allclose(result.k / weight, unit.k, rtol=1e-6, atol=1e-6)
+
+
+def test_refused_scales() -> None:
+    """Values float64 cannot hold beside the load are refused, naming the argument and range."""
+    g = scene_grasp(Scene(), START_ROTATION)  # the load's scale: w / 3 = 1.667 N
+    with pytest.raises(ValueError, match=r"k_max must be within \[1e-12, 1e\+12\] x the load"):
+        solve_minimax(g, 1e-13)
+    with pytest.raises(ValueError, match=r"k_max must be within .* got 1e\+13 N"):
+        solve_minimax(g, 1e13)
+    with pytest.raises(ValueError, match=r"f_max must be within .* got 1e-20 N"):
+        solve_minimax(g, 10.0, 1e-20)
+    with pytest.raises(ValueError, match=r"grasp 1 of the flattened batch"):
+        solve_minimax(stack_of(g, 2), np.array([10.0, 1e20]))
+    tiny = type(g)(g.positions, g.normals, g.equilibrating * 1e-310, g.basis, g.friction_limit)
+    with pytest.raises(ValueError, match=r"load's scale .* must be 0 or within \[1e-305"):
+        solve_minimax(tiny, 1e-310)
+
+
+@pytest.mark.parametrize("normal", [(0.0, 0.0, 0.0), (0.0, 0.0, 2.0), (0.0, 0.0, np.nan)])
+def test_bad_normals(normal: tuple[float, float, float]) -> None:
+    g = scene_grasp(Scene(), START_ROTATION)
+    normals = g.normals.copy()
+    normals[1] = normal
+    bad = type(g)(g.positions, normals, g.equilibrating, g.basis, g.friction_limit)
+    match = "contain NaN" if np.isnan(normal[2]) else "normals must be unit vectors"
+    for value in (bad, stack_of(bad, 2)):
+        with pytest.raises(ValueError, match=match):
+            solve_minimax(value, 10.0)
 
 
 @pytest.mark.parametrize("k_max", [0.0, -1.0, np.nan, np.inf])

@@ -24,6 +24,16 @@ GAP_TOL = 1e-9
 _DELTAS = (1e-11, 1e-10, 5e-10)
 INTERIOR, BOUNDARY, NOT_PUSHING = 0, 1, 2
 APEX, UNCERTIFIED, INVALID = 0, 6, -1  # diagnostic paths (see solve_one)
+# inputs refused (see solve_one): a normal not of unit length, a load or a k_max / f_max
+# outside the ranges below
+BAD_NORMAL, BAD_LOAD, BAD_K_MAX, BAD_F_MAX = -2, -3, -4, -5
+#: Accepted scale of the load, the largest equilibrating force (newtons), besides 0.
+LOAD_RANGE = (1e-305, 1e305)
+#: Accepted k_max and f_max in units of the load: beyond them float64 cannot hold the
+#: equilibrating forces beside the interaction forces (or the reverse).
+RATIO_RANGE = (1e-12, 1e12)
+#: Accepted deviation of a normal's length from 1.
+UNIT_TOL = 1e-6
 #: A released finger (zero force at the optimum) is held at this normal force (normalised),
 #: inside its cone, so that its friction angle is well defined.
 RELEASE = 1e-10
@@ -47,16 +57,29 @@ _entry = njit(cache=True, nogil=True, error_model="numpy")
 
 @_jit
 def setup(F, E, N, a0, al, tau0, T):
-    """Fill the finger-frame arrays from world-frame F (n,3), E (m,n,3), N (n,3); return scale."""
+    """Fill the finger-frame arrays from world-frame F (n,3), E (m,n,3), N (n,3).
+
+    Returns (scale, code): scale is the largest equilibrating force |F_i| (the unit of the
+    arrays; 0 for no load, when the arrays are left unfilled) and code BAD_NORMAL if a
+    normal is not a unit vector, else 0.
+    """
     n = F.shape[0]
     m = E.shape[0]
+    for i in range(n):
+        nn = sqrt(N[i, 0] ** 2 + N[i, 1] ** 2 + N[i, 2] ** 2)
+        if not abs(nn - 1.0) <= UNIT_TOL:
+            return 0.0, BAD_NORMAL
+    # |F_i| without squaring F (which under- or overflows beyond about 1e+-154)
+    big = 0.0
+    for i in range(n):
+        for c in range(3):
+            big = max(big, abs(F[i, c]))
+    if big == 0.0:
+        return 0.0, 0
     scale = 0.0
     for i in range(n):
-        s = sqrt(F[i, 0] ** 2 + F[i, 1] ** 2 + F[i, 2] ** 2)
-        if s > scale:
-            scale = s
-    if scale == 0.0:
-        scale = 1.0
+        s = big * sqrt((F[i, 0] / big) ** 2 + (F[i, 1] / big) ** 2 + (F[i, 2] / big) ** 2)
+        scale = max(scale, s)
     for i in range(n):
         nx, ny, nz = N[i, 0], N[i, 1], N[i, 2]
         nn = sqrt(nx * nx + ny * ny + nz * nz)
@@ -80,7 +103,7 @@ def setup(F, E, N, a0, al, tau0, T):
             al[i, j] = nx * e0 + ny * e1 + nz * e2
             T[i, 0, j] = bx * e0 + by * e1 + bz * e2
             T[i, 1, j] = cx * e0 + cy * e1 + cz * e2
-    return scale
+    return scale, 0
 
 
 @_small
@@ -2048,23 +2071,35 @@ def solve_one(F, E, N, K_in, f_in, k, theta, k_near, near):
     trajectory): Newton's method starts there, with the sets it nearly has, first.
     path (diagnostic): 0 apex, 1 direct Newton, 2 SQP, 3 released finger, 4 SQP restarted,
     5 fallback, 6 not certified to GAP_TOL, 7 from the nearby optimum, 8 bisection;
-    -1 (INVALID) if an input is NaN or inf.
+    -1 (INVALID) if an input is NaN or inf, or a BAD_* code for an input refused.
     """
     n = F.shape[0]
     m = E.shape[0]
+    for j in range(m):
+        k[j] = 0.0
+    for i in range(n):
+        theta[i] = 0.0
     if not (all_finite(F) and all_finite(E) and all_finite(N)):
-        for j in range(m):
-            k[j] = 0.0
-        for i in range(n):
-            theta[i] = 0.0
         return 0.0, INTERIOR, INVALID
     a0 = np.empty(n)
     al = np.empty((n, m))
     tau0 = np.empty((n, 2))
     T = np.empty((n, 2, m))
-    scale = setup(F, E, N, a0, al, tau0, T)
+    scale, code = setup(F, E, N, a0, al, tau0, T)
+    if code != 0:
+        return 0.0, INTERIOR, code
+    if scale == 0.0:
+        # no load: k = 0 holds it with no force at all (every angle 0, the least possible)
+        return 0.0, INTERIOR, APEX
+    if not LOAD_RANGE[0] <= scale <= LOAD_RANGE[1]:
+        return 0.0, INTERIOR, BAD_LOAD
+    # the rest works in units of the load: the friction angles do not depend on its scale
     K = K_in / scale
     f = f_in / scale
+    if not RATIO_RANGE[0] <= K <= RATIO_RANGE[1]:
+        return 0.0, INTERIOR, BAD_K_MAX
+    if f < inf and not RATIO_RANGE[0] <= f <= RATIO_RANGE[1]:
+        return 0.0, INTERIOR, BAD_F_MAX
     a = np.empty(n)
     tau = np.empty((n, 2))
     rho = np.empty(n)
@@ -2174,7 +2209,7 @@ def solve_batch(F, E, N, K, f, k, theta, lower, status, path, follows, start, st
     (if solved in this call and not NOT_PUSHING) is its first start.
     """
     for b in range(start, stop):
-        near = follows[b] and b > start and path[b - 1] != INVALID and status[b - 1] != NOT_PUSHING
+        near = follows[b] and b > start and path[b - 1] >= 0 and status[b - 1] != NOT_PUSHING
         lower[b], status[b], path[b] = solve_one(
             F[b], E[b], N[b], K[b], f[b], k[b], theta[b], k[b - 1 if b > 0 else 0], near
         )

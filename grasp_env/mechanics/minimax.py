@@ -146,7 +146,37 @@ def _flat(array: np.ndarray, batch: tuple[int, ...], item: tuple[int, ...]) -> n
     return _kernel_array(np.broadcast_to(array, (*batch, *item))).reshape(-1, *item)
 
 
-_NOT_FINITE = "the grasp's equilibrating forces, basis or normals contain NaN or inf"
+def _refused(
+    path: np.ndarray, F: np.ndarray, N: np.ndarray, k_lim: np.ndarray, f_lim: np.ndarray
+) -> ValueError:
+    """The ValueError for the first grasp the kernels refused (path < 0), naming the input."""
+    b = int(np.flatnonzero(path < 0)[0])
+    code = int(path[b])
+    where = f" (grasp {b} of the flattened batch)" if path.size > 1 else ""
+    scale = float(np.linalg.norm(F[b], axis=-1).max()) if code != kernels.INVALID else 0.0
+    low, high = kernels.RATIO_RANGE
+    if code == kernels.BAD_NORMAL:
+        lengths = np.linalg.norm(N[b], axis=-1)
+        return ValueError(
+            f"grasp normals must be unit vectors (length within {kernels.UNIT_TOL:g} of 1), "
+            f"got lengths {np.round(lengths, 9).tolist()}{where}"
+        )
+    if code == kernels.BAD_LOAD:
+        return ValueError(
+            "the load's scale (the largest equilibrating force |F_i|) must be 0 or within "
+            f"[{kernels.LOAD_RANGE[0]:g}, {kernels.LOAD_RANGE[1]:g}] N, got {scale:.3g} N{where}"
+        )
+    for name, value, bad in (
+        ("k_max", k_lim[b], kernels.BAD_K_MAX),
+        ("f_max", f_lim[b], kernels.BAD_F_MAX),
+    ):
+        if code == bad:
+            return ValueError(
+                f"{name} must be within [{low:g}, {high:g}] x the load's scale (the largest "
+                f"equilibrating force, {scale:.3g} N here), i.e. [{low * scale:.3g}, "
+                f"{high * scale:.3g}] N, got {value:.3g} N{where}"
+            )
+    return ValueError("the grasp's equilibrating forces, basis or normals contain NaN or inf")
 
 
 def solve_minimax(
@@ -170,6 +200,13 @@ def solve_minimax(
 
     Returns:
         The optimum with its certificate; see :class:`MinimaxResult`. Never NaN.
+
+    Accepted inputs (anything else raises ValueError naming the argument and its range):
+    the grasp's arrays finite, its normals unit vectors (length within 1e-6 of 1); the
+    load's scale s, the largest equilibrating force |F_i|, either 0 (no load: k = 0, every
+    angle 0) or within [1e-305, 1e305] N; k_max and f_max within [1e-12, 1e12] x s (the
+    friction angles depend on k_max / s and f_max / s only, and the solver works in units
+    of s, so every weight in that range gives the same angles).
     """
     F = np.asarray(grasp.equilibrating, dtype=float)
     E = np.asarray(grasp.basis, dtype=float)
@@ -207,8 +244,8 @@ def solve_minimax(
             0,
             1,
         )
-        if path[0] == kernels.INVALID:
-            raise ValueError(_NOT_FINITE)
+        if path[0] < 0:
+            raise _refused(path, F[None], N[None], np.array([k_lim]), np.array([f_lim]))
         return MinimaxResult(k[0], angles[0], angles[0].max(), lower[0], status[0])
     try:
         batch = np.broadcast_shapes(F.shape[:-2], N.shape[:-2], E.shape[:-3])
@@ -246,8 +283,8 @@ def solve_minimax(
         ]
         for chunk in chunks:
             chunk.result()
-    if np.any(path == kernels.INVALID):
-        raise ValueError(_NOT_FINITE)
+    if np.any(path < 0):
+        raise _refused(path, F, N, k_lim, f_lim)
     angles = angles.reshape(*batch, n)
     return MinimaxResult(
         k=k.reshape(*batch, m),
