@@ -41,6 +41,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.command is None:
         parser.print_help()
         return 2
+    from .progress import watch_numba
+
+    watch_numba()  # the first command after installing compiles for a while: say so
     try:
         return int(args.run(args) or 0)
     except KeyboardInterrupt:
