@@ -11,31 +11,45 @@ from gymnasium import spaces
 
 from ..mechanics import FOUR_FINGER_FACES, PAPER_FACES, Scene, contact_pairs, n_pairs
 from .episodes import Episode, build_episodes, cached_episode, sample_episodes
-from .expert import MinimaxExpert
 from .kernels import evaluate_grips
 from .observation import ObservationLayout
-from .scenes import SceneBatch, SceneSampler, default_scene, parse_options, parse_scene
-from .validation import DEFAULT_K_MAX_RATIO, check_k_max_ratio, check_margin
+from .scenes import (
+    SceneBatch,
+    SceneSampler,
+    check_faces,
+    default_scene,
+    parse_options,
+    parse_scene,
+)
+from .validation import (
+    DEFAULT_K_MAX_RATIO,
+    check_array,
+    check_bool,
+    check_k_max_ratio,
+    check_margin,
+    check_seed,
+)
 
 PHYSICS_ENGINES = (None, "mujoco")
 
 
 def check_physics(physics: str | None, render_mode: str | None, modes: Sequence[str]) -> None:
-    if physics not in PHYSICS_ENGINES:
+    if not (physics is None or (isinstance(physics, str) and physics in PHYSICS_ENGINES)):
         raise ValueError(f"physics must be one of {PHYSICS_ENGINES}, got {physics!r}")
-    if render_mode is not None and render_mode not in modes:
+    if not (render_mode is None or (isinstance(render_mode, str) and render_mode in modes)):
         raise ValueError(f"render_mode must be None or one of {list(modes)}, got {render_mode!r}")
 
 
-def action_array(action: Any, m: int) -> np.ndarray:
-    """``action`` as a float64 (m,) array, or a ValueError saying what an action must be."""
-    try:
-        array = np.asarray(action, dtype=np.float64)
-    except (TypeError, ValueError) as error:
-        raise ValueError(f"action must be {m} finite numbers in [-1, 1], got {action!r}") from error
-    if array.shape != (m,):
-        raise ValueError(f"action must have shape ({m},), got {array.shape}")
-    return array
+_KERNEL_DTYPES = (np.dtype(np.float64), np.dtype(np.float32))  # the step kernel's compiled types
+
+
+def action_array(action: Any, shape: tuple[int, ...]) -> np.ndarray:
+    """``action`` as a float array of ``shape``, or a ValueError saying what an action must be
+    (real numbers: booleans, complex numbers and strings are refused; finiteness is checked
+    by the step kernel)."""
+    if type(action) is np.ndarray and action.dtype in _KERNEL_DTYPES and action.shape == shape:
+        return action  # the common case, kept cheap
+    return check_array("action", action, shape)
 
 
 class _CubeGraspEnv(gym.Env[np.ndarray, np.ndarray]):
@@ -52,9 +66,9 @@ class _CubeGraspEnv(gym.Env[np.ndarray, np.ndarray]):
         render_mode: str | None,
     ) -> None:
         check_physics(physics, render_mode, self.metadata["render_modes"])
-        self.faces = tuple(faces)
+        self.faces = check_faces(faces)
         self.k_max_ratio = check_k_max_ratio(k_max_ratio)
-        self.terminate_on_slip = bool(terminate_on_slip)
+        self.terminate_on_slip = check_bool("terminate_on_slip", terminate_on_slip)
         self.physics = physics
         self.render_mode = render_mode
         n = len(self.faces)
@@ -62,7 +76,6 @@ class _CubeGraspEnv(gym.Env[np.ndarray, np.ndarray]):
         low, high = self.layout.bounds()
         self.observation_space = spaces.Box(low, high, dtype=np.float32)
         self.action_space = spaces.Box(-1.0, 1.0, (n_pairs(n),), dtype=np.float32)
-        self.expert = MinimaxExpert(self.k_max_ratio)
         self._pairs = contact_pairs(n)
         self._episode: Episode | None = None
         self._step = 0
@@ -101,11 +114,11 @@ class _CubeGraspEnv(gym.Env[np.ndarray, np.ndarray]):
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[np.ndarray, dict[str, Any]]:
-        super().reset(seed=seed)
+        super().reset(seed=check_seed("seed", seed))
         episode = self._next_episode(parse_options(options))
         self._episode = episode
         self._rows = np.arange(len(episode))
-        self._k_max = np.array([episode.k_max])
+        self._weight = np.array([episode.weight])
         self._limit = np.array([episode.limit])
         self._step = 0
         self._done = False
@@ -122,16 +135,17 @@ class _CubeGraspEnv(gym.Env[np.ndarray, np.ndarray]):
             raise RuntimeError("the episode has ended (or not started): call reset()")
         episode = self._episode
         assert episode is not None
-        a = action_array(action, self._pairs.shape[0])
+        a = action_array(action, self.action_space.shape)
         t = self._step
         ok, k, forces, theta, margin, reward = evaluate_grips(
-            episode.forces,
+            episode.forces_w,
             episode.directions,
             episode.normals,
             self._pairs,
             self._rows[t : t + 1],
             a.reshape(1, -1),
-            self._k_max,
+            self.k_max_ratio,
+            self._weight,
             self._limit,
         )
         if not ok:
@@ -145,8 +159,8 @@ class _CubeGraspEnv(gym.Env[np.ndarray, np.ndarray]):
             "margin": margin[0],
             "k": k[0],
             "contact_forces": forces[0],
-            "equilibrating_forces": episode.forces[t].copy(),
-            "expert_k": episode.expert_k[t].copy(),
+            "equilibrating_forces": episode.forces_w[t] * episode.weight,
+            "expert_k": episode.expert_k_w[t] * episode.weight,
             "expert_reward": expert_reward,
             "optimality_gap": expert_reward - reward,
             "slip": slip,
@@ -258,16 +272,26 @@ _DOC_SPACES = """
     ## Info
     `alpha_deg` (the pose), `theta` (n,) and `margin` (n,) radians, `k` (m,) newtons,
     `contact_forces` (n, 3) and `equilibrating_forces` (n, 3) world-frame forces on the object,
-    newtons, `expert_k` (m,) and `expert_reward` (the minimax expert's grip and reward at this
-    pose, solved at reset along the trajectory, each pose starting from the previous one's
-    optimum: where the optimum is not unique, `expert_k` may be another optimal grip than
-    `MinimaxExpert.predict` returns, with the same reward to 1e-14 rad),
-    `optimality_gap` = expert_reward - reward, `slip` (n,) bool; with
-    `physics="mujoco"` also `physics`, the MuJoCo report as a dict.
+    newtons (everything is computed in units of w, then multiplied by w), `expert_k` (m,)
+    newtons and `expert_reward`: the minimax optimum of this exact pose, certified (the
+    solver's gap is at most 1e-9 rad), solved in float64 when the episode starts, so that no
+    action earns more than `expert_reward` beyond rounding (where no grip in the box keeps
+    every finger pushing, `expert_reward` is the certified bound theta_lim - 90 deg);
+    `optimality_gap` = expert_reward - reward >= 0; `slip` (n,) bool; with
+    `physics="mujoco"` also `physics`, the MuJoCo report as a dict. `MinimaxExpert.predict`
+    solves the same problem from the float32 observation: its reward is up to about 1e-6 rad
+    below `expert_reward`.
+
+    ## Accepted inputs
+    Numbers are real numbers (booleans, complex numbers, strings are refused, not converted),
+    flags are booleans; anything else raises `ValueError` naming the input and its range:
+    weight in [1e-6, 1e6] N, mu in [1e-3, 1e3], `k_max_ratio` in [1e-3, 1e3], alphas in
+    [-180, 180] deg, at most 10,000 poses per trajectory (docs/environments.md has them all).
 """
 
 _DOC_COMMON_ARGS = """\
-    - `k_max_ratio` (default 2): k_max / w, the largest grip an action can command.
+    - `k_max_ratio` (default 2, in [1e-3, 1e3]): k_max / w, the largest grip an action can
+      command.
     - `terminate_on_slip` (default True): end the episode when a finger slips.
     - `physics` (default None): "mujoco" checks every step's forces in MuJoCo
       (`grasp_env.physics.StabilityChecker`, about 13 ms a step) and terminates on its verdict.
@@ -317,6 +341,8 @@ class CubeGraspEnv(_CubeGraspEnv):
         + _DOC_COMMON_ARGS
         + """
     ## Version History
+    - v0 (0.2.0): rewards computed in units of w (the same for any weight); `expert_reward`
+      the certified optimum of the exact pose; inputs outside the documented ranges refused.
     - v0: initial version.
     """
     )
@@ -330,12 +356,9 @@ class CubeGraspEnv(_CubeGraspEnv):
         physics: str | None = None,
         render_mode: str | None = None,
     ) -> None:
-        faces = tuple(faces)
-        if len(faces) not in (3, 4) or len(set(faces)) != len(faces):
-            raise ValueError(f"faces must name 3 or 4 distinct faces, got {faces}")
         super().__init__(faces, k_max_ratio, terminate_on_slip, physics, render_mode)
         base = default_scene(self.faces)
-        self._default_episode = cached_episode(parse_scene(scene, base), self.expert)
+        self._default_episode = cached_episode(parse_scene(scene, base), self.k_max_ratio)
         # Reset options fill missing keys from the environment's own scene.
         scene = dict(scene or {})
         self._defaults = {
@@ -347,7 +370,7 @@ class CubeGraspEnv(_CubeGraspEnv):
     def _next_episode(self, scene: Mapping[str, Any] | None) -> Episode:
         if scene is None:
             return self._default_episode
-        return build_episodes(self.scene_batch(scene), self.expert).episode(0)
+        return build_episodes(self.scene_batch(scene), self.k_max_ratio).episode(0)
 
 
 class CubeGraspRandomEnv(_CubeGraspEnv):
@@ -384,16 +407,21 @@ class CubeGraspRandomEnv(_CubeGraspEnv):
     ```
     - `faces`: one contact per named face, 3 or 4 faces.
     - `contact_offset`, `cg_offset` in [0, 1): largest offsets as fractions of the half-width.
-    - `weight_range` (N), `mu_range`: uniform ranges, > 0.
+    - `weight_range` (N, within [1e-6, 1e6]), `mu_range` (within [1e-3, 1e3]): uniform ranges.
     - `alpha_start_range_deg`, `alpha_end_range_deg`: uniform ranges of the trajectory's
-      first and last alpha (the first lying below the second), `alpha_step_deg` its step.
+      first and last alpha within [-180, 180] (the first lying below the second),
+      `alpha_step_deg` its step (at most 10,000 poses).
     - `extra_force`, `extra_torque` in [0, 1]: each component of an extra load force
       (torque) is uniform within this fraction of w (of w L); 0 draws none.
-    - `min_expert_margin_deg` in [0, 45): the margin the expert must keep at every pose.
+    - `min_expert_margin_deg` in [0, 45), below atan(mu_range[1]): the margin the expert must
+      keep at every pose. Ranges that let fewer than 1 draw in 2,000 hold raise `ValueError`
+      at reset.
 """
         + _DOC_COMMON_ARGS
         + """
     ## Version History
+    - v0 (0.2.0): rewards computed in units of w (the same for any weight); `expert_reward`
+      the certified optimum of the exact pose; inputs outside the documented ranges refused.
     - v0: initial version.
     """
     )
@@ -417,7 +445,7 @@ class CubeGraspRandomEnv(_CubeGraspEnv):
         render_mode: str | None = None,
     ) -> None:
         self.sampler = SceneSampler(
-            tuple(faces),
+            faces,
             contact_offset,
             cg_offset,
             weight_range,
@@ -429,14 +457,23 @@ class CubeGraspRandomEnv(_CubeGraspEnv):
             extra_torque,
         )
         self.min_expert_margin = check_margin(min_expert_margin_deg)
+        largest = np.arctan(self.sampler.mu_range[1])
+        if self.min_expert_margin >= largest:
+            raise ValueError(
+                f"min_expert_margin_deg ({min_expert_margin_deg}) must lie below the largest"
+                f" friction limit atan(mu_range[1]) = {np.rad2deg(largest):.4g} deg: no grip"
+                " keeps a larger margin"
+            )
         super().__init__(self.sampler.faces, k_max_ratio, terminate_on_slip, physics, render_mode)
         self._defaults = default_scene(self.faces)
 
     def _next_episode(self, scene: Mapping[str, Any] | None) -> Episode:
         if scene is not None:
-            return build_episodes(self.scene_batch(scene), self.expert).episode(0)
-        rng = [self.np_random]
-        return sample_episodes(rng, self.sampler, self.expert, self.min_expert_margin).episode(0)
+            return build_episodes(self.scene_batch(scene), self.k_max_ratio).episode(0)
+        batch = sample_episodes(
+            [self.np_random], self.sampler, self.k_max_ratio, self.min_expert_margin
+        )
+        return batch.episode(0)
 
 
 __all__ = ["FOUR_FINGER_FACES", "CubeGraspEnv", "CubeGraspRandomEnv"]

@@ -1,10 +1,11 @@
 """Episodes: a scene held along its trajectory, with everything that does not depend on the
 agent's actions computed once when the episode starts.
 
-The grasp geometry, the equilibrating forces, the observations and the expert's grip at
-every pose are computed batched over poses and episodes; a step then only forms
+The grasp geometry, the equilibrating forces, the observations and the expert's certified
+optimum at every pose are computed batched over poses and episodes; a step then only forms
 P = F + sum k_ij e_ij (eq. 4) and the friction angles (eq. 2) with
-:func:`~grasp_env.envs.kernels.evaluate_grips`.
+:func:`~grasp_env.envs.kernels.evaluate_grips`. Forces are stored in units of the weight w
+(``*_w`` arrays), so that nothing depends on its scale; newtons are w times these.
 """
 
 from __future__ import annotations
@@ -14,11 +15,10 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from ..mechanics import START_ROTATION, Scene, contact_pairs
-from .expert import MinimaxExpert
-from .kernels import evaluate_grips, pose_geometry
+from ..mechanics import START_ROTATION, Grasp, Scene, Status, contact_pairs, solve_minimax
+from .kernels import pose_geometry
 from .observation import ObservationLayout
-from .scenes import EDGE, SCENE_ARRAYS, SceneBatch, SceneSampler
+from .scenes import EDGE, SCENE_ARRAYS, SceneBatch, SceneSampler, layout_ok
 
 _BOUNDS = {n: ObservationLayout(n).bounds() for n in (3, 4)}
 
@@ -32,42 +32,68 @@ def _read_only(*arrays: np.ndarray) -> None:
 @dataclass(frozen=True)
 class Poses:
     """World-frame data of P poses (flattened over episodes), ready for
-    :func:`~grasp_env.envs.kernels.evaluate_grips`."""
+    :func:`~grasp_env.envs.kernels.evaluate_grips`; forces in units of w."""
 
     rotations: np.ndarray  # (P, 3, 3)
-    forces: np.ndarray  # (P, n, 3) equilibrating forces F_i, newtons
+    forces_w: np.ndarray  # (P, n, 3) equilibrating forces F_i / w
     directions: np.ndarray  # (P, m, 3) u_ij
     normals: np.ndarray  # (P, n, 3)
     observations: np.ndarray  # (P, size) float32
     alphas: np.ndarray  # (P,) degrees
     limit: np.ndarray  # (P,) theta_lim
-    k_max: np.ndarray  # (P,)
-    expert_action: np.ndarray  # (P, m) the expert's actions (float32 values)
-    expert_k: np.ndarray  # (P, m)
-    expert_reward: np.ndarray  # (P,)
+    weight: np.ndarray  # (P,) w, newtons
+    expert_k_w: np.ndarray  # (P, m) the optimal grip k* / w
+    expert_reward: np.ndarray  # (P,) theta_lim - the certified optimum
 
     def take(self, rows: np.ndarray) -> Poses:
         return Poses(*(np.take(getattr(self, f.name), rows, axis=0) for f in fields(Poses)))
+
+
+def interaction_basis(directions: np.ndarray, pairs: np.ndarray, n: int) -> np.ndarray:
+    """The vectors e_ij (..., m, n, 3): +u_ij in block i, -u_ij in block j (eq. 4)."""
+    basis = np.zeros((*directions.shape[:-2], len(pairs), n, 3))
+    q = np.arange(len(pairs))
+    basis[..., q, pairs[:, 0], :] = directions
+    basis[..., q, pairs[:, 1], :] = -directions
+    return basis
+
+
+def expert_optimum(
+    grasp: Grasp, k_max_ratio: float, follows: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """The certified minimax optimum of grasps in units of w: (k* / w, theta_lim - t*).
+
+    t* is the solver's optimum max_i theta_i (attained by k*, certified within its gap of
+    1e-9 rad). Where no grip in the box keeps every finger pushing (status NOT_PUSHING) the
+    certified bound t* >= 90 deg is used: no action can earn more than theta_lim - 90 deg.
+    """
+    result = solve_minimax(grasp, k_max_ratio, follows=follows)
+    optimum = np.where(result.status == Status.NOT_PUSHING, result.lower_bound, result.max_angle)
+    if not (np.all(np.isfinite(result.k)) and np.all(np.isfinite(optimum))):
+        raise RuntimeError("the minimax solver returned a non-finite optimum (a solver bug)")
+    return result.k, grasp.friction_limit - optimum
 
 
 def build_poses(
     scenes: SceneBatch,
     episode: np.ndarray,
     step: np.ndarray,
-    expert: MinimaxExpert,
-    known: np.ndarray | None = None,
+    k_max_ratio: float,
+    known: Poses | None = None,
+    known_rows: np.ndarray | None = None,
 ) -> Poses:
-    """Grasp data, observations and the expert's grip at poses of the batch's trajectories.
+    """Grasp data, observations and the expert's optimum at poses of the batch's trajectories.
 
     ``episode`` (P,) says which scene each pose belongs to and ``step`` (P,) which pose t of
-    its trajectory it is; the observation's phase is t / length. ``known`` (P, m) holds the
-    expert's actions where already solved (NaN elsewhere).
+    its trajectory it is; the observation's phase is t / length. ``known`` holds the expert's
+    optimum at rows ``known_rows`` of these poses where already solved.
     """
     n = scenes.contacts.shape[1]
     pairs = contact_pairs(n)
     count = len(episode)
     alphas, limit = np.empty(count), np.empty(count)
     rotations = np.empty((count, 3, 3))
+    positions = np.empty((count, n, 3))
     forces, normals = np.empty((count, n, 3)), np.empty((count, n, 3))
     directions = np.empty((count, len(pairs), 3))
     observations = np.empty((count, ObservationLayout(n).size), np.float32)
@@ -90,32 +116,33 @@ def build_poses(
         *_BOUNDS[n],
         alphas,
         rotations,
+        positions,
         forces,
         directions,
         normals,
         observations,
         limit,
     )
-    weight = scenes.weight[episode]
-    k_max = expert.k_max_ratio * weight
-    todo = np.ones(count, bool) if known is None else np.isnan(known[:, 0])
-    actions = np.zeros((count, len(pairs))) if known is None else known.copy()
+    todo = np.ones(count, bool)
+    expert_k = np.empty((count, len(pairs)))
+    expert_reward = np.empty(count)
+    if known is not None:
+        todo[known_rows] = False
+        expert_k[known_rows] = known.expert_k_w
+        expert_reward[known_rows] = known.expert_reward
     # a pose whose predecessor on the trajectory is solved just before it starts from its
     # optimum (the solver's warm start)
     follows = np.zeros(count, bool)
     follows[1:] = todo[1:] & todo[:-1] & (episode[1:] == episode[:-1]) & (step[1:] == step[:-1] + 1)
-    actions[todo] = expert.actions(observations[todo], follows[todo])
-    # The expert's grip scored exactly as an agent's action is (same kernel, same clipping).
-    _, k, _, _, _, reward = evaluate_grips(
-        forces,
-        directions,
-        normals,
-        pairs,
-        np.arange(len(episode)),
-        actions,
-        k_max,
-        limit,
-    )
+    if todo.any():
+        grasp = Grasp(
+            positions[todo],
+            normals[todo],
+            forces[todo],
+            interaction_basis(directions[todo], pairs, n),
+            limit[todo],
+        )
+        expert_k[todo], expert_reward[todo] = expert_optimum(grasp, k_max_ratio, follows[todo])
     return Poses(
         rotations,
         forces,
@@ -124,10 +151,9 @@ def build_poses(
         observations,
         alphas,
         limit,
-        k_max,
-        actions,
-        k,
-        reward,
+        scenes.weight[episode],
+        expert_k,
+        expert_reward,
     )
 
 
@@ -185,15 +211,15 @@ class EpisodeBatch:
         episode = Episode(
             scene,
             part.rotations,
-            part.forces,
+            part.forces_w,
             part.directions,
             part.normals,
             observations,
             part.alphas,
-            part.expert_k,
+            part.expert_k_w,
             part.expert_reward,
             limit=float(part.limit[0]),
-            k_max=float(part.k_max[0]),
+            weight=float(part.weight[0]),
         )
         _read_only(*(getattr(scene, name) for name in SCENE_ARRAYS))
         _read_only(*(getattr(episode, f.name) for f in fields(Episode)[1:-2]))
@@ -202,7 +228,7 @@ class EpisodeBatch:
 
 @dataclass(frozen=True)
 class Episode:
-    """One episode's precomputed arrays (read-only), T poses.
+    """One episode's precomputed arrays (read-only), T poses; forces in units of w.
 
     ``observations`` has T + 1 rows: row t is seen before step t, row T (the last pose with
     phase 1) after the last step.
@@ -210,18 +236,28 @@ class Episode:
 
     scenes: SceneBatch  # a batch of one: the episode's scene and trajectory
     rotations: np.ndarray  # (T, 3, 3)
-    forces: np.ndarray  # (T, n, 3)
+    forces_w: np.ndarray  # (T, n, 3) equilibrating forces F_i / w
     directions: np.ndarray  # (T, m, 3)
     normals: np.ndarray  # (T, n, 3)
     observations: np.ndarray  # (T + 1, size) float32
     alphas: np.ndarray  # (T,) degrees
-    expert_k: np.ndarray  # (T, m)
-    expert_reward: np.ndarray  # (T,)
+    expert_k_w: np.ndarray  # (T, m) the optimal grip k* / w
+    expert_reward: np.ndarray  # (T,) theta_lim - the certified optimum
     limit: float
-    k_max: float
+    weight: float  # w, newtons
 
     def __len__(self) -> int:
         return self.rotations.shape[0]
+
+    @property
+    def forces(self) -> np.ndarray:
+        """The equilibrating forces F_i (T, n, 3), newtons."""
+        return self.forces_w * self.weight
+
+    @property
+    def expert_k(self) -> np.ndarray:
+        """The optimal grips k* (T, m), newtons."""
+        return self.expert_k_w * self.weight
 
     @property
     def scene(self) -> Scene:
@@ -229,72 +265,83 @@ class Episode:
 
 
 def build_episodes(
-    scenes: SceneBatch, expert: MinimaxExpert, known: np.ndarray | None = None
+    scenes: SceneBatch,
+    k_max_ratio: float,
+    known: Poses | None = None,
+    known_rows: np.ndarray | None = None,
 ) -> EpisodeBatch:
     """The episodes of a batch of scenes, with every pose of every trajectory in one batch
-    (``known``: the expert's actions at some of these poses, see :func:`build_poses`)."""
+    (``known``, ``known_rows``: the expert's optimum at some of these poses, see
+    :func:`build_poses`)."""
     lengths = scenes.length
     episode = np.repeat(np.arange(len(scenes)), lengths)
     step = np.arange(len(episode)) - np.repeat(np.cumsum(lengths) - lengths, lengths)
-    return EpisodeBatch(scenes, build_poses(scenes, episode, step, expert, known))
+    return EpisodeBatch(scenes, build_poses(scenes, episode, step, k_max_ratio, known, known_rows))
 
 
 _EPISODE_CACHE: dict[tuple, Episode] = {}
 _EPISODE_CACHE_SIZE = 32
 
 
-def cached_episode(scenes: SceneBatch, expert: MinimaxExpert) -> Episode:
+def cached_episode(scenes: SceneBatch, k_max_ratio: float) -> Episode:
     """The episode of one scene, remembered: environments made with the same scene (every
     ``gym.make("grasp_env/CubeGrasp-v0")``) share one read-only episode."""
-    key = (expert.k_max_ratio, *(getattr(scenes, name).tobytes() for name in SCENE_ARRAYS))
+    key = (k_max_ratio, *(getattr(scenes, name).tobytes() for name in SCENE_ARRAYS))
     if key not in _EPISODE_CACHE:
         if len(_EPISODE_CACHE) >= _EPISODE_CACHE_SIZE:
             _EPISODE_CACHE.pop(next(iter(_EPISODE_CACHE)))
-        _EPISODE_CACHE[key] = build_episodes(scenes, expert).episode(0)
+        _EPISODE_CACHE[key] = build_episodes(scenes, k_max_ratio).episode(0)
     return _EPISODE_CACHE[key]
 
 
 #: Candidate scenes drawn per environment and round of :func:`sample_episodes`.
 DRAWS_PER_ROUND = 2
-#: Give up (the ranges admit almost no holdable scene) after this many candidates per episode.
+#: Give up (the ranges admit almost no holdable scene) when fewer than one candidate in this
+#: many holds.
 MAX_DRAWS = 2000
 
 
 def sample_episodes(
     rngs: Sequence[np.random.Generator],
     sampler: SceneSampler,
-    expert: MinimaxExpert,
+    k_max_ratio: float,
     min_margin: float,
 ) -> EpisodeBatch:
     """One random episode per generator whose expert keeps every margin >= ``min_margin``.
 
-    Each generator draws :data:`DRAWS_PER_ROUND` candidates per round; a cheap screen solves
-    the expert at the trajectory's two ends and middle, then candidates that pass are solved
-    along the whole trajectory in order, the first that holds being the episode. Which scene a
-    generator yields depends on that generator alone, so a vector of environments gets the
-    same episodes as single environments with the same seeds; all solves are batched.
+    Each generator draws :data:`DRAWS_PER_ROUND` candidates per round; candidates whose
+    contacts are (nearly) collinear or coplanar (the rule of
+    :class:`~grasp_env.mechanics.Scene`) are dropped, a cheap screen solves the expert at the
+    trajectory's two ends and middle, then candidates that pass are solved along the whole
+    trajectory in order, the first that holds being the episode. Which scene a generator yields
+    depends on that generator alone, so a vector of environments gets the same episodes as
+    single environments with the same seeds; all solves are batched. Raises ValueError once
+    fewer than one candidate in :data:`MAX_DRAWS` has held.
     """
     chosen: list[EpisodeBatch] = []
     owners: list[np.ndarray] = []
     pending = np.arange(len(rngs))
-    rounds = 0
+    drawn = 0
     while len(pending):
-        rounds += 1
-        if rounds * DRAWS_PER_ROUND > MAX_DRAWS:
-            raise RuntimeError(
-                f"no scene in {MAX_DRAWS} draws lets the expert hold the whole trajectory;"
-                " widen mu_range or narrow the offset and trajectory ranges"
+        if drawn >= MAX_DRAWS * (len(rngs) - len(pending) + 1):
+            raise ValueError(
+                f"fewer than 1 in {MAX_DRAWS} random scenes lets the expert keep a margin of"
+                f" {np.rad2deg(min_margin):g} deg along the whole trajectory; widen mu_range,"
+                " lower min_expert_margin_deg or narrow the offset and trajectory ranges"
             )
         drafts = sampler.scenes(
             np.concatenate([sampler.raw(rngs[e], DRAWS_PER_ROUND) for e in pending])
         )
+        drawn += len(drafts)
         # Screen: the two ends and the middle of every candidate's trajectory.
         last = drafts.length - 1
         picks = np.stack([np.zeros_like(last), last // 2 + last % 2, last], axis=1)
-        screen = build_poses(drafts, np.repeat(np.arange(len(drafts)), 3), picks.ravel(), expert)
-        screened = screen.expert_action.reshape(len(drafts), 3, -1)
-        passed = (
-            screen.expert_reward.reshape(len(pending), DRAWS_PER_ROUND, 3).min(-1) >= min_margin
+        screen = build_poses(
+            drafts, np.repeat(np.arange(len(drafts)), 3), picks.ravel(), k_max_ratio
+        )
+        worst = screen.expert_reward.reshape(len(drafts), 3).min(-1)
+        passed = ((worst >= min_margin) & layout_ok(drafts.contacts)).reshape(
+            len(pending), DRAWS_PER_ROUND
         )
         open_ = np.ones(len(pending), bool)
         for d in range(DRAWS_PER_ROUND):  # candidates in their draw order
@@ -303,14 +350,11 @@ def sample_episodes(
                 continue
             candidates = slots * DRAWS_PER_ROUND + d
             scenes = drafts.take(candidates)
-            # The screened poses are solved already (the expert ignores the phase).
-            m = screened.shape[2]
-            known = np.full((scenes.length.sum(), m), np.nan)
+            # The screened poses are solved already (the optimum ignores the phase).
             starts = np.cumsum(scenes.length) - scenes.length
-            known[(starts[:, None] + picks[candidates]).ravel()] = screened[candidates].reshape(
-                -1, m
-            )
-            full = build_episodes(scenes, expert, known)
+            known = screen.take((candidates[:, None] * 3 + np.arange(3)).ravel())
+            rows = (starts[:, None] + picks[candidates]).ravel()
+            full = build_episodes(scenes, k_max_ratio, known, rows)
             holds = full.worst_expert_reward() >= min_margin
             chosen.append(full.take(np.flatnonzero(holds)))
             owners.append(pending[slots[holds]])

@@ -23,7 +23,8 @@ _kernel = numba.njit(cache=True, nogil=True)
 
 @_kernel
 def _equilibrating(p, force, torque, out):
-    """Minimum-norm forces F_i = -f / n + mu x q_i balancing (f, tau) at contacts p (n, 3).
+    """Minimum-norm forces F_i = -f / n + mu x q_i balancing (f, tau) at contacts p (n, 3);
+    False (and ``out`` untouched) if the contacts are collinear.
 
     The closed form of :func:`grasp_env.mechanics.equilibrating_forces` (q_i = p_i - c about
     the contacts' centroid c, J mu = c x f - tau with J = sum_i |q_i|^2 I - q_i q_i^T).
@@ -56,6 +57,8 @@ def _equilibrating(p, force, torque, out):
     c12 = j[0, 1] * j[0, 2] - j[0, 0] * j[1, 2]
     c22 = j[0, 0] * j[1, 1] - j[0, 1] * j[0, 1]
     det = j[0, 0] * c00 + j[0, 1] * c01 + j[0, 2] * c02
+    if not det > 0.0:  # collinear or coinciding contacts (or NaN): no grasp
+        return False
     m0 = (c00 * r0 + c01 * r1 + c02 * r2) / det
     m1 = (c01 * r0 + c11 * r1 + c12 * r2) / det
     m2 = (c02 * r0 + c12 * r1 + c22 * r2) / det
@@ -63,43 +66,49 @@ def _equilibrating(p, force, torque, out):
         out[i, 0] = -force[0] / n + m1 * q[i, 2] - m2 * q[i, 1]
         out[i, 1] = -force[1] / n + m2 * q[i, 0] - m0 * q[i, 2]
         out[i, 2] = -force[2] / n + m0 * q[i, 1] - m1 * q[i, 0]
+    return True
 
 
 @_kernel
 def _directions(p, pairs, out):
-    """u_ij = (p_j - p_i) / |p_j - p_i| for the pairs (m, 2): out (m, 3)."""
+    """u_ij = (p_j - p_i) / |p_j - p_i| for the pairs (m, 2): out (m, 3); False if two
+    contacts coincide."""
     for q in range(pairs.shape[0]):
         i, j = pairs[q, 0], pairs[q, 1]
         d0 = p[j, 0] - p[i, 0]
         d1 = p[j, 1] - p[i, 1]
         d2 = p[j, 2] - p[i, 2]
         norm = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+        if not norm > 0.0:
+            return False
         out[q, 0] = d0 / norm
         out[q, 1] = d1 / norm
         out[q, 2] = d2 / norm
+    return True
 
 
 @_kernel
 def pose_geometry(
     relative, object_normals, axis, alpha_start, alpha_step, length, weight, mu,
     extra_force, extra_torque, edge, episode, step, start_rotation, pairs, low, high,
-    alphas, rotations, forces, directions, normals, observations, limit,
+    alphas, rotations, positions, forces, directions, normals, observations, limit,
 ):  # fmt: skip
-    """The world-frame grasp and observation of poses (episode[P], step[P]) of E scenes.
+    """The world-frame grasp and observation of poses (episode[P], step[P]) of E scenes, with
+    forces in units of the weight w (so that nothing depends on its scale).
 
     Scene arrays: ``relative`` contacts c_i - g and ``object_normals`` (E, n, 3), unit ``axis``
     (E, 3), trajectory ``alpha_start``, ``alpha_step`` (degrees) and ``length``, ``weight``,
-    ``mu``, ``extra_force`` and ``extra_torque`` (E, 3), and the cube's ``edge`` length L.
-    Fills ``alphas`` (P,), ``rotations`` R = Rot(axis, alpha) R0 (P, 3, 3) (eq. 5), the
-    equilibrating ``forces`` (P, n, 3), ``directions`` u_ij (P, m, 3), ``normals`` (P, n, 3),
-    ``observations`` (P, size) float32 clipped to [``low``, ``high``] (the layout of
-    :mod:`grasp_env.envs.observation`), and ``limit`` = atan(mu) (P,).
+    ``mu``, ``extra_force`` and ``extra_torque`` (E, 3, newtons), and the cube's ``edge`` L.
+    Fills ``alphas`` (P,), ``rotations`` R = Rot(axis, alpha) R0 (P, 3, 3) (eq. 5), the contact
+    ``positions`` p_i (P, n, 3), the equilibrating ``forces`` F_i / w (P, n, 3), ``directions``
+    u_ij (P, m, 3), ``normals`` (P, n, 3), ``observations`` (P, size) float32 clipped to
+    [``low``, ``high``] (the layout of :mod:`grasp_env.envs.observation`), and ``limit`` =
+    atan(mu) (P,).
     """
     n = relative.shape[1]
     rot = np.empty((3, 3))
     force = np.empty(3)
     torque = np.empty(3)
-    positions = np.empty((n, 3))
     row = np.empty(observations.shape[1])
     for b in range(episode.shape[0]):
         e = episode[b]
@@ -126,6 +135,7 @@ def pose_geometry(
                     + rot[r, 2] * start_rotation[2, c]
                 )
         big = rotations[b]
+        p = positions[b]
         for i in range(n):
             for r in range(3):
                 normals[b, i, r] = (
@@ -133,20 +143,19 @@ def pose_geometry(
                     + big[r, 1] * object_normals[e, i, 1]
                     + big[r, 2] * object_normals[e, i, 2]
                 )
-        for i in range(n):
-            for r in range(3):
-                positions[i, r] = (
+                p[i, r] = (
                     big[r, 0] * relative[e, i, 0]
                     + big[r, 1] * relative[e, i, 1]
                     + big[r, 2] * relative[e, i, 2]
                 )
+        # the load in units of w: f / w = (0, 0, -1) + f_d / w, tau / w (metres)
         w = weight[e]
         for a in range(3):
-            force[a] = extra_force[e, a]
-            torque[a] = extra_torque[e, a]
-        force[2] -= w
-        _equilibrating(positions, force, torque, forces[b])
-        _directions(positions, pairs, directions[b])
+            force[a] = extra_force[e, a] / w
+            torque[a] = extra_torque[e, a] / w
+        force[2] -= 1.0
+        _equilibrating(p, force, torque, forces[b])
+        _directions(p, pairs, directions[b])
         limit[b] = math.atan(mu[e])
         # the observation: lengths in units of L, forces of w
         for a in range(3):  # R's first two columns, one after the other
@@ -154,11 +163,11 @@ def pose_geometry(
             row[3 + a] = big[a, 1]
         for i in range(n):
             for a in range(3):
-                row[6 + 3 * i + a] = positions[i, a] / edge
+                row[6 + 3 * i + a] = p[i, a] / edge
                 row[6 + 3 * n + 3 * i + a] = normals[b, i, a]
         for a in range(3):
-            row[6 + 6 * n + a] = force[a] / w
-            row[9 + 6 * n + a] = torque[a] / (w * edge)
+            row[6 + 6 * n + a] = force[a]
+            row[9 + 6 * n + a] = torque[a] / edge
         row[12 + 6 * n] = limit[b]
         row[13 + 6 * n] = step[b] / length[e]
         for a in range(row.shape[0]):
@@ -168,7 +177,8 @@ def pose_geometry(
 @_kernel
 def observation_grasps(observations, pairs, forces, basis, normals):
     """The grasps in an observation batch (B, size), in units of w and L: the equilibrating
-    ``forces`` (B, n, 3), the interaction ``basis`` e_ij (B, m, n, 3) and the ``normals``."""
+    ``forces`` (B, n, 3), the interaction ``basis`` e_ij (B, m, n, 3) and the ``normals``.
+    Returns the index of the first observation whose contacts are collinear, or -1."""
     n = forces.shape[1]
     positions = np.empty((n, 3))
     force = np.empty(3)
@@ -183,24 +193,30 @@ def observation_grasps(observations, pairs, forces, basis, normals):
         for a in range(3):
             force[a] = obs[6 + 6 * n + a]
             torque[a] = obs[9 + 6 * n + a]
-        _equilibrating(positions, force, torque, forces[b])
-        _directions(positions, pairs, u)
+        if not (
+            _equilibrating(positions, force, torque, forces[b]) and _directions(positions, pairs, u)
+        ):
+            return b
         basis[b] = 0.0
         for q in range(pairs.shape[0]):
             for a in range(3):
                 basis[b, q, pairs[q, 0], a] = u[q, a]
                 basis[b, q, pairs[q, 1], a] = -u[q, a]
+    return -1
 
 
 @_kernel
-def evaluate_grips(forces, directions, normals, pairs, rows, actions, k_max, limit):
-    """Net forces and friction angles of a batch of (pose, action) pairs.
+def evaluate_grips(forces, directions, normals, pairs, rows, actions, k_max_ratio, weight, limit):
+    """Net forces and friction angles of a batch of (pose, action) pairs, computed in units of
+    the weight w and reported in newtons.
 
-    ``forces`` (R, n, 3) equilibrating forces, ``directions`` (R, m, 3) the unit vectors u_ij
-    and ``normals`` (R, n, 3) of R stored poses; ``rows`` (B,) picks a pose per item, whose
-    ``actions`` (B, m) are clipped to [-1, 1] and scaled by ``k_max`` (B,); ``limit`` (B,) is
-    theta_lim. Returns (ok, k, P, theta, margin, reward); ok is False if an action is not
-    finite (the outputs are then meaningless).
+    ``forces`` (R, n, 3) equilibrating forces F_i / w, ``directions`` (R, m, 3) the unit
+    vectors u_ij and ``normals`` (R, n, 3) of R stored poses; ``rows`` (B,) picks a pose per
+    item, whose ``actions`` (B, m) are clipped to [-1, 1] and scaled by ``k_max_ratio`` (k_max
+    / w); ``weight`` (B,) is w, newtons, and ``limit`` (B,) theta_lim. Returns (ok, k, P,
+    theta, margin, reward) with k (B, m) and P (B, n, 3) in newtons; ok is False if an action
+    is not finite (the outputs are then meaningless). The angles (eq. 2) of P / w do not depend
+    on w: nothing here can overflow or underflow for any w.
     """
     count = rows.shape[0]
     n = forces.shape[1]
@@ -210,27 +226,31 @@ def evaluate_grips(forces, directions, normals, pairs, rows, actions, k_max, lim
     theta = np.empty((count, n))
     margin = np.empty((count, n))
     reward = np.empty(count)
+    unit = np.empty((n, 3))
     ok = True
     for b in range(count):
         row = rows[b]
+        w = weight[b]
         for i in range(n):
             for c in range(3):
-                net[b, i, c] = forces[row, i, c]
+                unit[i, c] = forces[row, i, c]
         for q in range(m):
             a = actions[b, q]
             if not math.isfinite(a):
                 ok = False
-            k[b, q] = min(max(a, -1.0), 1.0) * k_max[b]
+            kq = min(max(a, -1.0), 1.0) * k_max_ratio
+            k[b, q] = kq * w
             # P_i += k_ij u_ij and P_j -= k_ij u_ij: the basis e_ij of eq. 4
             i = pairs[q, 0]
             j = pairs[q, 1]
             for c in range(3):
-                v = k[b, q] * directions[row, q, c]
-                net[b, i, c] += v
-                net[b, j, c] -= v
+                v = kq * directions[row, q, c]
+                unit[i, c] += v
+                unit[j, c] -= v
         worst = np.inf
         for i in range(n):
-            px, py, pz = net[b, i, 0], net[b, i, 1], net[b, i, 2]
+            px, py, pz = unit[i, 0], unit[i, 1], unit[i, 2]
+            net[b, i, 0], net[b, i, 1], net[b, i, 2] = px * w, py * w, pz * w
             nx, ny, nz = normals[row, i, 0], normals[row, i, 1], normals[row, i, 2]
             cx = py * nz - pz * ny
             cy = pz * nx - px * nz
@@ -243,7 +263,7 @@ def evaluate_grips(forces, directions, normals, pairs, rows, actions, k_max, lim
                 t = math.atan(tangential / normal)
             elif tangential > 0.0:
                 t = 0.5 * math.pi + math.atan(-normal / tangential)
-            else:
+            else:  # P_i = 0 (a released finger) counts as inside its cone, as in the solver
                 t = math.pi if normal < 0.0 else 0.0
             theta[b, i] = t
             margin[b, i] = limit[b] - t

@@ -28,6 +28,7 @@ from stable_baselines3.common.vec_env.base_vec_env import (
     VecEnvStepReturn,
 )
 
+from .validation import check_seed
 from .vector import _CubeGraspVectorEnv
 
 
@@ -52,7 +53,7 @@ class SB3VecEnv(VecEnv):
             )
         elif kwargs:
             raise ValueError("keywords are for an environment id, not for an existing env")
-        if not isinstance(env.unwrapped, _CubeGraspVectorEnv):
+        if not isinstance(getattr(env, "unwrapped", None), _CubeGraspVectorEnv):
             raise ValueError(f"expected a grasp_env vector environment, got {env!r}")
         if env.metadata.get("autoreset_mode") != AutoresetMode.SAME_STEP:
             raise ValueError("the vector environment must use AutoresetMode.SAME_STEP")
@@ -60,6 +61,10 @@ class SB3VecEnv(VecEnv):
         self.last_info: dict[str, Any] = {}
         self._actions: np.ndarray | None = None
         super().__init__(env.num_envs, env.single_observation_space, env.single_action_space)
+
+    def seed(self, seed: int | None = None) -> Sequence[int | None]:
+        """Seeds seed, seed + 1, ... for the next reset (SB3's convention); an integer >= 0."""
+        return super().seed(check_seed("seed", seed))
 
     def reset(self) -> VecEnvObs:
         seed: Sequence[int | None] | None = None

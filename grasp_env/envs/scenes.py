@@ -18,7 +18,16 @@ from ..mechanics import (
     Trajectory,
     face_point,
 )
-from .validation import check_fraction, check_range
+from .validation import (
+    ALPHA_RANGE_DEG,
+    MAX_POSES,
+    MU_RANGE,
+    WEIGHT_RANGE,
+    check_array,
+    check_fraction,
+    check_number,
+    check_range,
+)
 
 #: Edge length L of the grasped cube, metres (the paper's unit cube; the observation's units).
 EDGE = 1.0
@@ -102,16 +111,6 @@ class SceneBatch:
 # ---------------------------------------------------------------------------- explicit scenes
 
 
-def _vector(name: str, value: Any, shape: tuple[int, ...]) -> np.ndarray:
-    try:
-        array = np.asarray(value, dtype=float)
-    except (TypeError, ValueError) as error:
-        raise ValueError(f"scene {name!r} must be numeric, got {value!r}") from error
-    if array.shape != shape:
-        raise ValueError(f"scene {name!r} must have shape {shape}, got {array.shape}")
-    return array
-
-
 def default_scene(faces: Sequence[str]) -> dict[str, Any]:
     """The paper's scene and trajectory with one face-centre contact per face in ``faces``."""
     trajectory = Trajectory()
@@ -126,13 +125,72 @@ def default_scene(faces: Sequence[str]) -> dict[str, Any]:
     }
 
 
+def check_faces(faces: Any) -> tuple[str, ...]:
+    """3 or 4 distinct face names ("-x", "+z", ...): the fingers' faces, in order."""
+    if isinstance(faces, str) or not isinstance(faces, Sequence | np.ndarray):
+        raise ValueError(f"faces must be a sequence of 3 or 4 face names such as"
+                         f" ('-x', '-y', '-z'), got {faces!r}")  # fmt: skip
+    faces = tuple(faces)
+    for face in faces:
+        if not isinstance(face, str) or face not in FACES:
+            raise ValueError(f"unknown face {face!r}; the faces are {tuple(FACES)}")
+    if len(faces) not in (3, 4) or len(set(faces)) != len(faces):
+        raise ValueError(f"faces must name 3 or 4 distinct faces, got {faces}")
+    return faces
+
+
+def check_trajectory(spec: Mapping[str, Any]) -> Trajectory:
+    """A :class:`Trajectory` from a mapping with :data:`TRAJECTORY_KEYS`: ``axis`` a finite
+    non-zero 3-vector (any length), the alphas in [-180, 180] deg, start <= end, a step in
+    (0, 360] deg, and at most :data:`~grasp_env.envs.validation.MAX_POSES` poses."""
+    if not isinstance(spec, Mapping):
+        raise ValueError(f"scene 'trajectory' must be a mapping with keys {TRAJECTORY_KEYS}")
+    for key in spec:
+        if key not in TRAJECTORY_KEYS:
+            raise ValueError(
+                f"unknown trajectory key {key!r}; the trajectory keys are {TRAJECTORY_KEYS}"
+            )
+    axis = check_array("trajectory 'axis'", spec["axis"], (3,))
+    if not np.any(axis):
+        raise ValueError(f"trajectory 'axis' must be a non-zero 3-vector, got {axis.tolist()}")
+    axis = axis / np.max(np.abs(axis))  # its norm may overflow or underflow
+    start, end = (
+        check_number(f"trajectory {key!r}", spec[key], *ALPHA_RANGE_DEG)
+        for key in ("alpha_start_deg", "alpha_end_deg")
+    )
+    if end < start:
+        raise ValueError(
+            f"trajectory 'alpha_end_deg' ({end}) must be >= 'alpha_start_deg' ({start})"
+        )
+    step = check_number(
+        "trajectory 'alpha_step_deg'", spec["alpha_step_deg"], 0.0, 360.0, open_low=True
+    )
+    check_pose_count("trajectory 'alpha_step_deg'", end - start, step)
+    return Trajectory(tuple(axis), start, end, step)
+
+
+def check_pose_count(name: str, span: float, step: float) -> int:
+    """The pose count of a trajectory spanning ``span`` degrees in steps of ``step`` (as
+    :attr:`Trajectory.alphas_deg`), at most :data:`~grasp_env.envs.validation.MAX_POSES`."""
+    ratio = span / step
+    count = int(np.floor(ratio + 1e-9)) + 1 if ratio < MAX_POSES else MAX_POSES + 1
+    if count > MAX_POSES:
+        raise ValueError(
+            f"{name}: a trajectory may have at most {MAX_POSES} poses, but {span:g} deg in"
+            f" steps of {step:g} deg makes {np.floor(ratio + 1e-9) + 1:g}"
+        )
+    return count
+
+
 def parse_scene(spec: Mapping[str, Any] | None, defaults: Mapping[str, Any]) -> SceneBatch:
     """A validated scene from a mapping with :data:`SCENE_KEYS` (missing keys from ``defaults``).
 
     ``contacts`` (n, 3) are object-frame points on the faces of the unit cube centred at the
     origin, n as in ``defaults``; ``cg_offset`` lies inside the cube; ``weight`` (N) and ``mu``
-    are > 0; ``extra_force`` and ``extra_torque`` (world frame, N and N m about the cg) are at
-    most w and w L per component; ``trajectory`` is a mapping with :data:`TRAJECTORY_KEYS`.
+    lie in :data:`~grasp_env.envs.validation.WEIGHT_RANGE` and
+    :data:`~grasp_env.envs.validation.MU_RANGE`; ``extra_force`` and ``extra_torque`` (world
+    frame, N and N m about the cg) are at most w and w L per component; ``trajectory`` is a
+    mapping with :data:`TRAJECTORY_KEYS` (see :func:`check_trajectory`).
     """
     spec = {} if spec is None else spec
     if not isinstance(spec, Mapping):
@@ -141,39 +199,29 @@ def parse_scene(spec: Mapping[str, Any] | None, defaults: Mapping[str, Any]) -> 
         if key not in SCENE_KEYS:
             raise ValueError(f"unknown scene key {key!r}; the scene keys are {SCENE_KEYS}")
     merged = {**defaults, **spec}
-    trajectory = merged["trajectory"]
-    if not isinstance(trajectory, Mapping):
+    if not isinstance(merged["trajectory"], Mapping):
         raise ValueError(f"scene 'trajectory' must be a mapping with keys {TRAJECTORY_KEYS}")
-    for key in trajectory:
-        if key not in TRAJECTORY_KEYS:
-            raise ValueError(
-                f"unknown trajectory key {key!r}; the trajectory keys are {TRAJECTORY_KEYS}"
-            )
-    trajectory = Trajectory(**{**defaults["trajectory"], **trajectory})
+    trajectory = check_trajectory({**defaults["trajectory"], **merged["trajectory"]})
     n = np.shape(defaults["contacts"])[0]
-    weight = merged["weight"]
-    if isinstance(weight, bool) or not isinstance(weight, int | float | np.number):
-        raise ValueError(f"scene 'weight' must be a number, got {weight!r}")
-    if isinstance(merged["mu"], bool) or not isinstance(merged["mu"], int | float | np.number):
-        raise ValueError(f"scene 'mu' must be a number, got {merged['mu']!r}")
+    weight = check_number("scene 'weight'", merged["weight"], *WEIGHT_RANGE)
     scene = Scene(
-        contacts=_vector("contacts", merged["contacts"], (n, 3)),
+        contacts=check_array("scene 'contacts'", merged["contacts"], (n, 3)),
         size=EDGE,
-        weight=float(weight),
-        mu=float(merged["mu"]),
-        cg_offset=_vector("cg_offset", merged["cg_offset"], (3,)),
-        extra_force=_vector("extra_force", merged["extra_force"], (3,)),
-        extra_torque=_vector("extra_torque", merged["extra_torque"], (3,)),
+        weight=weight,
+        mu=check_number("scene 'mu'", merged["mu"], *MU_RANGE),
+        cg_offset=check_array("scene 'cg_offset'", merged["cg_offset"], (3,)),
+        extra_force=check_array("scene 'extra_force'", merged["extra_force"], (3,)),
+        extra_torque=check_array("scene 'extra_torque'", merged["extra_torque"], (3,)),
     )
-    if np.any(np.abs(scene.extra_force) > scene.weight):
+    if np.any(np.abs(scene.extra_force) > weight):
         raise ValueError(
-            f"extra_force {scene.extra_force.tolist()} must be at most the weight"
-            f" ({scene.weight}) per component"
+            f"scene 'extra_force' {scene.extra_force.tolist()} must be at most the weight"
+            f" ({weight}) per component"
         )
-    if np.any(np.abs(scene.extra_torque) > scene.weight * EDGE):
+    if np.any(np.abs(scene.extra_torque) > weight * EDGE):
         raise ValueError(
-            f"extra_torque {scene.extra_torque.tolist()} must be at most weight x edge"
-            f" ({scene.weight * EDGE}) per component"
+            f"scene 'extra_torque' {scene.extra_torque.tolist()} must be at most weight x edge"
+            f" ({weight * EDGE}) per component"
         )
     return SceneBatch.single(scene, trajectory)
 
@@ -188,6 +236,21 @@ def parse_options(options: Mapping[str, Any] | None) -> Mapping[str, Any] | None
         if key != "scene":
             raise ValueError(f"unknown option {key!r}; the only option is 'scene'")
     return options.get("scene")
+
+
+def layout_ok(contacts: np.ndarray) -> np.ndarray:
+    """(E,) bool: contact layouts (E, n, 3) on the unit cube that
+    :class:`~grasp_env.mechanics.Scene` accepts: no two contacts within 1e-6 L, three not
+    collinear (area 1e-6 L^2), four not coplanar (volume 1e-6 L^3)."""
+    n = contacts.shape[1]
+    i, j = np.triu_indices(n, 1)
+    apart = np.all(np.linalg.norm(contacts[:, i] - contacts[:, j], axis=-1) > 1e-6 * EDGE, axis=1)
+    d = contacts[:, 1:] - contacts[:, :1]
+    if n == 3:
+        spread = np.linalg.norm(np.cross(d[:, 0], d[:, 1]), axis=-1) > 1e-6 * EDGE**2
+    else:
+        spread = np.abs(np.linalg.det(d)) > 1e-6 * EDGE**3
+    return apart & spread
 
 
 # --------------------------------------------------------------------------- random scenes
@@ -210,49 +273,30 @@ class SceneSampler:
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
-        set_(self, "faces", tuple(self.faces))
+        set_(self, "faces", check_faces(self.faces))
         set_(self, "contact_offset", check_fraction("contact_offset", self.contact_offset))
         set_(self, "cg_offset", check_fraction("cg_offset", self.cg_offset))
-        set_(
-            self,
-            "weight_range",
-            check_range("weight_range", self.weight_range, 0, 1e6, open_low=True),
-        )
-        set_(self, "mu_range", check_range("mu_range", self.mu_range, 0, 1e6, open_low=True))
-        set_(
-            self,
-            "alpha_start_range_deg",
-            check_range("alpha_start_range_deg", self.alpha_start_range_deg, -180, 180),
-        )
-        set_(
-            self,
-            "alpha_end_range_deg",
-            check_range("alpha_end_range_deg", self.alpha_end_range_deg, -180, 180),
-        )
+        set_(self, "weight_range", check_range("weight_range", self.weight_range, *WEIGHT_RANGE))
+        set_(self, "mu_range", check_range("mu_range", self.mu_range, *MU_RANGE))
+        for name in ("alpha_start_range_deg", "alpha_end_range_deg"):
+            set_(self, name, check_range(name, getattr(self, name), *ALPHA_RANGE_DEG))
         if self.alpha_start_range_deg[1] > self.alpha_end_range_deg[0]:
             raise ValueError(
                 "alpha_start_range_deg must lie below alpha_end_range_deg, got"
                 f" {self.alpha_start_range_deg} and {self.alpha_end_range_deg}"
             )
-        step = float(self.alpha_step_deg)
-        if not (np.isfinite(step) and step > 0):
-            raise ValueError(f"alpha_step_deg must be a finite number > 0, got {step}")
+        step = check_number("alpha_step_deg", self.alpha_step_deg, 0.0, 360.0, open_low=True)
         set_(self, "alpha_step_deg", step)
+        span = self.alpha_end_range_deg[1] - self.alpha_start_range_deg[0]
+        check_pose_count("alpha_step_deg", span, step)
         set_(self, "extra_force", check_fraction("extra_force", self.extra_force, closed=True))
         set_(self, "extra_torque", check_fraction("extra_torque", self.extra_torque, closed=True))
-        if len(self.faces) not in (3, 4):
-            raise ValueError(f"faces must name 3 or 4 faces, got {self.faces}")
-        # Face names are validated by face_point; distinct faces keep the layout valid.
-        if len(set(self.faces)) != len(self.faces):
-            raise ValueError(f"faces must be distinct, got {self.faces}")
-        for face in self.faces:
-            face_point(face)
 
     @property
     def max_length(self) -> int:
         """The longest trajectory the ranges allow, in poses."""
         span = self.alpha_end_range_deg[1] - self.alpha_start_range_deg[0]
-        return int(np.floor(span / self.alpha_step_deg + 1e-9)) + 1
+        return check_pose_count("alpha_step_deg", span, self.alpha_step_deg)
 
     def raw(self, rng: np.random.Generator, count: int) -> np.ndarray:
         """The random numbers of ``count`` scenes, (count, 2 n + 16): two calls to ``rng``,

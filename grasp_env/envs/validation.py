@@ -1,8 +1,15 @@
-"""Checks of the environments' keywords and options: one validator per rule, each raising a
-ValueError that names the keyword and the accepted range."""
+"""Checks of the environments' keywords, options, seeds and actions: one validator per rule,
+each raising a ValueError that names the input and the accepted range (docs/environments.md,
+"Accepted inputs").
+
+Numbers must be real numbers (Python or numpy ints and floats): booleans, complex numbers,
+strings and None are refused rather than converted, and flags must be booleans.
+"""
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
+from numbers import Integral, Real
 from typing import Any
 
 import numpy as np
@@ -10,31 +17,85 @@ import numpy as np
 #: Default action scale of the environments: k_max = 2 w.
 DEFAULT_K_MAX_RATIO = 2.0
 
+# The accepted ranges (closed). The mechanics are computed in units of w, so rewards do not
+# depend on the weight at all; the weight range keeps the forces reported in newtons (and the
+# MuJoCo model's masses) far from overflow and underflow.
+WEIGHT_RANGE = (1e-6, 1e6)  # N
+MU_RANGE = (1e-3, 1e3)  # theta_lim from 0.057 deg to 89.94 deg
+K_MAX_RATIO_RANGE = (1e-3, 1e3)  # k_max / w
+ALPHA_RANGE_DEG = (-180.0, 180.0)
+#: The most poses a trajectory may have (a full turn in steps of 0.036 deg; each pose costs a
+#: minimax solve when its episode starts).
+MAX_POSES = 10_000
+#: The most sub-environments a vector environment may have.
+MAX_ENVS = 1 << 20
 
-def check_range(name: str, value: Any, low: float, high: float, *, open_low: bool = False) -> tuple:
+
+def _is_real(value: Any) -> bool:
+    return isinstance(value, Real) and not isinstance(value, bool | np.bool_)
+
+
+def check_number(
+    name: str,
+    value: Any,
+    low: float = -np.inf,
+    high: float = np.inf,
+    *,
+    open_low: bool = False,
+    open_high: bool = False,
+) -> float:
+    """A finite real number in [low, high] (ends excluded with ``open_low`` / ``open_high``)."""
+    interval = f"{'(' if open_low else '['}{low:g}, {high:g}{')' if open_high else ']'}"
+    if not _is_real(value):
+        raise ValueError(f"{name} must be a finite number in {interval}, got {value!r}")
+    number = float(value)
+    below = number <= low if open_low else number < low
+    above = number >= high if open_high else number > high
+    if not np.isfinite(number) or below or above:
+        raise ValueError(f"{name} must be a finite number in {interval}, got {value!r}")
+    return number
+
+
+def check_bool(name: str, value: Any) -> bool:
+    """A flag: True or False (numbers and strings are refused, not interpreted)."""
+    if not isinstance(value, bool | np.bool_):
+        raise ValueError(f"{name} must be True or False, got {value!r}")
+    return bool(value)
+
+
+def check_integer(name: str, value: Any, low: int, high: int) -> int:
+    """An integer (not a boolean) in [low, high]."""
+    if not isinstance(value, Integral) or isinstance(value, bool | np.bool_):
+        raise ValueError(f"{name} must be an integer in [{low}, {high}], got {value!r}")
+    if not low <= int(value) <= high:
+        raise ValueError(f"{name} must be an integer in [{low}, {high}], got {value!r}")
+    return int(value)
+
+
+def check_range(
+    name: str, value: Any, low: float, high: float, *, open_low: bool = False
+) -> tuple[float, float]:
+    """A (low, high) pair of numbers with low <= high within [low, high]."""
+    bracket = "(" if open_low else "["
+    message = (
+        f"{name} must be a (low, high) pair with low <= high within {bracket}{low:g}, {high:g}]"
+    )
+    if isinstance(value, str | bytes | Mapping) or not isinstance(value, Sequence | np.ndarray):
+        raise ValueError(f"{message}, got {value!r}")
+    if len(value) != 2:
+        raise ValueError(f"{message}, got {value!r}")
     try:
-        lo, hi = (float(v) for v in value)
-    except (TypeError, ValueError) as error:
-        raise ValueError(f"{name} must be a (low, high) pair, got {value!r}") from error
-    below = lo <= low if open_low else lo < low
-    if not (np.isfinite(lo) and np.isfinite(hi)) or below or hi > high or hi < lo:
-        bracket = "(" if open_low else "["
-        raise ValueError(
-            f"{name} must satisfy low <= high within {bracket}{low}, {high}], got {value!r}"
-        )
+        lo, hi = (check_number(name, v, low, high, open_low=open_low) for v in value)
+    except ValueError:
+        raise ValueError(f"{message}, got {value!r}") from None
+    if hi < lo:
+        raise ValueError(f"{message}, got {value!r}")
     return lo, hi
 
 
 def check_fraction(name: str, value: Any, high: float = 1.0, *, closed: bool = False) -> float:
     """A number in [0, high) (or [0, high] if ``closed``)."""
-    interval = f"[0, {high:g}{']' if closed else ')'}"
-    try:
-        value = float(value)
-    except (TypeError, ValueError) as error:
-        raise ValueError(f"{name} must be a number in {interval}, got {value!r}") from error
-    if not (0.0 <= value <= high if closed else 0.0 <= value < high):
-        raise ValueError(f"{name} must be in {interval}, got {value}")
-    return value
+    return check_number(name, value, 0.0, high, open_high=not closed)
 
 
 def check_margin(value: Any) -> float:
@@ -43,11 +104,46 @@ def check_margin(value: Any) -> float:
 
 
 def check_k_max_ratio(value: Any) -> float:
-    """``k_max_ratio`` = k_max / w, a finite number > 0."""
+    """``k_max_ratio`` = k_max / w in :data:`K_MAX_RATIO_RANGE`."""
+    return check_number("k_max_ratio", value, *K_MAX_RATIO_RANGE)
+
+
+def check_array(name: str, value: Any, shape: tuple[int, ...]) -> np.ndarray:
+    """A float64 array of ``shape`` from real numbers (no booleans, complex numbers or strings),
+    all finite."""
+    description = f"{name} must be an array of shape {shape} of finite real numbers"
     try:
-        value = float(value)
-    except (TypeError, ValueError) as error:
-        raise ValueError(f"k_max_ratio must be a finite number > 0, got {value!r}") from error
-    if not (np.isfinite(value) and value > 0):
-        raise ValueError(f"k_max_ratio must be a finite number > 0, got {value}")
-    return value
+        array = np.asarray(value)
+    except (TypeError, ValueError):  # ragged nesting
+        raise ValueError(f"{description}, got {value!r}") from None
+    if array.dtype == object:  # mixed types: every element must be a real number
+        if array.shape == shape and all(_is_real(v) for v in array.flat):
+            array = array.astype(np.float64)
+        else:
+            raise ValueError(f"{description}, got {value!r}")
+    elif array.dtype.kind not in "iuf":
+        raise ValueError(f"{description}, got dtype {array.dtype} ({value!r})")
+    elif isinstance(value, list | tuple) and _has_bool(value):
+        raise ValueError(f"{description}, got booleans in {value!r}")
+    if array.shape != shape:
+        raise ValueError(f"{description}, got shape {array.shape}")
+    array = array.astype(np.float64, copy=False)
+    if not np.all(np.isfinite(array)):
+        raise ValueError(f"{description}, got {array.tolist()}")
+    return array
+
+
+def _has_bool(value: Any) -> bool:
+    # numpy turns [True, 0.5] into floats silently: look for the booleans in the nesting
+    if isinstance(value, list | tuple):
+        return any(_has_bool(v) for v in value)
+    return isinstance(value, bool | np.bool_)
+
+
+def check_seed(name: str, value: Any) -> int | None:
+    """A seed: None or an integer >= 0 (numpy integers too; booleans are refused)."""
+    if value is None:
+        return None
+    if not isinstance(value, Integral) or isinstance(value, bool | np.bool_) or value < 0:
+        raise ValueError(f"{name} must be None or an integer >= 0, got {value!r}")
+    return int(value)

@@ -9,6 +9,7 @@ per-episode precomputation and the step kernel.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from numbers import Integral
 from typing import Any
 
 import numpy as np
@@ -17,40 +18,73 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from ..mechanics import Scene, contact_pairs
-from .cube_grasp import CubeGraspEnv, CubeGraspRandomEnv, _CubeGraspEnv
+from .cube_grasp import CubeGraspEnv, CubeGraspRandomEnv, _CubeGraspEnv, action_array
 from .episodes import Episode, EpisodeBatch, build_episodes, sample_episodes
 from .kernels import evaluate_grips
 from .scenes import parse_options
+from .validation import MAX_ENVS, check_integer, check_seed
 
 _MODES = (AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP)
 
 
-_STORED = ("forces", "directions", "normals", "observations", "alphas", "expert_k", "expert_reward")
+_STORED = (
+    "forces_w", "directions", "normals", "observations", "alphas", "expert_k_w", "expert_reward",
+)  # fmt: skip
+#: The most pose rows the store of a vector environment may hold (about 3 GB with three
+#: fingers, 4.6 GB with four): num_envs x (longest trajectory + 1) for random scenes.
+MAX_STORE_ROWS = 1 << 23
+# Where a sub-environment's episode lives in the store.
+_DEFAULT, _OPTION, _SLOT = 0, 1, 2
+
+
+def _padded(episode: Episode) -> dict[str, np.ndarray]:
+    """An episode's stored arrays, padded to T + 1 rows like its observations (the last pose
+    repeated)."""
+    return {
+        name: value if name == "observations" else np.concatenate([value, value[-1:]])
+        for name in _STORED
+        for value in [getattr(episode, name)]
+    }
 
 
 class _PoseStore:
     """The pose arrays of every running episode, stacked so that one kernel call serves all.
 
-    Rows [0, T0] hold the environment's default episode (shared, never copied); after them
-    each sub-environment owns a slot of ``capacity`` rows for episodes of its own (the slots
-    grow, and move, when a longer episode comes). Row ``base + t`` holds pose t of an episode
-    and its observation t (T + 1 observations).
+    The rows begin with the shared episodes: the environment's default episode and the
+    episode of the last ``reset(options={"scene": ...})`` (each stored once, whatever the
+    number of sub-environments in it); after them each sub-environment owns a slot of
+    ``capacity`` rows for episodes of its own (the slots grow, and move, when a longer episode
+    comes). Row ``base + t`` holds pose t of an episode and its observation t (T + 1
+    observations).
     """
 
     def __init__(self, num_envs: int, default: Episode | None) -> None:
         self.num_envs = num_envs
         self.default = default
+        self.option: Episode | None = None
         self.capacity = 0
-        self.offset = 0
         self.arrays: dict[str, np.ndarray] = {}
-        if default is not None:
-            # Pose arrays padded to T + 1 rows like the observations (the last pose repeated).
-            self.arrays = {
-                name: np.concatenate([value, value[-1:]]) if name != "observations" else value
-                for name in _STORED
-                for value in [getattr(default, name)]
-            }
-            self.offset = len(default) + 1
+        self.shared_bases = np.zeros(3, dtype=np.int64)  # default, option, first slot
+        self._share()
+
+    def _share(self) -> None:
+        """Lay out the shared episodes (the slots are emptied: every sub-environment is
+        starting a shared episode)."""
+        parts = [_padded(e) for e in (self.default, self.option) if e is not None]
+        sizes = [len(e) + 1 if e is not None else 0 for e in (self.default, self.option)]
+        self.shared_bases = np.cumsum([0, *sizes])
+        self.arrays = (
+            {name: np.concatenate([p[name] for p in parts]) for name in _STORED} if parts else {}
+        )
+        self.capacity = 0
+
+    def share_option(self, episode: Episode) -> None:
+        self.option = episode
+        self._share()
+
+    @property
+    def offset(self) -> int:
+        return int(self.shared_bases[2])
 
     def _grow(self, capacity: int, template: dict[str, np.ndarray]) -> None:
         grown = {}
@@ -80,10 +114,10 @@ class _PoseStore:
             self.arrays[name][rows] = getattr(batch.poses, name)
         self.arrays["observations"][bases + lengths] = batch.final_observations()
 
-    def bases(self, in_slot: np.ndarray) -> np.ndarray:
+    def bases(self, where: np.ndarray) -> np.ndarray:
         """First rows of the sub-environments' episodes (slots move when the store grows)."""
         slots = self.offset + self.capacity * np.arange(self.num_envs, dtype=np.int64)
-        return np.where(in_slot, slots, 0)
+        return np.where(where == _SLOT, slots, self.shared_bases[np.minimum(where, 1)])
 
 
 class _CubeGraspVectorEnv(VectorEnv):
@@ -108,8 +142,7 @@ class _CubeGraspVectorEnv(VectorEnv):
         autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
         **kwargs: Any,
     ) -> None:
-        if isinstance(num_envs, bool) or not isinstance(num_envs, int | np.integer) or num_envs < 1:
-            raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
+        num_envs = check_integer("num_envs", num_envs, 1, MAX_ENVS)
         try:
             mode = AutoresetMode(autoreset_mode)
         except ValueError as error:
@@ -123,7 +156,7 @@ class _CubeGraspVectorEnv(VectorEnv):
                 "the batched vector env supports neither physics nor render_mode; use"
                 ' gym.make_vec(..., vectorization_mode="sync") for those'
             )
-        self.num_envs = int(num_envs)
+        self.num_envs = num_envs
         self.autoreset_mode = mode
         self.metadata = {**self.metadata, "autoreset_mode": mode}
         self.render_mode = None
@@ -137,14 +170,21 @@ class _CubeGraspVectorEnv(VectorEnv):
         n = self.template.layout.n_contacts
         self._pairs = contact_pairs(n)
         self._n = n
+        sampler = getattr(self.template, "sampler", None)
+        if sampler is not None and self.num_envs * (sampler.max_length + 1) > MAX_STORE_ROWS:
+            raise ValueError(
+                f"num_envs x (longest trajectory + 1) = {self.num_envs} x"
+                f" {sampler.max_length + 1} pose rows exceeds the vector env's"
+                f" {MAX_STORE_ROWS:,}: use fewer sub-environments or a larger alpha_step_deg"
+            )
         self._store = _PoseStore(self.num_envs, getattr(self.template, "_default_episode", None))
         self._rngs: list[np.random.Generator | None] = [None] * self.num_envs
-        # (scene batch, index) of every sub-environment's episode; None: the default scene
+        # (scene batch, index) of every sub-environment's episode; None: a shared episode
         self._scenes = np.full(self.num_envs, None, dtype=object)
         self._base = np.zeros(self.num_envs, dtype=np.int64)
-        self._in_slot = np.zeros(self.num_envs, dtype=bool)
+        self._where = np.full(self.num_envs, _DEFAULT, dtype=np.int64)
         self._length = np.zeros(self.num_envs, dtype=np.int64)
-        self._k_max = np.zeros(self.num_envs)
+        self._weight = np.zeros(self.num_envs)
         self._limit = np.zeros(self.num_envs)
         self._t = np.zeros(self.num_envs, dtype=np.int64)
         self._autoreset = np.zeros(self.num_envs, dtype=bool)
@@ -158,37 +198,39 @@ class _CubeGraspVectorEnv(VectorEnv):
         return self._rngs[env]  # type: ignore[return-value]
 
     def _start(self, envs: np.ndarray, scene: Mapping[str, Any] | None) -> None:
-        """New episodes for sub-environments ``envs`` (from their own generators)."""
+        """New episodes for sub-environments ``envs`` (from their own generators); a ``scene``
+        (from the reset options) starts for every sub-environment."""
         if len(envs) == 0:
             return
         template = self.template
-        default = self._store.default
-        if scene is None and default is not None:
-            self._in_slot[envs] = False
-            self._length[envs] = len(default)
-            self._k_max[envs] = default.k_max
-            self._limit[envs] = default.limit
+        store = self._store
+        if scene is not None or (store.default is not None):
+            if scene is not None:  # one explicit scene for all of them, stored once
+                store.share_option(
+                    build_episodes(template.scene_batch(scene), template.k_max_ratio).episode(0)
+                )
+            episode = store.option if scene is not None else store.default
+            self._where[envs] = _OPTION if scene is not None else _DEFAULT
+            self._length[envs] = len(episode)
+            self._weight[envs] = episode.weight
+            self._limit[envs] = episode.limit
             self._scenes[envs] = None
         else:
-            if scene is None:
-                batch = sample_episodes(
-                    [self._rng(e) for e in envs],
-                    template.sampler,
-                    template.expert,
-                    template.min_expert_margin,
-                )
-            else:  # one explicit scene for all of them
-                one = build_episodes(template.scene_batch(scene), template.expert)
-                batch = one.take(np.zeros(len(envs), np.intp))
-            self._store.write(envs, batch)
+            batch = sample_episodes(
+                [self._rng(e) for e in envs],
+                template.sampler,
+                template.k_max_ratio,
+                template.min_expert_margin,
+            )
+            store.write(envs, batch)
             starts = batch.starts
-            self._in_slot[envs] = True
+            self._where[envs] = _SLOT
             self._length[envs] = batch.scenes.length
-            self._k_max[envs] = batch.poses.k_max[starts]
+            self._weight[envs] = batch.scenes.weight
             self._limit[envs] = batch.poses.limit[starts]
             for j, e in enumerate(envs):
                 self._scenes[e] = (batch.scenes, j)
-        self._base = self._store.bases(self._in_slot)
+        self._base = store.bases(self._where)
         self._t[envs] = 0
 
     def scene(self, env: int) -> Scene:
@@ -196,7 +238,8 @@ class _CubeGraspVectorEnv(VectorEnv):
         if not self._started:
             raise RuntimeError("call reset() first")
         if self._scenes[env] is None:
-            return self._store.default.scene
+            shared = self._store.option if self._where[env] == _OPTION else self._store.default
+            return shared.scene
         scenes, index = self._scenes[env]
         return scenes.scene(index)
 
@@ -210,14 +253,17 @@ class _CubeGraspVectorEnv(VectorEnv):
 
         ``options={"scene": {...}}`` sets the scene of this episode of every sub-environment.
         """
-        if seed is None:
-            seeds: Sequence[int | None] = [None] * self.num_envs
-        elif isinstance(seed, int | np.integer):
-            seeds = [int(seed) + i for i in range(self.num_envs)]
+        if seed is None or isinstance(seed, Integral):
+            first = check_seed("seed", seed)
+            seeds = [None if first is None else first + i for i in range(self.num_envs)]
+        elif isinstance(seed, Sequence | np.ndarray) and not isinstance(seed, str | bytes):
+            if len(seed) != self.num_envs:
+                raise ValueError(f"seed must list {self.num_envs} seeds, got {len(seed)}")
+            seeds = [check_seed(f"seed[{i}]", s) for i, s in enumerate(seed)]
         else:
-            seeds = list(seed)
-            if len(seeds) != self.num_envs:
-                raise ValueError(f"seed must list {self.num_envs} seeds, got {len(seeds)}")
+            raise ValueError(
+                f"seed must be None, an integer >= 0 or a list of {self.num_envs}, got {seed!r}"
+            )
         for env, single in enumerate(seeds):
             if single is not None:
                 self._rngs[env], _ = seeding.np_random(single)
@@ -230,16 +276,7 @@ class _CubeGraspVectorEnv(VectorEnv):
     # -- stepping ------------------------------------------------------------------------------
 
     def _actions(self, actions: Any) -> np.ndarray:
-        m = self._pairs.shape[0]
-        try:
-            array = np.asarray(actions, dtype=np.float64)
-        except (TypeError, ValueError) as error:
-            raise ValueError(
-                f"actions must be a ({self.num_envs}, {m}) array of finite numbers"
-            ) from error
-        if array.shape != (self.num_envs, m):
-            raise ValueError(f"actions must have shape ({self.num_envs}, {m}), got {array.shape}")
-        return array
+        return action_array(actions, self.action_space.shape)
 
     def step(
         self, actions: np.ndarray
@@ -261,13 +298,14 @@ class _CubeGraspVectorEnv(VectorEnv):
         arrays = self._store.arrays
         rows = self._base + self._t
         _, k, forces, theta, margin, reward = evaluate_grips(
-            arrays["forces"],
+            arrays["forces_w"],
             arrays["directions"],
             arrays["normals"],
             self._pairs,
             rows,
             a,
-            self._k_max,
+            self.template.k_max_ratio,
+            self._weight,
             self._limit,
         )
         # theta_i > theta_lim exactly when the rounded margin is negative (and the minimum).
@@ -282,8 +320,9 @@ class _CubeGraspVectorEnv(VectorEnv):
             "margin": margin,
             "k": k,
             "contact_forces": forces,
-            "equilibrating_forces": np.take(arrays["forces"], rows, axis=0),
-            "expert_k": np.take(arrays["expert_k"], rows, axis=0),
+            "equilibrating_forces": np.take(arrays["forces_w"], rows, axis=0)
+            * self._weight[:, None, None],
+            "expert_k": np.take(arrays["expert_k_w"], rows, axis=0) * self._weight[:, None],
             "expert_reward": expert_reward,
             "optimality_gap": expert_reward - reward,
             "slip": slip,
