@@ -1,0 +1,354 @@
+"""``grasp-env sweep SWEEP.yaml``: hyperparameter sweeps on Ray Tune, on one machine or a cluster.
+
+A sweep file names a base config, a search and the space to search over, by the config's own
+dotted keys::
+
+    config: ppo                      # a shipped config's name, or a path (relative to this file)
+    search: grid                     # grid, random or optuna
+    num_samples: 1                   # grid: repeats of the grid; random, optuna: trials
+    metric: mean_gap_deg             # what random and optuna minimise (held-out, at the end)
+    seeds: [0, 1, 2, 3, 4]           # every point of the space with each seed (grid, random)
+    cpus_per_trial: 1
+    episodes: 2048                   # held-out scenes of every trial's final evaluation
+    space:
+      ppo.learning_rate: {grid: [1.0e-4, 3.0e-4]}
+      policy.log_std_init: {uniform: [-4.0, -2.0]}
+      ppo.n_epochs: {choice: [5, 10]}
+
+A value of the space is ``{grid: [...]}``, ``{choice: [...]}``, ``{uniform: [low, high]}``,
+``{loguniform: [low, high]}``, ``{randint: [low, high]}`` (high excluded), or a plain value.
+Every trial is one training run (:func:`grasp_env_agents.train.train`) with its own run
+directory under ``OUT/runs/`` (config, checkpoints, learning curve, model, held-out report);
+Ray Tune schedules the trials, ``cpus_per_trial`` cores each, on a local Ray with the
+machine's cores, or on an existing cluster with ``--address`` (then OUT must be a path every
+node sees). Run the same command again and an interrupted sweep resumes: Tune restores the
+experiment from ``OUT/tune`` and every unfinished trial continues its run from its newest
+checkpoint. The sweep ends with the aggregate report of :mod:`grasp_env_agents.results` over
+the trials, grouped by everything but the seed (``OUT/results.md``, ``learning_curves.png``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import os
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+HELP = "a hyperparameter sweep on Ray Tune (grid, random or Optuna) over config keys and seeds"
+SEARCHES = ("grid", "random", "optuna")
+DISTRIBUTIONS = ("grid", "choice", "uniform", "loguniform", "randint")
+SWEEP_KEYS = (
+    "config",
+    "search",
+    "num_samples",
+    "metric",
+    "seeds",
+    "cpus_per_trial",
+    "episodes",
+    "space",
+)
+#: Final held-out metrics a trial reports to Tune (``metric`` must be one).
+REPORTED = ("mean_gap_deg", "p90_gap_deg", "success_rate", "wall_minutes", "cpu_minutes")
+#: Searched metrics that are maximised (the others are minimised).
+MAXIMISED = ("success_rate",)
+#: The Tune experiment's name under OUT (its state, for resuming).
+EXPERIMENT = "tune"
+
+
+# --- the sweep file --------------------------------------------------------------------------
+
+
+def load_sweep(path: Path) -> dict[str, Any]:
+    """Read and check a sweep file (every key and distribution), with its defaults filled in."""
+    if not path.is_file():
+        raise ValueError(f"sweep file {str(path)!r} does not exist")
+    try:
+        sweep = yaml.safe_load(path.read_text()) or {}
+    except yaml.YAMLError as error:
+        raise ValueError(f"sweep file {path} is not valid YAML: {error}") from None
+    if not isinstance(sweep, Mapping):
+        raise ValueError(f"sweep file {path} must be a mapping of keys to values")
+    unknown = set(sweep) - set(SWEEP_KEYS)
+    if unknown:
+        raise ValueError(f"unknown sweep key(s) {sorted(unknown)}; accepted keys: {SWEEP_KEYS}")
+    if "config" not in sweep:
+        raise ValueError("sweep file needs config: a shipped config's name or a path")
+    sweep = {
+        "search": "grid",
+        "num_samples": 1,
+        "metric": "mean_gap_deg",
+        "seeds": None,
+        "cpus_per_trial": 1,
+        "episodes": 2048,
+        "space": {},
+        **sweep,
+    }
+    if sweep["search"] not in SEARCHES:
+        raise ValueError(f"search must be one of {list(SEARCHES)}, got {sweep['search']!r}")
+    if sweep["metric"] not in REPORTED:
+        raise ValueError(f"metric must be one of {list(REPORTED)}, got {sweep['metric']!r}")
+    for key in ("num_samples", "cpus_per_trial", "episodes"):
+        if not isinstance(sweep[key], int) or isinstance(sweep[key], bool) or sweep[key] < 1:
+            raise ValueError(f"{key} must be a positive integer, got {sweep[key]!r}")
+    seeds = sweep["seeds"]
+    if seeds is not None and (
+        not isinstance(seeds, list)
+        or not seeds
+        or not all(isinstance(s, int) and not isinstance(s, bool) and s >= 0 for s in seeds)
+    ):
+        raise ValueError(f"seeds must be a non-empty list of integers >= 0, got {seeds!r}")
+    if not isinstance(sweep["space"], Mapping):
+        raise ValueError("space must map dotted config keys to values or distributions")
+    for key, value in sweep["space"].items():
+        check_distribution(str(key), value)
+        if sweep["search"] == "optuna" and _is_grid(value):
+            raise ValueError(f"space.{key}: optuna takes choice, not grid")
+    if sweep["search"] == "optuna" and seeds is not None:
+        raise ValueError(
+            "optuna suggests one config per trial: search the seed as a key "
+            "(space: {seed: {choice: [...]}}) or use grid or random search with seeds"
+        )
+    from .config import config_path
+
+    config = Path(sweep["config"])
+    if not config.is_absolute() and (path.parent / config).is_file():
+        config = path.parent / config
+    # absolute: Tune runs each trial in a directory of its own
+    sweep["config"] = str(config_path(config).resolve())
+    base_config(sweep)  # the base config must load
+    return sweep
+
+
+def _is_grid(value: Any) -> bool:
+    return isinstance(value, Mapping) and set(value) == {"grid"}
+
+
+def check_distribution(key: str, value: Any) -> None:
+    """Raise ValueError unless ``value`` is a plain value or one distribution."""
+    if not isinstance(value, Mapping):
+        return
+    if len(value) != 1 or next(iter(value)) not in DISTRIBUTIONS:
+        raise ValueError(
+            f"space.{key} must be a plain value or one of {{{', '.join(DISTRIBUTIONS)}}}: "
+            f"[...], got {dict(value)!r}"
+        )
+    (kind, args), *_ = value.items()
+    if not isinstance(args, list) or not args:
+        raise ValueError(f"space.{key}.{kind} must be a non-empty list, got {args!r}")
+    if kind in ("uniform", "loguniform", "randint"):
+        if len(args) != 2 or not all(isinstance(a, int | float) for a in args):
+            raise ValueError(f"space.{key}.{kind} must be [low, high], got {args!r}")
+        low, high = args
+        if not low < high or (kind == "loguniform" and low <= 0):
+            raise ValueError(f"space.{key}.{kind} needs 0 < low < high, got {args!r}")
+
+
+def base_config(sweep: Mapping[str, Any]) -> dict[str, Any]:
+    """The base config as plain data (checked by loading it)."""
+    from .config import config_path, load_config
+
+    path = config_path(sweep["config"])
+    load_config(path)
+    return yaml.safe_load(path.read_text()) or {}
+
+
+def with_overrides(data: Mapping[str, Any], overrides: Mapping[str, Any]) -> dict[str, Any]:
+    """``data`` with dotted keys (``ppo.learning_rate``) set: nested dicts copied, not shared."""
+    out = _copy(data)
+    for dotted, value in overrides.items():
+        *parents, last = dotted.split(".")
+        node = out
+        for part in parents:
+            child = node.get(part)
+            node[part] = child = {} if child is None else child
+            if not isinstance(child, dict):
+                raise ValueError(f"{dotted}: {part} is not a section of the config")
+            node = child
+        node[last] = value
+    return out
+
+
+def _copy(data: Any) -> Any:
+    if isinstance(data, Mapping):
+        return {key: _copy(value) for key, value in data.items()}
+    if isinstance(data, list):
+        return [_copy(value) for value in data]
+    return data
+
+
+def trial_config(sweep: Mapping[str, Any], params: Mapping[str, Any]) -> Any:
+    """The TrainConfig of one trial: the base config with the trial's keys, checked."""
+    from .config import config_from_dict
+
+    return config_from_dict(with_overrides(base_config(sweep), params))
+
+
+def check_space(sweep: Mapping[str, Any]) -> None:
+    """Every config the space can produce must load: check each grid point at its first
+    value of any distribution (a bad key fails here, not in a trial an hour later)."""
+    space = dict(sweep["space"])
+    grids = {k: v["grid"] for k, v in space.items() if _is_grid(v)}
+    plain = {k: _first(v) for k, v in space.items() if not _is_grid(v)}
+    for values in itertools.product(*grids.values()):
+        trial_config(sweep, {**plain, **dict(zip(grids, values, strict=True))})
+
+
+def _first(value: Any) -> Any:
+    if not isinstance(value, Mapping):
+        return value
+    (args,) = value.values()
+    return args[0]
+
+
+# --- Ray Tune --------------------------------------------------------------------------------
+
+
+def tune_space(sweep: Mapping[str, Any]) -> dict[str, Any]:
+    """The sweep's space in Tune's terms (seeds as one more grid dimension)."""
+    from ray import tune
+
+    makers = {
+        "grid": tune.grid_search,
+        "choice": tune.choice,
+        "uniform": lambda a: tune.uniform(*a),
+        "loguniform": lambda a: tune.loguniform(*a),
+        "randint": lambda a: tune.randint(*a),
+    }
+    space = {}
+    for key, value in sweep["space"].items():
+        if isinstance(value, Mapping):
+            (kind, args), *_ = value.items()
+            space[key] = makers[kind](args)
+        else:
+            space[key] = value
+    if sweep["seeds"] is not None:
+        space["seed"] = tune.grid_search(list(sweep["seeds"]))
+    return space
+
+
+def run_trial(params: dict[str, Any], sweep: dict[str, Any], out: str) -> None:
+    """One Tune trial: a training run in ``OUT/runs/<trial>``, resumed if it was started."""
+    import torch
+    from ray import tune
+
+    from .evaluate import evaluate_run
+    from .results import read_run
+    from .train import train
+
+    config = trial_config(sweep, params)
+    run_dir = Path(out) / "runs" / tune.get_context().get_trial_name()
+    torch.set_num_threads(config.torch_threads)
+    started = (run_dir / "config.yaml").is_file()
+    if not (run_dir / "model.zip").is_file() or not _finished(run_dir, config):
+        train(config, run_dir, resume=started, progress_bar=False)
+    evaluate_run(run_dir, sweep["episodes"], 0)
+    result = read_run(run_dir, sweep["episodes"])
+    metrics = {**result.metrics, "wall_minutes": result.wall_minutes}
+    tune.report({**metrics, "cpu_minutes": result.cpu_minutes, "run_dir": str(run_dir)})
+
+
+def _finished(run_dir: Path, config: Any) -> bool:
+    """Whether the run's learning curve reached the end of its PPO steps."""
+    from .results import read_curve
+
+    curve = read_curve(run_dir / "learning_curve.csv") if run_dir.is_dir() else []
+    return (
+        bool(curve)
+        and (run_dir / "model.zip").is_file()
+        and (config.total_timesteps == 0 or curve[-1]["env_steps"] >= config.total_timesteps)
+    )
+
+
+def tuner(sweep: dict[str, Any], out: Path) -> Any:
+    """The Tune experiment: restored from ``out/tune`` if it exists (an interrupted sweep)."""
+    from ray import tune
+
+    trainable = tune.with_resources(
+        tune.with_parameters(run_trial, sweep=sweep, out=str(out)),
+        {"cpu": sweep["cpus_per_trial"]},
+    )
+    path = out / EXPERIMENT
+    if tune.Tuner.can_restore(str(path)):
+        return tune.Tuner.restore(str(path), trainable, resume_errored=True)
+    mode = "max" if sweep["metric"] in MAXIMISED else "min"
+    search_alg = None
+    if sweep["search"] == "optuna":
+        from ray.tune.search.optuna import OptunaSearch
+
+        search_alg = OptunaSearch(seed=0)
+    return tune.Tuner(
+        trainable,
+        param_space=tune_space(sweep),
+        tune_config=tune.TuneConfig(
+            metric=sweep["metric"],
+            mode=mode,
+            search_alg=search_alg,
+            num_samples=sweep["num_samples"],
+            # the trial's index in the name: its run directory, stable across a restore
+            trial_name_creator=lambda trial: f"trial_{trial.trial_id}",
+            trial_dirname_creator=lambda trial: f"trial_{trial.trial_id}",
+        ),
+        run_config=tune.RunConfig(name=EXPERIMENT, storage_path=str(out), verbose=1),
+    )
+
+
+def sweep(path: Path, out: Path, address: str | None = None, num_cpus: int | None = None) -> Any:
+    """Run (or resume) the sweep in ``path`` into ``out``; returns the results' groups."""
+    import ray
+
+    from .results import Group, plot_curves, read_run, table, write_csv
+
+    spec = load_sweep(path)
+    check_space(spec)
+    out = out.resolve()
+    out.mkdir(parents=True, exist_ok=True)
+    if address is None:
+        ray.init(num_cpus=num_cpus or os.cpu_count(), include_dashboard=False)
+    else:
+        ray.init(address=address)
+    try:
+        grid = tuner(spec, out).fit()
+    finally:
+        ray.shutdown()
+    errors = [result.error for result in grid if result.error is not None]
+    if errors:
+        raise ValueError(f"{len(errors)} trial(s) failed; the first: {errors[0]}")
+    groups: dict[str, list[Any]] = {}
+    for result in grid:
+        params = {k: v for k, v in result.config.items() if k != "seed"}
+        label = ", ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}"
+                          for k, v in sorted(params.items())) or "base config"  # fmt: skip
+        groups.setdefault(label, []).append(read_run(Path(result.metrics["run_dir"])))
+    ordered = [Group(label, runs, str(spec["config"])) for label, runs in groups.items()]
+    markdown = table(ordered, spec["episodes"])
+    (out / "results.md").write_text(markdown + "\n")
+    write_csv(ordered, out / "results.csv")
+    plot_curves(ordered, out / "learning_curves.png")
+    print(markdown)
+    return ordered
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("sweep_file", type=Path, metavar="SWEEP", help="a sweep file (YAML)")
+    parser.add_argument(
+        "--out", type=Path, help="the sweep's folder (default: sweeps/<sweep file name>)"
+    )
+    parser.add_argument(
+        "--address", help="an existing Ray cluster (e.g. auto, or ray://head:10001)"
+    )
+    parser.add_argument(
+        "--num-cpus", type=int, help="cores of the local Ray (default: the machine's)"
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.num_cpus is not None and args.num_cpus < 1:
+        raise ValueError(f"--num-cpus must be >= 1, got {args.num_cpus}")
+    out = args.out or Path("sweeps") / args.sweep_file.stem
+    sweep(args.sweep_file, out, args.address, args.num_cpus)
+    print(f"\nsweep: {out.resolve()} (results.md, learning_curves.png, runs/)")
+    return 0

@@ -1,0 +1,150 @@
+"""Sweeps on Ray Tune and results across runs (IQM with bootstrap intervals)."""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from grasp_env_agents import results, sweep
+
+TINY = {
+    "env_id": "grasp_env/CubeGraspRandom-v0",
+    "env_kwargs": {"terminate_on_slip": False},
+    "n_envs": 4,
+    "seed": 0,
+    "total_timesteps": 256,
+    "eval_freq": 128,
+    "eval_episodes": 8,
+    "checkpoint_freq": 128,
+    "torch_threads": 1,
+    "policy": {"net_arch": [16], "features": "grasp"},
+    "ppo": {"n_steps": 32, "batch_size": 64, "n_epochs": 1},
+}
+
+
+def write(path: Path, data: dict) -> Path:
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+# --- results ---------------------------------------------------------------------------------
+
+
+def test_iqm_is_the_mean_of_the_middle_runs_and_its_interval_a_bootstrap() -> None:
+    values = [0.3, 5.0, 0.1, 0.2, 0.4, 0.25, 0.35, 9.0]
+    estimate = results.iqm_interval(values)
+    # brute force: the mean of the middle half of the sorted runs
+    assert estimate.iqm == pytest.approx(np.mean(sorted(values)[2:6]))
+    # an independent percentile bootstrap over runs agrees with rliable's interval
+    rng = np.random.default_rng(1)
+    samples = rng.choice(values, size=(20_000, len(values)))
+    iqms = np.sort(samples, axis=1)[:, 2:6].mean(1)
+    low, high = np.percentile(iqms, [2.5, 97.5])
+    assert estimate.low == pytest.approx(low, abs=0.02)
+    assert estimate.high == pytest.approx(high, abs=0.05)
+    assert estimate.low <= estimate.iqm <= estimate.high
+    assert results.iqm_interval(values) == estimate  # same runs, same interval
+
+
+def test_iqm_refuses_missing_or_nan_values() -> None:
+    with pytest.raises(ValueError, match="finite"):
+        results.iqm_interval([0.1, float("nan")])
+    with pytest.raises(ValueError, match="at least one run"):
+        results.iqm_interval([])
+
+
+def test_replace_table_rewrites_only_between_the_markers(tmp_path: Path) -> None:
+    readme = tmp_path / "README.md"
+    readme.write_text(f"intro\n{results.BEGIN}\nold table\n{results.END}\nafter\n")
+    results.replace_table(readme, "| new |")
+    assert readme.read_text() == f"intro\n{results.BEGIN}\n| new |\n{results.END}\nafter\n"
+    readme.write_text("no markers")
+    with pytest.raises(ValueError, match="markers"):
+        results.replace_table(readme, "| new |")
+
+
+# --- sweep files -----------------------------------------------------------------------------
+
+
+def test_overrides_set_dotted_keys_without_touching_the_base() -> None:
+    base = {"ppo": {"learning_rate": 1e-3}, "seed": 0}
+    out = sweep.with_overrides(base, {"ppo.learning_rate": 1e-4, "policy.net_arch": [8], "seed": 3})
+    assert out == {"ppo": {"learning_rate": 1e-4}, "policy": {"net_arch": [8]}, "seed": 3}
+    assert base == {"ppo": {"learning_rate": 1e-3}, "seed": 0}
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ({"serach": "grid"}, "unknown sweep key"),
+        ({"search": "bayes"}, "search must be one of"),
+        ({"metric": "reward"}, "metric must be one of"),
+        ({"seeds": [0, -1]}, "seeds must be"),
+        ({"space": {"ppo.learning_rate": {"uniform": [1e-3, 1e-4]}}}, "low < high"),
+        ({"space": {"ppo.learning_rate": {"normal": [0, 1]}}}, "must be a plain value or"),
+        ({"search": "optuna", "seeds": [0, 1]}, "search the seed as a key"),
+        ({"config": "no-such-config"}, "no such file"),
+    ],
+)
+def test_bad_sweep_files_are_refused_naming_the_key(
+    tmp_path: Path, change: dict, message: str
+) -> None:
+    write(tmp_path / "tiny.yaml", TINY)
+    path = write(tmp_path / "sweep.yaml", {"config": "tiny.yaml", **change})
+    with pytest.raises(ValueError, match=message):
+        sweep.load_sweep(path)
+
+
+def test_a_key_the_config_refuses_fails_before_any_trial(tmp_path: Path) -> None:
+    write(tmp_path / "tiny.yaml", TINY)
+    path = write(
+        tmp_path / "sweep.yaml",
+        {"config": "tiny.yaml", "space": {"ppo.n_epoch": {"grid": [1, 2]}}},
+    )
+    with pytest.raises(ValueError, match="n_epoch"):
+        sweep.check_space(sweep.load_sweep(path))
+
+
+# --- a sweep on a local Ray ------------------------------------------------------------------
+
+
+def test_two_trial_sweep_on_a_local_ray_then_resumed(tmp_path: Path) -> None:
+    pytest.importorskip("ray")
+    write(tmp_path / "tiny.yaml", TINY)
+    path = write(
+        tmp_path / "sweep.yaml",
+        {
+            "config": "tiny.yaml",
+            "episodes": 8,
+            "seeds": [0],
+            "space": {"ppo.learning_rate": {"grid": [1e-4, 3e-4]}},
+        },
+    )
+    out = tmp_path / "out"
+    groups = sweep.sweep(path, out, num_cpus=2)
+
+    runs = sorted((out / "runs").iterdir())
+    assert len(runs) == 2
+    rates = set()
+    for run in runs:  # each trial a training run of its own, with checkpoints
+        assert (run / "model.zip").is_file()
+        assert sorted(p.name for p in (run / "checkpoints").glob("ppo_*_steps.zip"))
+        config = yaml.safe_load((run / "config.yaml").read_text())
+        rates.add(config["ppo"]["learning_rate"])
+        with (run / "comparison.csv").open() as file:
+            agent = next(r for r in csv.DictReader(file) if r["policy"] == "trained agent")
+        assert int(agent["episodes"]) == 8
+    assert rates == {1e-4, 3e-4}
+    assert sorted(len(g.runs) for g in groups) == [1, 1]
+    report = (out / "results.md").read_text()
+    assert "ppo.learning_rate=0.0001" in report and "ppo.learning_rate=0.0003" in report
+    assert (out / "learning_curves.png").stat().st_size > 10_000
+
+    # the same command again restores the finished experiment: nothing is trained again
+    stamps = {run: (run / "model.zip").stat().st_mtime_ns for run in runs}
+    sweep.sweep(path, out, num_cpus=2)
+    assert {run: (run / "model.zip").stat().st_mtime_ns for run in runs} == stamps
