@@ -1,0 +1,278 @@
+"""Loading model files, shared or damaged, without running code from them.
+
+A Stable-Baselines3 model is a zip: ``data`` (JSON; the values JSON cannot hold, such as the
+policy class, the spaces and the schedules, as base64 cloudpickle), ``policy.pth`` and
+``policy.optimizer.pth`` (torch tensors) and ``pytorch_variables.pth``. ``PPO.load`` unpickles
+the ``data`` entries with cloudpickle, and a pickle may call any importable function: a model
+file whose ``policy_class`` holds ``os.system`` runs a shell command when loaded. The
+``vecnormalize.pkl`` beside it (SB3's ``VecNormalize.save``) is a plain pickle, likewise.
+
+So every file is read here, never by SB3's unpickling:
+
+- the pickled entries are decoded by :class:`SafeUnpickler`, which resolves only the names in
+  :data:`ALLOWED` (classes, and the functions numpy and torch use to rebuild arrays and random
+  generators); any other name is refused before anything is called, with an error naming the
+  file, the entry and the name;
+- SB3 then builds the model from those decoded objects (``custom_objects``: it unpickles
+  nothing itself), and torch loads the tensors with ``weights_only=True`` (no code either);
+- a schedule that is code (a ``lambda`` pickled by value, as this package wrote for
+  ``lr_schedule: linear`` before it used SB3's ``LinearSchedule``) is not decoded: the model
+  predicts as saved, and continuing its training goes through ``grasp-env train --resume``,
+  which takes the schedules from the run's config and only the tensors from the checkpoint.
+
+Models pickled while the package was importable as ``agents`` (``agents.policy``,
+``agents.features``) load through :data:`RENAMED`. A truncated or garbage zip, a missing member,
+damaged tensors or weights that do not fit the network raise a ValueError naming the file and
+what is wrong.
+
+:func:`load_agent` is the entry point (a model file or a run directory, with its observation
+normalisation): ``grasp-env evaluate`` and ``verify --policy`` load models through it.
+"""
+
+from __future__ import annotations
+
+import base64
+import io
+import json
+import pickle
+import warnings
+import zipfile
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import torch
+from stable_baselines3 import PPO
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.policies import BasePolicy
+from stable_baselines3.common.running_mean_std import RunningMeanStd
+from stable_baselines3.common.vec_env import VecEnv, VecNormalize
+
+from .baselines import TrainedAgent
+
+#: The algorithms a model file may be loaded as (the file does not say which wrote it).
+ALGORITHMS: dict[str, type[BaseAlgorithm]] = {"ppo": PPO}
+
+#: Everything a model file's pickles may name, by module. Classes are only referenced or
+#: rebuilt (their __init__ is not what unpickling calls); the functions rebuild arrays, numpy
+#: random generators and containers from data. None of them runs code given as data.
+ALLOWED: dict[str, set[str]] = {
+    "collections": {"deque", "OrderedDict"},
+    "numpy": {"dtype", "ndarray"},
+    "numpy._core.multiarray": {"_reconstruct", "scalar"},
+    "numpy._core.numeric": {"_frombuffer"},
+    "numpy.core.multiarray": {"_reconstruct", "scalar"},  # numpy 1.x's names
+    "numpy.core.numeric": {"_frombuffer"},
+    "numpy.random._pickle": {"__generator_ctor", "__bit_generator_ctor", "__randomstate_ctor"},
+    "numpy.random._pcg64": {"PCG64", "PCG64DXSM"},
+    "numpy.random._mt19937": {"MT19937"},
+    "numpy.random.bit_generator": {"SeedSequence", "__pyx_unpickle_SeedSequence"},
+    "gymnasium.spaces.box": {"Box"},
+    "torch.nn.modules.activation": {"Tanh", "ReLU", "SiLU"},  # config: policy.activation
+    "stable_baselines3.common.policies": {"ActorCriticPolicy"},
+    "stable_baselines3.common.buffers": {"RolloutBuffer"},
+    "stable_baselines3.common.utils": {"FloatSchedule", "ConstantSchedule", "LinearSchedule"},
+    "stable_baselines3.common.running_mean_std": {"RunningMeanStd"},
+    "stable_baselines3.common.vec_env.vec_normalize": {"VecNormalize"},
+    "grasp_env_agents.policy": {"ForceDirectionPolicy"},
+    "grasp_env_agents.features": {"GraspFeatures"},
+}
+#: Modules under their earlier names (the package was importable as ``agents``).
+RENAMED = {
+    "agents.policy": "grasp_env_agents.policy",
+    "agents.features": "grasp_env_agents.features",
+}
+#: The entries a model needs to predict: decoded, or the file is refused.
+NEEDED = ("policy_class", "policy_kwargs", "observation_space", "action_space")
+#: Entries that may legitimately be code (SB3 accepts functions as schedules), and what replaces
+#: them when they are: prediction does not use them.
+SCHEDULES: dict[str, Any] = {
+    "learning_rate": 0.0,
+    "lr_schedule": None,
+    "clip_range": 0.2,
+    "clip_range_vf": None,
+}
+
+
+class ForbiddenName(pickle.UnpicklingError):
+    """A pickle names something outside :data:`ALLOWED`."""
+
+
+class SafeUnpickler(pickle.Unpickler):
+    """An unpickler that resolves only the names in :data:`ALLOWED` (and :data:`RENAMED`)."""
+
+    def find_class(self, module: str, name: str) -> Any:
+        module = RENAMED.get(module, module)
+        if name not in ALLOWED.get(module, ()):
+            raise ForbiddenName(f"{module}.{name}")
+        return super().find_class(module, name)
+
+
+def safe_loads(data: bytes) -> Any:
+    """Unpickle ``data`` resolving only allowed names (:class:`ForbiddenName` otherwise)."""
+    return SafeUnpickler(io.BytesIO(data)).load()
+
+
+def _refusal(path: Path, what: str, name: str) -> ValueError:
+    return ValueError(
+        f"{path}: {what} names {name}, which a model file may not use (loading it could run"
+        " code from the file); refused, nothing from it was run"
+    )
+
+
+def _damaged(path: Path, what: str, error: BaseException) -> ValueError:
+    reason = f"{type(error).__name__}: {error}"
+    return ValueError(f"{path}: {what} is damaged or not a model file ({reason})")
+
+
+# --- model.zip -----------------------------------------------------------------------------
+
+
+def read_archive(path: Path) -> tuple[bytes, zipfile.ZipFile]:
+    """The bytes of a model file and the zip they hold, checked member by member (CRC)."""
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"{path}: no such model file")
+    raw = path.read_bytes()
+    try:
+        archive = zipfile.ZipFile(io.BytesIO(raw))
+        bad = archive.testzip()
+    except (zipfile.BadZipFile, EOFError, OSError, ValueError) as error:
+        raise ValueError(
+            f"{path}: not a readable zip archive (truncated, or not a model file): {error}"
+        ) from None
+    if bad is not None:
+        raise ValueError(f"{path}: member {bad!r} of the zip is damaged (CRC mismatch)")
+    missing = {"data", "policy.pth"} - set(archive.namelist())
+    if missing:  # a cut model file can read as the zip of its last member (policy.pth is one)
+        raise ValueError(
+            f"{path}: not a complete SB3 model file (truncated, or another zip): it has no"
+            f" {sorted(missing)} member"
+        )
+    return raw, archive
+
+
+def check_tensors(path: Path, archive: zipfile.ZipFile) -> None:
+    """Every ``.pth`` member loads as plain tensors (torch's ``weights_only``)."""
+    for name in archive.namelist():
+        if name.endswith(".pth"):
+            try:
+                torch.load(io.BytesIO(archive.read(name)), map_location="cpu", weights_only=True)
+            except Exception as error:  # torch raises RuntimeError, UnpicklingError, EOFError...
+                raise _damaged(path, name, error) from None
+
+
+def decode_entries(path: Path, archive: zipfile.ZipFile) -> dict[str, Any]:
+    """The pickled entries of the model's ``data``, decoded safely (module docstring)."""
+    try:
+        data = json.loads(archive.read("data"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as error:
+        raise _damaged(path, "its 'data' member", error) from None
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: its 'data' member is not a mapping: not an SB3 model file")
+    missing = [key for key in NEEDED if key not in data]
+    if missing:
+        raise ValueError(f"{path}: not an SB3 model file, its data has no {missing}")
+    decoded: dict[str, Any] = {}
+    code: list[str] = []
+    for key, item in data.items():
+        if not (isinstance(item, dict) and ":serialized:" in item):
+            continue
+        try:
+            decoded[key] = safe_loads(base64.b64decode(str(item[":serialized:"]), validate=True))
+        except ForbiddenName as error:
+            if key not in SCHEDULES:
+                raise _refusal(path, f"entry {key!r}", str(error)) from None
+            decoded[key] = SCHEDULES[key]
+            code.append(key)
+        except Exception as error:  # damaged data fails in many ways, none of them runs code
+            raise _damaged(path, f"entry {key!r}", error) from None
+    _check_needed(path, {**data, **decoded})
+    if code:
+        warnings.warn(
+            f"{path}: {code} are code in the file and were not loaded; the model predicts as"
+            " saved (continue its training with grasp-env train --resume, which takes them from"
+            " the run's config)",
+            stacklevel=3,
+        )
+    return decoded
+
+
+def _check_needed(path: Path, entries: dict[str, Any]) -> None:
+    policy = entries["policy_class"]
+    if not (isinstance(policy, type) and issubclass(policy, BasePolicy)):
+        raise ValueError(f"{path}: its policy_class is {policy!r}, not an SB3 policy class")
+    if not isinstance(entries["policy_kwargs"], dict):
+        raise ValueError(f"{path}: its policy_kwargs are not a mapping")
+    for key in ("observation_space", "action_space"):
+        if not isinstance(entries[key], gym.spaces.Box):
+            raise ValueError(f"{path}: its {key} is {entries[key]!r}, not a Box space")
+
+
+def load_model(path: str | Path, algo: str = "ppo", env: VecEnv | None = None) -> BaseAlgorithm:
+    """The SB3 model saved at ``path`` (a ``.zip``), on the CPU, without running code from it.
+
+    ``algo`` names the algorithm that wrote it (:data:`ALGORITHMS`); ``env`` (optional) is
+    checked against the model's spaces. Raises ValueError naming the file and the problem.
+    """
+    if algo not in ALGORITHMS:
+        raise ValueError(f"algo must be one of {sorted(ALGORITHMS)}, got {algo!r}")
+    path = Path(path)
+    raw, archive = read_archive(path)
+    check_tensors(path, archive)
+    decoded = decode_entries(path, archive)
+    try:
+        return ALGORITHMS[algo].load(io.BytesIO(raw), env=env, device="cpu", custom_objects=decoded)
+    except Exception as error:  # the tensors do not fit the network, or the network cannot be built
+        lines = str(error).strip().splitlines() or [type(error).__name__]
+        raise ValueError(f"{path}: cannot rebuild the model it describes ({lines[0]})") from None
+
+
+# --- vecnormalize.pkl ----------------------------------------------------------------------
+
+
+def load_vecnormalize(path: str | Path, venv: VecEnv | None = None) -> VecNormalize:
+    """SB3's ``VecNormalize.load(path, venv)``, without running code from the file.
+
+    Without ``venv`` the statistics only normalise (``normalize_obs``), as an agent needs.
+    """
+    path = Path(path)
+    try:
+        normalizer = safe_loads(path.read_bytes())
+    except ForbiddenName as error:
+        raise _refusal(path, "the pickle", str(error)) from None
+    except Exception as error:  # damaged data fails in many ways, none of them runs code
+        raise _damaged(path, "the file", error) from None
+    if not isinstance(normalizer, VecNormalize) or not all(
+        isinstance(getattr(normalizer, name, None), RunningMeanStd)
+        for name in ("obs_rms", "ret_rms")
+    ):
+        raise ValueError(f"{path}: not VecNormalize statistics (SB3's VecNormalize.save)")
+    if venv is not None:
+        try:
+            normalizer.set_venv(venv)
+        except (AssertionError, ValueError) as error:
+            raise ValueError(
+                f"{path}: the statistics do not fit the environment ({error})"
+            ) from None
+    return normalizer
+
+
+# --- agents --------------------------------------------------------------------------------
+
+
+def load_agent(path: str | Path, algo: str = "ppo") -> TrainedAgent:
+    """A trained agent from a model file or a ``grasp-env train`` run directory.
+
+    A run directory's ``model.zip`` is loaded; ``vecnormalize.pkl`` beside the model file, if
+    there is one, normalises the observations (not updated while playing).
+    """
+    path = Path(path)
+    model_file = path / "model.zip" if path.is_dir() else path
+    model = load_model(model_file, algo)
+    normalizer = None
+    statistics = model_file.parent / "vecnormalize.pkl"
+    if statistics.is_file():
+        normalizer = load_vecnormalize(statistics)
+        normalizer.training = False
+    return TrainedAgent(model, normalizer)
