@@ -38,7 +38,6 @@ import torch
 from gymnasium.vector import AutoresetMode
 from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.vec_env import VecNormalize
-from tqdm.auto import tqdm
 
 from grasp_env import MinimaxExpert
 from grasp_env.envs.observation import ObservationLayout
@@ -46,6 +45,7 @@ from grasp_env.envs.validation import DEFAULT_K_MAX_RATIO
 
 from .config import ImitationConfig
 from .features import grasp_tensors, max_friction_angle
+from .progress import status
 
 #: Final learning rate of each round's cosine decay, as a fraction of the initial one.
 LR_FLOOR = 0.01
@@ -57,13 +57,16 @@ CHUNK = 65_536
 
 @dataclass(frozen=True)
 class RoundResult:
-    """One round: how many labelled states the data set holds and the final training loss."""
+    """One round: how many labelled states the data set holds, the final training loss, and the
+    states the round added with their labels (what a resumed run needs to continue)."""
 
     round: int
     samples: int
     env_steps: int
     loss: float
     seconds: float
+    observations: np.ndarray
+    labels: np.ndarray
 
 
 def mean_action(policy: ActorCriticPolicy, obs: torch.Tensor) -> torch.Tensor:
@@ -159,24 +162,26 @@ def fit(
     )
     policy.set_training_mode(True)
     loss_sum = 0.0
-    for _ in tqdm(range(epochs), desc="fitting", unit="epoch", leave=False, disable=None):
-        order = torch.randperm(len(inputs), generator=generator)
-        loss_sum = 0.0
-        for start in range(0, len(inputs), batch_size):
-            index = order[start : start + batch_size]
-            action = policy.action_net(policy.mlp_extractor.forward_actor(inputs[index]))
-            loss = torch.nn.functional.mse_loss(action, labels_t[index])
-            if grasp is not None and gap_weight > 0:
-                angle = max_friction_angle(action, *(a[index] for a in grasp), k_max_ratio)
-                loss = loss + gap_weight * angle.mean()
-            optimizer.zero_grad()
-            loss.backward()
-            # the angle's gradient is huge where a finger's force nearly vanishes: one such
-            # batch must not throw Adam off (unclipped, a run at lr 1e-2 collapsed)
-            torch.nn.utils.clip_grad_norm_(actor, MAX_GRAD_NORM)
-            optimizer.step()
-            schedule.step()
-            loss_sum += float(loss.detach()) * len(index)
+    with status(f"fitting the policy to {len(inputs):,} labelled states") as detail:
+        for epoch in range(epochs):
+            detail(f"epoch {epoch + 1}/{epochs}")
+            order = torch.randperm(len(inputs), generator=generator)
+            loss_sum = 0.0
+            for start in range(0, len(inputs), batch_size):
+                index = order[start : start + batch_size]
+                action = policy.action_net(policy.mlp_extractor.forward_actor(inputs[index]))
+                loss = torch.nn.functional.mse_loss(action, labels_t[index])
+                if grasp is not None and gap_weight > 0:
+                    angle = max_friction_angle(action, *(a[index] for a in grasp), k_max_ratio)
+                    loss = loss + gap_weight * angle.mean()
+                optimizer.zero_grad()
+                loss.backward()
+                # the angle's gradient is huge where a finger's force nearly vanishes: one such
+                # batch must not throw Adam off (unclipped, a run at lr 1e-2 collapsed)
+                torch.nn.utils.clip_grad_norm_(actor, MAX_GRAD_NORM)
+                optimizer.step()
+                schedule.step()
+                loss_sum += float(loss.detach()) * len(index)
     policy.set_training_mode(False)
     return loss_sum / len(inputs)
 
@@ -189,6 +194,8 @@ def imitate(
     seed: int,
     normalizer: VecNormalize | None = None,
     after_round: Callable[[RoundResult], None] | None = None,
+    done: list[tuple[np.ndarray, np.ndarray]] | None = None,
+    env_steps: int = 0,
 ) -> list[RoundResult]:
     """Behaviour cloning then DAgger rounds (see the module docstring) into ``policy``.
 
@@ -199,11 +206,17 @@ def imitate(
         seed: seeds the collector's environments and the minibatch order.
         normalizer: the training run's VecNormalize, if observations are normalised: its
             statistics are updated with the collected states and applied to them.
-        after_round: called after each round (to evaluate and log).
+        after_round: called after each round (to evaluate, log and checkpoint).
+        done, env_steps: to continue a run: the (observations, labels) of the rounds it has
+            completed, and the environment steps they took. The collector then draws fresh
+            scenes (seeds shifted by the rounds done), so a continued run is not bit-for-bit
+            an uninterrupted one.
     """
+    done = done or []
     teacher = make_teacher(env_kwargs)
-    collector = StateCollector(env_id, env_kwargs, config.n_envs, seed)
-    generator = torch.Generator().manual_seed(seed)
+    collector = StateCollector(env_id, env_kwargs, config.n_envs, seed + len(done) * config.n_envs)
+    collector.env_steps = env_steps
+    generator = torch.Generator().manual_seed(seed + len(done))
 
     def normalise(obs: np.ndarray) -> np.ndarray:
         return obs if normalizer is None else normalizer.normalize_obs(obs)
@@ -213,18 +226,20 @@ def imitate(
             mean = mean_action(policy, torch.as_tensor(normalise(obs), dtype=torch.float32))
         return np.clip(mean.numpy(), -1.0, 1.0)
 
-    data_obs: list[np.ndarray] = []
-    data_labels: list[np.ndarray] = []
-    data_grasp: list[tuple[torch.Tensor, ...]] = []
+    data_obs = [obs for obs, _ in done]
+    data_labels = [labels for _, labels in done]
+    data_grasp = [grasp_of(obs) for obs in data_obs] if config.gap_weight > 0 else []
     results = []
     try:
-        for round_ in range(config.rounds):
+        for round_ in range(len(done), config.rounds):
             start = time.perf_counter()
-            if round_ == 0:  # behaviour cloning: the expert drives, its actions are the labels
-                obs, labels = collector.collect(teacher.actions, config.samples_per_round)
-            else:  # DAgger: the learner drives, the expert labels what it visits
-                obs, _ = collector.collect(learner, config.samples_per_round)
-                labels = teacher.actions(obs)
+            driver = "the expert drives" if round_ == 0 else "the learner drives, the expert labels"
+            with status(f"imitation round {round_}: {config.samples_per_round:,} states, {driver}"):
+                if round_ == 0:  # behaviour cloning: the expert drives, its actions are the labels
+                    obs, labels = collector.collect(teacher.actions, config.samples_per_round)
+                else:  # DAgger: the learner drives, the expert labels what it visits
+                    obs, _ = collector.collect(learner, config.samples_per_round)
+                    labels = teacher.actions(obs)
             if normalizer is not None:
                 normalizer.obs_rms.update(obs)
             data_obs.append(obs)
@@ -250,6 +265,8 @@ def imitate(
                 collector.env_steps,
                 loss,
                 time.perf_counter() - start,
+                obs,
+                labels,
             )
             results.append(result)
             if after_round is not None:

@@ -4,26 +4,26 @@ One run, top to bottom (:func:`train`):
 
 1. seed torch, numpy and Python, and cap torch's threads;
 2. build the training environments and the held-out evaluation scenes;
-3. build a fresh PPO model, or load the latest checkpoint with ``--resume``;
+3. build a fresh PPO model, or, with ``--resume``, load the newest intact checkpoint
+   (:mod:`grasp_env_agents.checkpoints`: PPO's, else the last imitation round's);
 4. if the config has an ``imitation`` section: behaviour cloning and DAgger rounds from the
-   minimax expert into the same policy network (:mod:`grasp_env_agents.imitation`);
-5. PPO for ``total_timesteps`` environment steps with SB3's progress bar, checkpoint and
-   evaluation callbacks; Ctrl-C saves a checkpoint before stopping;
+   minimax expert into the same policy network (:mod:`grasp_env_agents.imitation`), each round
+   evaluated, logged and checkpointed;
+5. PPO for ``total_timesteps`` environment steps with SB3's progress bar, evaluation and
+   checkpoint callbacks; Ctrl-C saves a checkpoint before stopping;
 6. save the model, the learning curve (CSV and PNG) and print the comparison with the expert
    and the baselines (:mod:`grasp_env_agents.evaluate`).
 
 The run directory holds ``config.yaml`` (the exact config used), ``model.zip`` (and
-``vecnormalize.pkl`` if observations are normalised), ``checkpoints/``, ``tb/`` (TensorBoard),
-``eval/evaluations.npz`` (SB3's evaluation log), ``learning_curve.csv`` and ``.png``.
+``vecnormalize.pkl`` if observations are normalised), ``checkpoints/``, ``tb/imitation`` and
+``tb/ppo`` (TensorBoard, at the run's environment steps), ``eval/evaluations.npz`` (SB3's
+evaluation log), ``learning_curve.csv`` and ``.png`` (:mod:`grasp_env_agents.curve`).
 """
 
 from __future__ import annotations
 
 import argparse
-import csv
-import re
 import time
-import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -31,16 +31,30 @@ from typing import TYPE_CHECKING
 import numpy as np
 import torch
 from stable_baselines3 import PPO
-from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback, EvalCallback
+from stable_baselines3.common.callbacks import BaseCallback, EvalCallback
 from stable_baselines3.common.evaluation import evaluate_policy
-from stable_baselines3.common.utils import set_random_seed
+from stable_baselines3.common.logger import Logger
+from stable_baselines3.common.utils import LinearSchedule, set_random_seed
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize, sync_envs_normalization
-from tqdm import TqdmExperimentalWarning
 
+from .checkpoints import (
+    Start,
+    find_start,
+    imitation_checkpoint,
+    load_round_data,
+    ppo_checkpoint,
+    save_model,
+    save_round_data,
+    tensorboard_logger,
+    trim_tensorboard,
+)
 from .config import TrainConfig, config_path, load_config, save_config, shipped_configs
-from .envs import find_held_out, make_held_out_env, make_vec_env
+from .curve import Clock, LearningCurve, last_steps
+from .envs import HeldOutScenes, find_held_out, make_held_out_env, make_vec_env
 from .features import GraspFeatures
+from .models import load_vecnormalize
 from .policy import ForceDirectionPolicy
+from .progress import say, status
 
 if TYPE_CHECKING:
     from .imitation import RoundResult
@@ -48,19 +62,8 @@ if TYPE_CHECKING:
 HELP = "train a PPO agent from a YAML config (default: a few minutes here)"
 
 ACTIVATIONS = {"tanh": torch.nn.Tanh, "relu": torch.nn.ReLU, "silu": torch.nn.SiLU}
-CHECKPOINT_PREFIX = "ppo"
-CURVE_FIELDS = (
-    "phase",
-    "env_steps",
-    "wall_seconds",
-    "cpu_seconds",
-    "mean_gap_deg",
-    "p90_gap_deg",
-    "worst_gap_deg",
-    "success_rate",
-    "mean_margin_deg",
-    "mean_force",
-)
+#: Held-out metrics logged to TensorBoard (``held_out/<name>``), from the learning curve's.
+LOGGED = ("mean_gap_deg", "p90_gap_deg", "worst_gap_deg", "success_rate", "mean_margin_deg")
 
 
 # --- the command line ----------------------------------------------------------------------
@@ -83,7 +86,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--resume",
         type=Path,
         metavar="RUN",
-        help="continue the run in directory RUN from its latest checkpoint",
+        help="continue the run in directory RUN from its newest intact checkpoint",
     )
     parser.add_argument(
         "--total-timesteps",
@@ -120,108 +123,99 @@ def train(
 ) -> PPO:
     """Train as ``config`` says, writing everything into ``run_dir``; return the model.
 
-    With ``resume``, continue from the run's latest checkpoint: the weights, the optimiser
-    state, PPO's step count, the learning-rate schedule and the learning curve carry on; the
-    hyperparameters are ``config``'s (the run's ``config.yaml`` for ``--resume``). The random
-    streams restart from the seed and the step count, so a resumed run is not bit-for-bit an
-    uninterrupted one.
+    With ``resume``, continue from the run's newest intact checkpoint: the weights, the
+    optimiser state, PPO's step count, the learning-rate schedule, the imitation rounds done
+    and their data, the learning curve and the TensorBoard logs (both cut back to the
+    checkpoint) carry on; the hyperparameters are ``config``'s (the run's ``config.yaml`` for
+    ``--resume``). The random streams restart from the seed and the step count, so a resumed
+    run is not bit-for-bit an uninterrupted one.
     """
     run_dir = Path(run_dir)
-    checkpoint = latest_checkpoint(run_dir) if resume else None
     if not resume and (run_dir / "config.yaml").exists():
         raise ValueError(f"run directory {str(run_dir)!r} already holds a run; use --resume")
+    start = Start()
+    if resume:
+        imitation_steps = last_steps(run_dir / "learning_curve.csv", "imitation")
+        start = find_start(run_dir, config.normalize, imitation_steps)
+        say(f"resume: from {start.checkpoint or 'the beginning (no intact checkpoint)'}")
     run_dir.mkdir(parents=True, exist_ok=True)
     save_config(config, run_dir / "config.yaml")
-    steps_done = 0 if checkpoint is None else checkpoint_steps(checkpoint)
-
-    # SB3's progress bar uses tqdm's rich front end, which warns that it is experimental.
-    warnings.filterwarnings("ignore", category=TqdmExperimentalWarning)
 
     # 1. Seeding: torch, numpy, random; few threads (the machine is shared, numbers repeatable).
     torch.set_num_threads(config.torch_threads)
-    set_random_seed(config.seed + steps_done)
+    set_random_seed(config.seed + start.ppo_steps)
 
     # 2. Environments: training scenes from the seed, held-out scenes from a fixed far seed.
     env: VecEnv = make_vec_env(
-        config.env_id, config.env_kwargs, config.n_envs, config.seed + steps_done
+        config.env_id, config.env_kwargs, config.n_envs, config.seed + start.ppo_steps
     )
     eval_env: VecEnv = make_held_out_env(config.env_id, config.env_kwargs, config.eval_episodes)
     held_out = find_held_out(eval_env)
     if config.normalize:
-        if checkpoint is not None:
-            env = VecNormalize.load(str(vecnormalize_path(checkpoint)), env)
+        if start.vecnormalize is not None:
+            env = load_vecnormalize(start.vecnormalize, env)
         else:
             env = VecNormalize(env, norm_obs=True, norm_reward=False)
         eval_env = VecNormalize(eval_env, training=False, norm_reward=False)
 
     # 3. The model, as the config says; on resume with the checkpoint's weights, optimiser
     # state and step count (so the run's config.yaml stays the one source of hyperparameters).
-    model = new_model(config, env, run_dir)
-    if checkpoint is not None:
-        model.set_parameters(str(checkpoint), device="cpu")
-        model.num_timesteps = steps_done
-    curve = LearningCurve(run_dir / "learning_curve.csv", append=checkpoint is not None)
+    model = new_model(config, env)
+    if start.checkpoint is not None:
+        try:
+            model.set_parameters(str(start.checkpoint), device="cpu")
+        except Exception as error:  # intact, but another network than the config's
+            config_file = run_dir / "config.yaml"
+            raise ValueError(
+                f"{start.checkpoint} does not fit {config_file}'s network ({error})"
+            ) from None
+        model.num_timesteps = start.ppo_steps
+    # a resumed run drops what the killed one logged after its checkpoint
+    kept = start.env_steps if start.checkpoint is not None else None
+    curve = LearningCurve(run_dir / "learning_curve.csv", keep_until=kept)
+    trim_tensorboard(run_dir / "tb", -1 if kept is None else kept)
     clock = Clock(curve.last("wall_seconds"), curve.last("cpu_seconds"))
     imitation_steps = int(curve.last("env_steps", phase="imitation"))
 
-    def evaluate_now(phase: str, env_steps: int) -> dict[str, float]:
+    def evaluate_now(phase: str, env_steps: int, logger: Logger, step: int) -> dict[str, float]:
+        """Evaluate on the held-out scenes, into the curve and TensorBoard (at ``step``)."""
         if config.normalize:
             sync_envs_normalization(env, eval_env)
-        evaluate_policy(model, eval_env, n_eval_episodes=config.eval_episodes, warn=False)
+        with status(f"evaluating on {config.eval_episodes} held-out scenes"):
+            evaluate_policy(model, eval_env, n_eval_episodes=config.eval_episodes, warn=False)
         metrics = held_out.metrics()
         curve.append(phase, env_steps, clock(), metrics)
+        log_held_out(logger, metrics, clock()[0], step)
         return metrics
 
-    # 4. The expert as teacher: behaviour cloning and DAgger rounds, then a checkpoint.
+    in_ppo = start.ppo_steps > 0 or (start.checkpoint is not None and start.round < 0)
     try:
-        if checkpoint is None:
-            evaluate_now("initial", 0)
-            if config.imitation is not None:
-                imitation_steps = teach(model, config, env, evaluate_now)
-                save_checkpoint(model, run_dir)
+        # 4. The expert as teacher: behaviour cloning and DAgger rounds, then a checkpoint.
+        if config.imitation is not None and not in_ppo:
+            imitation_steps = teach(model, config, env, evaluate_now, run_dir, start)
+            save_model(model, ppo_checkpoint(run_dir, 0))
+            for data in run_dir.glob("checkpoints/*.npz"):  # only an unfinished phase needs them
+                data.unlink()
+        in_ppo = True
 
-        # 5. PPO, with SB3's callbacks: checkpoints (and normalisation statistics), evaluations.
+        # 5. PPO, with SB3's callbacks: evaluations, and checkpoints of our own (atomic).
         remaining = config.total_timesteps - model.num_timesteps
+        if remaining > 0 or config.imitation is None:
+            model.set_logger(tensorboard_logger(run_dir / "tb" / "ppo", offset=imitation_steps))
+        if start.checkpoint is None and config.imitation is None:
+            evaluate_now("initial", 0, model.logger, 0)
         if remaining > 0:
-            evaluation = EvalCallback(
-                eval_env,
-                callback_after_eval=RecordEvaluation(
-                    lambda: curve.append(
-                        "ppo", imitation_steps + model.num_timesteps, clock(), held_out.metrics()
-                    )
-                ),
-                n_eval_episodes=config.eval_episodes,
-                eval_freq=max(config.eval_freq // config.n_envs, 1) if config.eval_freq else 0,
-                log_path=str(run_dir / "eval"),
-                verbose=0,
-                warn=False,
-            )
-            continue_evaluation_log(evaluation)
-            callbacks: list[BaseCallback] = [evaluation]
-            if config.checkpoint_freq:
-                callbacks.append(
-                    CheckpointCallback(
-                        max(config.checkpoint_freq // config.n_envs, 1),
-                        str(run_dir / "checkpoints"),
-                        name_prefix=CHECKPOINT_PREFIX,
-                        save_vecnormalize=True,
-                    )
-                )
-            model.learn(
-                remaining,
-                callback=callbacks,
-                tb_log_name="ppo",
-                reset_num_timesteps=False,
-                progress_bar=progress_bar,
-            )
-            if curve.last("env_steps") != imitation_steps + model.num_timesteps:
-                evaluate_now("ppo", imitation_steps + model.num_timesteps)
-            save_checkpoint(model, run_dir)
+            record = held_out_recorder(model, held_out, curve, clock, imitation_steps)
+            ppo(model, config, eval_env, run_dir, remaining, record, progress_bar)
+            steps = imitation_steps + model.num_timesteps
+            if curve.last("env_steps") != steps:
+                evaluate_now("ppo", steps, model.logger, model.num_timesteps)
+            save_model(model, ppo_checkpoint(run_dir, model.num_timesteps))
     except KeyboardInterrupt:
-        # Save first. Mid-PPO, a checkpoint that --resume continues from; mid-imitation only
-        # model.zip (a resumed run redoes the imitation rounds).
-        if model.num_timesteps > 0 or latest_checkpoint(run_dir) is not None:
-            save_checkpoint(model, run_dir)
+        # Save first: mid-PPO a checkpoint that --resume continues from; mid-imitation the
+        # rounds done are checkpointed already (the round under way is lost).
+        if in_ppo:
+            save_model(model, ppo_checkpoint(run_dir, model.num_timesteps))
         finish(model, run_dir, curve)
         print(f"\ninterrupted: saved the model in {run_dir} at {model.num_timesteps} PPO steps; "
               f"continue with: grasp-env train --resume {run_dir}")  # fmt: skip
@@ -232,23 +226,44 @@ def train(
     return model
 
 
+def log_held_out(logger: Logger, metrics: dict[str, float], wall: float, step: int) -> None:
+    """The held-out metrics into TensorBoard (``held_out/...``) at environment step ``step``."""
+    for key in LOGGED:
+        logger.record(f"held_out/{key}", metrics[key])
+    logger.record("time/wall_seconds", wall)
+    logger.dump(step)
+
+
 def teach(
     model: PPO,
     config: TrainConfig,
     env: VecEnv,
-    evaluate_now: Callable[[str, int], dict[str, float]],
+    evaluate_now: Callable[[str, int, Logger, int], dict[str, float]],
+    run_dir: Path,
+    start: Start,
 ) -> int:
-    """The imitation phase: the expert teaches ``model.policy``; returns the env steps used."""
+    """The imitation phase from ``start``: the expert teaches ``model.policy``, each round
+    evaluated, logged to TensorBoard and checkpointed; returns the env steps it used."""
     from .imitation import imitate
 
     assert config.imitation is not None
-    steps = 0
+    logger = tensorboard_logger(run_dir / "tb" / "imitation")
+    if start.checkpoint is None:
+        evaluate_now("initial", 0, logger, 0)
+    done = [load_round_data(path)[:2] for path in start.data]
+    steps = start.env_steps
 
     def after_round(result: RoundResult) -> None:
         nonlocal steps
         steps = result.env_steps
-        metrics = evaluate_now("imitation", steps)
-        print(
+        logger.record("imitation/loss", result.loss)
+        logger.record("imitation/labelled_states", result.samples)
+        logger.record("imitation/round", result.round)
+        logger.record("imitation/round_seconds", result.seconds)
+        metrics = evaluate_now("imitation", steps, logger, steps)
+        save_round_data(run_dir, result.round, result.observations, result.labels, steps)
+        save_model(model, imitation_checkpoint(run_dir, result.round))
+        say(
             f"imitation round {result.round}: {result.samples} labelled states, "
             f"loss {result.loss:.2e}, {result.seconds:.0f} s; held-out gap "
             f"{metrics['mean_gap_deg']:.2f} deg (p90 {metrics['p90_gap_deg']:.2f}), "
@@ -263,33 +278,84 @@ def teach(
         config.seed,
         normalizer=env if isinstance(env, VecNormalize) else None,
         after_round=after_round,
+        done=done,
+        env_steps=steps,
     )
+    logger.close()
     return steps
 
 
-def continue_evaluation_log(evaluation: EvalCallback) -> None:
-    """Preload EvalCallback's lists from an earlier ``evaluations.npz`` (it rewrites the file)."""
+def held_out_recorder(
+    model: PPO, held_out: HeldOutScenes, curve: LearningCurve, clock: Clock, imitation_steps: int
+) -> Callable[[], None]:
+    """What to do after each of PPO's evaluations: the curve's row, the TensorBoard scalars."""
+
+    def record() -> None:
+        metrics = held_out.metrics()
+        curve.append("ppo", imitation_steps + model.num_timesteps, clock(), metrics)
+        log_held_out(model.logger, metrics, clock()[0], model.num_timesteps)
+
+    return record
+
+
+def ppo(
+    model: PPO,
+    config: TrainConfig,
+    eval_env: VecEnv,
+    run_dir: Path,
+    steps: int,
+    record: Callable[[], None],
+    progress_bar: bool,
+) -> None:
+    """``steps`` more PPO steps, evaluating (then ``record``) and checkpointing as the config
+    says."""
+    evaluation = EvalCallback(
+        eval_env,
+        callback_after_eval=RecordEvaluation(record),
+        n_eval_episodes=config.eval_episodes,
+        eval_freq=max(config.eval_freq // config.n_envs, 1) if config.eval_freq else 0,
+        log_path=str(run_dir / "eval"),
+        verbose=0,
+        warn=False,
+    )
+    continue_evaluation_log(evaluation, model.num_timesteps)
+    callbacks: list[BaseCallback] = [evaluation]
+    if config.checkpoint_freq:
+        callbacks.append(Checkpoints(max(config.checkpoint_freq // config.n_envs, 1), run_dir))
+    with status("PPO") as detail:
+        if progress_bar:
+            callbacks.append(Progress(detail, model.num_timesteps + steps))
+        model.learn(steps, callback=callbacks, reset_num_timesteps=False)
+
+
+def continue_evaluation_log(evaluation: EvalCallback, until: int) -> None:
+    """Preload EvalCallback's lists from an earlier ``evaluations.npz`` (it rewrites the file),
+    up to PPO step ``until`` (a resumed run evaluates the later steps again)."""
     path = Path(f"{evaluation.log_path}.npz")
     if evaluation.log_path is None or not path.is_file():
         return
     with np.load(path) as log:
-        evaluation.evaluations_timesteps = log["timesteps"].tolist()
-        evaluation.evaluations_results = log["results"].tolist()
-        evaluation.evaluations_length = log["ep_lengths"].tolist()
+        keep = log["timesteps"] <= until
+        evaluation.evaluations_timesteps = log["timesteps"][keep].tolist()
+        evaluation.evaluations_results = log["results"][keep].tolist()
+        evaluation.evaluations_length = log["ep_lengths"][keep].tolist()
         if "successes" in log:
-            evaluation.evaluations_successes = log["successes"].tolist()
+            evaluation.evaluations_successes = log["successes"][keep].tolist()
 
 
-def new_model(config: TrainConfig, env: VecEnv, run_dir: Path | None) -> PPO:
-    """A fresh PPO model with the config's hyperparameters and network (TensorBoard logs in
-    ``run_dir/tb`` unless ``run_dir`` is None)."""
+def new_model(config: TrainConfig, env: VecEnv) -> PPO:
+    """A fresh PPO model with the config's hyperparameters and network."""
     ppo = config.ppo
-    rate = ppo.learning_rate
     policy = config.policy
     return PPO(
         ForceDirectionPolicy if policy.output == "force_directions" else "MlpPolicy",
         env,
-        learning_rate=(lambda progress: progress * rate) if ppo.lr_schedule == "linear" else rate,
+        # SB3's own class, not a lambda: a model file then holds a reference, not code
+        learning_rate=(
+            LinearSchedule(ppo.learning_rate, 0.0, 1.0)
+            if ppo.lr_schedule == "linear"
+            else ppo.learning_rate
+        ),
         n_steps=ppo.n_steps,
         batch_size=ppo.batch_size,
         n_epochs=ppo.n_epochs,
@@ -307,57 +373,19 @@ def new_model(config: TrainConfig, env: VecEnv, run_dir: Path | None) -> PPO:
             **({"features_extractor_class": GraspFeatures} if policy.features == "grasp" else {}),
             **({"k_max_ratio": config.k_max_ratio} if policy.output == "force_directions" else {}),
         },
-        tensorboard_log=None if run_dir is None else str(run_dir / "tb"),
         seed=config.seed,
         device="cpu",
         verbose=0,
     )
 
 
-# --- checkpoints ---------------------------------------------------------------------------
-
-
-def checkpoint_steps(path: Path) -> int:
-    """PPO steps of a checkpoint, from its SB3 CheckpointCallback name ``ppo_<N>_steps.zip``."""
-    match = re.fullmatch(rf"{CHECKPOINT_PREFIX}_(\d+)_steps\.zip", path.name)
-    if match is None:
-        raise ValueError(f"{path} is not a checkpoint name")
-    return int(match.group(1))
-
-
-def latest_checkpoint(run_dir: Path) -> Path | None:
-    """The checkpoint with the most PPO steps in ``run_dir/checkpoints`` (None: none yet)."""
-    found = sorted((run_dir / "checkpoints").glob(f"{CHECKPOINT_PREFIX}_*_steps.zip"))
-    return max(found, key=checkpoint_steps, default=None)
-
-
-def vecnormalize_path(checkpoint: Path) -> Path:
-    """The normalisation statistics saved beside a checkpoint (CheckpointCallback's naming)."""
-    steps = checkpoint_steps(checkpoint)
-    return checkpoint.with_name(f"{CHECKPOINT_PREFIX}_vecnormalize_{steps}_steps.pkl")
-
-
-def save_checkpoint(model: PPO, run_dir: Path) -> Path:
-    """Save the model (and normalisation statistics) under CheckpointCallback's names."""
-    path = run_dir / "checkpoints" / f"{CHECKPOINT_PREFIX}_{model.num_timesteps}_steps.zip"
-    path.parent.mkdir(parents=True, exist_ok=True)
-    model.save(path)
-    normalizer = model.get_vec_normalize_env()
-    if normalizer is not None:
-        normalizer.save(str(vecnormalize_path(path)))
-    return path
-
-
 def finish(model: PPO, run_dir: Path, curve: LearningCurve) -> None:
     """The run's final files: model.zip, vecnormalize.pkl (if used), learning_curve.png."""
-    model.save(run_dir / "model.zip")
-    normalizer = model.get_vec_normalize_env()
-    if normalizer is not None:
-        normalizer.save(str(run_dir / "vecnormalize.pkl"))
+    save_model(model, run_dir / "model.zip")
     curve.plot(run_dir / "learning_curve.png")
 
 
-# --- the learning curve --------------------------------------------------------------------
+# --- callbacks -----------------------------------------------------------------------------
 
 
 class RecordEvaluation(BaseCallback):
@@ -372,87 +400,30 @@ class RecordEvaluation(BaseCallback):
         return True
 
 
-class Clock:
-    """Wall and CPU seconds of training so far, continuing from a resumed run's times.
+class Progress(BaseCallback):
+    """PPO's steps on the status line (:mod:`grasp_env_agents.progress`)."""
 
-    The CPU time of this process tells how long the run would take on an idle machine when
-    the wall time is stretched by other processes sharing the cores.
-    """
+    def __init__(self, detail: Callable[[str], None], total: int) -> None:
+        super().__init__()
+        self.detail = detail
+        self.total = total
 
-    def __init__(self, wall: float = 0.0, cpu: float = 0.0) -> None:
-        self.wall = time.perf_counter() - wall
-        self.cpu = time.process_time() - cpu
+    def _on_rollout_end(self) -> None:
+        self.detail(f"{self.model.num_timesteps:,} of {self.total:,} steps")
 
-    def __call__(self) -> tuple[float, float]:
-        return time.perf_counter() - self.wall, time.process_time() - self.cpu
+    def _on_step(self) -> bool:
+        return True
 
 
-class LearningCurve:
-    """Held-out evaluations over training, appended to a CSV as they happen.
+class Checkpoints(BaseCallback):
+    """SB3's CheckpointCallback, written atomically (:func:`checkpoints.save_model`)."""
 
-    ``env_steps`` counts every environment step the run has consumed: states collected in
-    imitation rounds, then PPO's steps.
-    """
+    def __init__(self, every: int, run_dir: Path) -> None:
+        super().__init__()
+        self.every = every
+        self.run_dir = run_dir
 
-    def __init__(self, path: Path, append: bool = False) -> None:
-        self.path = path
-        self.rows: list[dict[str, str]] = []
-        if append and path.is_file():
-            with path.open() as file:
-                self.rows = list(csv.DictReader(file))
-        else:
-            with path.open("w", newline="") as file:
-                csv.writer(file).writerow(CURVE_FIELDS)
-
-    def append(
-        self, phase: str, env_steps: int, seconds: tuple[float, float], metrics: dict
-    ) -> None:
-        """One evaluation: ``seconds`` is (wall, cpu) since the run started."""
-        row = {
-            "phase": phase,
-            "env_steps": env_steps,
-            "wall_seconds": round(seconds[0], 2),
-            "cpu_seconds": round(seconds[1], 2),
-        }
-        row |= {key: metrics[key] for key in CURVE_FIELDS[4:]}
-        self.rows.append({key: str(value) for key, value in row.items()})
-        with self.path.open("a", newline="") as file:
-            csv.DictWriter(file, CURVE_FIELDS).writerow(row)
-
-    def last(self, field: str, phase: str | None = None) -> float:
-        """The latest value of a numeric field (of a phase), 0 if there is none."""
-        rows = [row for row in self.rows if phase is None or row["phase"] == phase]
-        return float(rows[-1][field]) if rows else 0.0
-
-    def plot(self, path: Path) -> None:
-        """Mean and p90 optimality gap and success rate against steps and wall time."""
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-        from matplotlib.ticker import EngFormatter
-
-        if not self.rows:
-            return
-        data = {key: np.array([float(r[key]) for r in self.rows]) for key in CURVE_FIELDS[1:]}
-        fig, axes = plt.subplots(1, 2, figsize=(11, 4), sharey=True)
-        for ax, x, label in (
-            (axes[0], data["env_steps"], "environment steps"),
-            (axes[1], data["wall_seconds"] / 60, "wall time (min)"),
-        ):
-            ax.plot(x, data["mean_gap_deg"], "o-", label="mean gap")
-            ax.plot(x, data["p90_gap_deg"], "s--", label="90th percentile gap")
-            ax.set_xlabel(label)
-            ax.set_yscale("symlog", linthresh=0.1)
-            ax.grid(True, which="both", alpha=0.3)
-            twin = ax.twinx()
-            twin.plot(x, 100 * data["success_rate"], "g:", label="success rate")
-            twin.set_ylim(0, 101)
-            twin.set_ylabel("held-out success (%)", color="g")
-        axes[0].xaxis.set_major_formatter(EngFormatter())  # 100k, not 100000 (labels overlap)
-        axes[0].set_ylabel("optimality gap (deg)")
-        axes[0].legend(loc="upper right")
-        fig.suptitle("Held-out scenes over training")
-        fig.tight_layout()
-        fig.savefig(path, dpi=120)
-        plt.close(fig)
+    def _on_step(self) -> bool:
+        if self.n_calls % self.every == 0:
+            save_model(self.model, ppo_checkpoint(self.run_dir, self.model.num_timesteps))
+        return True

@@ -32,7 +32,7 @@ STATES = 20_000
 
 
 def ppo_steps_per_second(env, config) -> float:
-    model = new_model(config, env, run_dir=None)
+    model = new_model(config, env)
     model.learn(2 * config.n_envs * config.ppo.n_steps)  # warm-up: compile, allocate
     start = time.perf_counter()
     model.learn(PPO_STEPS, reset_num_timesteps=False)
@@ -102,7 +102,7 @@ def main() -> None:
     rates = {}
     for output in ("k", "force_directions"):
         env = make_vec_env(default.env_id, kwargs, default.n_envs, 0)
-        model = new_model(default.replace(**{"policy.output": output}), env, run_dir=None)
+        model = new_model(default.replace(**{"policy.output": output}), env)
         start = time.perf_counter()
         fit(model.policy, obs, labels, 2, 1024, 1e-3, generator, grasp_of(obs), 1.0)
         rates[output] = 2 * len(obs) / (time.perf_counter() - start)

@@ -7,6 +7,7 @@ Tiny runs on the paper's scene (``grasp_env/CubeGrasp-v0``): a few hundred PPO s
 from __future__ import annotations
 
 import csv
+import types
 from pathlib import Path
 
 import numpy as np
@@ -17,9 +18,10 @@ from stable_baselines3.common.evaluation import evaluate_policy
 
 from grasp_env_agents import cli
 from grasp_env_agents.baselines import ConstantPolicy, equal_k_policy
+from grasp_env_agents.checkpoints import checkpoint_steps
 from grasp_env_agents.config import CONFIG_DIR, config_from_dict, load_config, save_config
 from grasp_env_agents.envs import find_held_out, make_held_out_env
-from grasp_env_agents.train import RecordEvaluation, checkpoint_steps, latest_checkpoint, train
+from grasp_env_agents.train import RecordEvaluation, train
 
 TINY = {
     "env_id": "grasp_env/CubeGrasp-v0",
@@ -164,6 +166,25 @@ def test_cli_reports_a_bad_config_cleanly(tmp_path, capsys):
     assert not (tmp_path / "r").exists()
 
 
+def test_shipped_configs_by_name_from_any_directory(tmp_path, monkeypatch):
+    """--config NAME finds the shipped config wherever the command runs (and paths still work)."""
+    import grasp_env_agents.train as training
+
+    started = []
+
+    def record(config, run_dir, **_):
+        started.append((config, run_dir))
+
+    monkeypatch.setattr(training, "train", record)
+    report = types.SimpleNamespace(markdown="(the comparison)")
+    monkeypatch.setattr("grasp_env_agents.evaluate.evaluate_run", lambda run: report)
+    monkeypatch.chdir(tmp_path)  # no configs/ here
+    assert cli.main(["train", "--config", "dagger", "--run-dir", "run"]) == 0
+    ((config, run_dir),) = started
+    assert config == load_config(CONFIG_DIR / "dagger.yaml") and run_dir == Path("run")
+    assert cli.main(["train", "--config", "no-such-config"]) == 2
+
+
 # --- training ------------------------------------------------------------------------------
 
 
@@ -179,7 +200,7 @@ def test_tiny_run_end_to_end(tmp_path, capsys):
     for name in ("model.zip", "config.yaml", "learning_curve.csv", "learning_curve.png",
                  "eval/evaluations.npz", "report.md", "grip_along_alpha.png"):  # fmt: skip
         assert (run / name).is_file(), name
-    assert list((run / "tb").glob("ppo_0/events.out.tfevents.*"))
+    assert list((run / "tb").glob("ppo/events.out.tfevents.*"))
     assert load_config(run / "config.yaml") == config_from_dict(TINY)
     assert [int(r["env_steps"]) for r in curve(run)] == [0, 128, 256]
 
@@ -188,13 +209,18 @@ def test_tiny_run_end_to_end(tmp_path, capsys):
     action, _ = model.predict(np.zeros(model.observation_space.shape, np.float32))
     assert action.shape == (3,)
 
+    report = (run / "report.md").read_text()
     assert cli.main(["evaluate", str(run), "--episodes", "1", "--physics-episodes", "1"]) == 0
-    with (run / "comparison.csv").open() as file:
+    # evaluate writes beside the run's report, which it leaves alone
+    assert (run / "report.md").read_text() == report
+    assert "`../learning_curve.png`" in (run / "evaluation-1-scenes" / "report.md").read_text()
+    with (run / "evaluation-1-scenes" / "comparison.csv").open() as file:
         rows = {row["policy"]: row for row in csv.DictReader(file)}
     expert, zero = rows["minimax expert"], rows["zero interaction"]
     # In the paper's scene the optimum is 0 deg at every pose: the expert is the reference
     # (gap 0) and holds, also in MuJoCo; with no interaction force the side fingers slip.
-    assert float(expert["mean_gap_deg"]) == pytest.approx(0.0, abs=1e-6)
+    # (to the float32 rounding of its action: the gap is against the exact optimum)
+    assert float(expert["mean_gap_deg"]) == pytest.approx(0.0, abs=1e-4)
     assert float(expert["success_rate"]) == 1.0
     assert float(expert["physics_success_rate"]) == 1.0
     assert float(zero["success_rate"]) == 0.0
@@ -214,7 +240,7 @@ def test_interrupt_saves_and_resume_continues_the_step_count(tmp_path, monkeypat
     monkeypatch.setattr(RecordEvaluation, "_on_step", ctrl_c_after_first_evaluation)
     with pytest.raises(KeyboardInterrupt):
         train(config, run, progress_bar=False)
-    saved = latest_checkpoint(run)
+    (saved,) = (run / "checkpoints").glob("ppo_*_steps.zip")
     assert checkpoint_steps(saved) == 128
     assert (run / "model.zip").is_file()
     assert (saved.parent / "ppo_vecnormalize_128_steps.pkl").is_file()
@@ -230,6 +256,125 @@ def test_interrupt_saves_and_resume_continues_the_step_count(tmp_path, monkeypat
     assert (run / "vecnormalize.pkl").is_file()
 
 
+def tensorboard_steps(folder: Path) -> dict[str, list[int]]:
+    """Every scalar's steps, read from the raw event files (as any reader sees them)."""
+    from tensorboard.backend.event_processing.event_file_loader import EventFileLoader
+
+    steps: dict[str, list[int]] = {}
+    for path in sorted(folder.glob("events.out.tfevents.*")):
+        for event in EventFileLoader(str(path)).Load():
+            for value in event.summary.value:
+                steps.setdefault(value.tag, []).append(event.step)
+    return steps
+
+
+def test_a_damaged_newest_checkpoint_is_skipped(tmp_path, capsys):
+    run = tmp_path / "run"
+    train(tiny(), run, progress_bar=False)
+    newest = run / "checkpoints" / "ppo_256_steps.zip"
+    newest.write_bytes(newest.read_bytes()[:1000])  # a copy cut short, a full disk
+    capsys.readouterr()
+    model = train(tiny(total_timesteps=384), run, resume=True, progress_bar=False)
+    out = capsys.readouterr().out
+    assert "resume: skipping checkpoints/ppo_256_steps.zip: " in out
+    assert "not a readable zip archive" in out
+    assert "resume: from " in out and "ppo_128_steps.zip" in out
+    assert model.num_timesteps == 384
+    # the killed run's evaluation at 256 was dropped and made again: each step once
+    assert [int(r["env_steps"]) for r in curve(run)] == [0, 128, 256, 384]
+    for tag, steps in tensorboard_steps(run / "tb" / "ppo").items():
+        assert len(steps) == len(set(steps)), tag
+
+
+def test_sigkill_then_resume_logs_every_step_once(tmp_path):
+    """A run killed (SIGKILL) between checkpoints and resumed: TensorBoard, the learning curve
+    and SB3's evaluation log hold each step once, and the run reaches its steps."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    config = tiny(total_timesteps=1 << 20, eval_freq=64, checkpoint_freq=256)
+    path, run = tmp_path / "config.yaml", tmp_path / "run"
+    save_config(config, path)
+    command = [sys.executable, "-m", "grasp_env_agents.cli", "train", "--config", str(path)]
+    env = {**os.environ, "SB3_LOGDIR": str(tmp_path / "sb3")}
+    process = subprocess.Popen([*command, "--run-dir", str(run)], env=env, cwd=tmp_path)
+    try:
+        # kill once the run has logged steps after its latest checkpoint
+        deadline = time.monotonic() + 600
+        while time.monotonic() < deadline and process.poll() is None:
+            saved = [checkpoint_steps(p) for p in (run / "checkpoints").glob("ppo_*_steps.zip")]
+            try:  # the file may be mid-write
+                logged = int(curve(run)[-1]["env_steps"])
+            except (OSError, IndexError, TypeError, ValueError):
+                logged = -1
+            if saved and logged >= max(saved) + 128:
+                break
+            time.sleep(0.02)
+        process.send_signal(signal.SIGKILL)
+    finally:
+        process.wait()
+    killed_at = int(curve(run)[-1]["env_steps"])
+    checkpoint = max(checkpoint_steps(p) for p in (run / "checkpoints").glob("ppo_*_steps.zip"))
+    assert killed_at > checkpoint  # steps that the resumed run logs again
+    before = tensorboard_steps(run / "tb" / "ppo")
+    assert max(before["rollout/ep_rew_mean"]) > checkpoint
+
+    total = killed_at + 256
+    model = train(config.replace(total_timesteps=total), run, resume=True, progress_bar=False)
+    assert model.num_timesteps == total
+    steps = [int(r["env_steps"]) for r in curve(run)]
+    assert steps == sorted(set(steps)) and steps[-1] == total
+    with np.load(run / "eval" / "evaluations.npz") as log:
+        assert log["timesteps"].tolist() == sorted(set(log["timesteps"].tolist()))
+    after = tensorboard_steps(run / "tb" / "ppo")
+    for tag in ("rollout/ep_rew_mean", "train/loss", "held_out/mean_gap_deg"):
+        assert len(after[tag]) == len(set(after[tag])), tag
+        assert max(after[tag]) > killed_at  # the resumed run logged on past the kill
+    assert sorted(after["held_out/mean_gap_deg"]) == [s for s in steps]
+
+
+def test_interrupted_imitation_resumes_after_its_last_round(tmp_path, monkeypatch):
+    """Rounds done are checkpointed with their data: a resumed run does only the rest."""
+    import grasp_env_agents.imitation as imitation
+
+    config = tiny(
+        total_timesteps=0,
+        imitation={"rounds": 3, "samples_per_round": 124, "epochs": 2, "n_envs": 4},
+    )
+    run = tmp_path / "run"
+    fit, calls = imitation.fit, []
+
+    def interrupted_third_fit(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 3:
+            raise KeyboardInterrupt
+        return fit(*args, **kwargs)
+
+    monkeypatch.setattr(imitation, "fit", interrupted_third_fit)
+    with pytest.raises(KeyboardInterrupt):
+        train(config, run, progress_bar=False)
+    assert [r["phase"] for r in curve(run)] == ["initial", "imitation", "imitation"]
+    assert sorted(p.name for p in (run / "checkpoints").glob("imitation_round_*")) == [
+        "imitation_round_0.npz", "imitation_round_0.zip",
+        "imitation_round_1.npz", "imitation_round_1.zip",
+    ]  # fmt: skip
+
+    calls.clear()
+    train(config, run, resume=True, progress_bar=False)
+    assert len(calls) == 1  # round 2 only
+    rows = curve(run)
+    assert [r["phase"] for r in rows] == ["initial", "imitation", "imitation", "imitation"]
+    # the resumed round refits on all three rounds' states
+    assert not list((run / "checkpoints").glob("*.npz"))  # the data go with the phase
+    assert (run / "checkpoints" / "ppo_0_steps.zip").is_file()
+    logged = tensorboard_steps(run / "tb" / "imitation")
+    assert logged["imitation/labelled_states"] == [int(r["env_steps"]) for r in rows[1:]]
+    assert logged["held_out/mean_gap_deg"] == [int(r["env_steps"]) for r in rows]
+
+
 def test_same_seed_same_first_evaluation(tmp_path):
     def first_ppo_evaluation(seed: int, name: str) -> dict[str, str]:
         train(tiny(seed=seed, total_timesteps=128), tmp_path / name, progress_bar=False)
@@ -242,9 +387,9 @@ def test_same_seed_same_first_evaluation(tmp_path):
 
 
 def test_a_run_directory_is_not_overwritten(tmp_path):
-    train(tiny(total_timesteps=0), tmp_path / "run", progress_bar=False)
+    train(tiny(total_timesteps=64), tmp_path / "run", progress_bar=False)
     with pytest.raises(ValueError, match="already holds a run; use --resume"):
-        train(tiny(total_timesteps=0), tmp_path / "run", progress_bar=False)
+        train(tiny(total_timesteps=64), tmp_path / "run", progress_bar=False)
 
 
 # --- the expert as teacher -----------------------------------------------------------------

@@ -1,0 +1,228 @@
+"""A run's checkpoints, where ``--resume`` continues from, and its TensorBoard logs.
+
+A run directory's ``checkpoints/`` holds, as the run goes:
+
+- ``imitation_round_<r>.zip`` after each imitation round r (the policy after its fit), with
+  ``imitation_round_<r>.npz`` (the states the round labelled: a resumed run refits on all
+  rounds' data) until the imitation phase ends;
+- ``ppo_<N>_steps.zip`` every ``checkpoint_freq`` PPO steps, after the imitation phase
+  (``ppo_0_steps.zip``), on Ctrl-C and at the end, with ``ppo_vecnormalize_<N>_steps.pkl``
+  when observations are normalised (SB3's CheckpointCallback names).
+
+Every file is written to a temporary name and renamed, so a killed run leaves no half-written
+file under a checkpoint's name. A damaged one (from an older run, a full disk, a copy) is
+skipped on resume with a message naming it: :func:`find_start` continues from the newest intact
+checkpoint, PPO's first, then the imitation rounds'.
+
+TensorBoard (``tb/imitation`` and ``tb/ppo``) logs at the run's environment steps, the learning
+curve's x (imitation's labelled states, then PPO's steps after them). A resumed run first drops
+what the killed run logged after its checkpoint (:func:`trim_tensorboard`), so no step shows
+twice.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.logger import Logger, TensorBoardOutputFormat
+from torch.utils.tensorboard import SummaryWriter
+
+from .models import check_tensors, load_vecnormalize, read_archive
+from .progress import say
+
+PPO_PREFIX = "ppo"
+IMITATION_PREFIX = "imitation_round"
+
+
+@dataclass(frozen=True)
+class Start:
+    """Where a run (re)starts: ``checkpoint`` None is the beginning.
+
+    ``round`` is the last imitation round the checkpoint completed (-1: none), ``ppo_steps``
+    PPO's steps, ``env_steps`` the run's environment steps at that point, ``data`` the files of
+    the imitation rounds' states (empty once the imitation phase is over).
+    """
+
+    checkpoint: Path | None = None
+    round: int = -1
+    ppo_steps: int = 0
+    env_steps: int = 0
+    data: tuple[Path, ...] = ()
+
+    @property
+    def vecnormalize(self) -> Path | None:
+        return None if self.checkpoint is None else statistics_path(self.checkpoint)
+
+
+# --- names and writing -----------------------------------------------------------------------
+
+
+def ppo_checkpoint(run_dir: Path, steps: int) -> Path:
+    return run_dir / "checkpoints" / f"{PPO_PREFIX}_{steps}_steps.zip"
+
+
+def imitation_checkpoint(run_dir: Path, round_: int) -> Path:
+    return run_dir / "checkpoints" / f"{IMITATION_PREFIX}_{round_}.zip"
+
+
+def checkpoint_steps(path: Path) -> int:
+    """PPO steps of a checkpoint named ``ppo_<N>_steps.zip``."""
+    match = re.fullmatch(rf"{PPO_PREFIX}_(\d+)_steps\.zip", path.name)
+    if match is None:
+        raise ValueError(f"{path} is not a PPO checkpoint name")
+    return int(match.group(1))
+
+
+def statistics_path(checkpoint: Path) -> Path:
+    """The normalisation statistics saved beside a checkpoint (CheckpointCallback's naming)."""
+    if checkpoint.name.startswith(IMITATION_PREFIX):
+        return checkpoint.with_suffix(".vecnormalize.pkl")
+    steps = checkpoint_steps(checkpoint)
+    return checkpoint.with_name(f"{PPO_PREFIX}_vecnormalize_{steps}_steps.pkl")
+
+
+def write_atomically(path: Path, content: bytes) -> None:
+    """``path`` holds ``content`` or what it held before, never a part (a kill mid-write)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    partial = path.with_name(f".{path.name}.partial")
+    partial.write_bytes(content)
+    os.replace(partial, path)
+
+
+def save_model(model: BaseAlgorithm, path: Path) -> None:
+    """The model at ``path`` (and its VecNormalize statistics beside it), atomically."""
+    buffer = io.BytesIO()
+    model.save(buffer)
+    normalizer = model.get_vec_normalize_env()
+    if normalizer is not None:  # the statistics first: a model never lacks its own
+        statistics = path.with_name("vecnormalize.pkl") if path.name == "model.zip" else None
+        write_atomically(statistics or statistics_path(path), _pickled(normalizer))
+    write_atomically(path, buffer.getvalue())
+
+
+def _pickled(normalizer: Any) -> bytes:
+    import pickle
+
+    return pickle.dumps(
+        normalizer, protocol=pickle.HIGHEST_PROTOCOL
+    )  # what VecNormalize.save writes
+
+
+def save_round_data(
+    run_dir: Path, round_: int, obs: np.ndarray, labels: np.ndarray, env_steps: int
+) -> None:
+    """The states an imitation round labelled, for a resumed run to refit on."""
+    buffer = io.BytesIO()
+    np.savez(buffer, observations=obs, labels=labels, env_steps=env_steps)
+    write_atomically(imitation_checkpoint(run_dir, round_).with_suffix(".npz"), buffer.getvalue())
+
+
+def load_round_data(path: Path) -> tuple[np.ndarray, np.ndarray, int]:
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            return data["observations"], data["labels"], int(data["env_steps"])
+    except Exception as error:  # a damaged npz fails in several ways
+        raise ValueError(f"{path} is damaged ({type(error).__name__}: {error})") from None
+
+
+# --- resuming --------------------------------------------------------------------------------
+
+
+def check_checkpoint(path: Path, normalize: bool) -> None:
+    """Raise ValueError (naming what is wrong) unless ``path`` and its statistics are intact."""
+    _, archive = read_archive(path)
+    check_tensors(path, archive)
+    if normalize:
+        statistics = statistics_path(path)
+        if not statistics.is_file():
+            raise ValueError(f"{statistics} is missing (the normalisation statistics)")
+        load_vecnormalize(statistics)
+
+
+def find_start(run_dir: Path, normalize: bool, imitation_steps: int) -> Start:
+    """The newest intact checkpoint of the run, printing each damaged one it skips.
+
+    ``imitation_steps`` is the environment steps of the run's imitation phase (from its
+    learning curve), which PPO's steps follow.
+    """
+    folder = run_dir / "checkpoints"
+
+    def intact(path: Path, data: list[Path] = ()) -> bool:
+        try:
+            check_checkpoint(path, normalize)
+            for file in data:
+                load_round_data(file)
+        except ValueError as error:
+            say(f"resume: skipping {path.relative_to(run_dir)}: {error}")
+            return False
+        return True
+
+    ppo = sorted(folder.glob(f"{PPO_PREFIX}_*_steps.zip"), key=checkpoint_steps, reverse=True)
+    for path in ppo:
+        if intact(path):
+            steps = checkpoint_steps(path)
+            return Start(path, round=-1, ppo_steps=steps, env_steps=imitation_steps + steps)
+    rounds = sorted(
+        (int(p.stem.rsplit("_", 1)[1]) for p in folder.glob(f"{IMITATION_PREFIX}_*.zip")),
+        reverse=True,
+    )
+    for round_ in rounds:
+        path = imitation_checkpoint(run_dir, round_)
+        data = [imitation_checkpoint(run_dir, r).with_suffix(".npz") for r in range(round_ + 1)]
+        if intact(path, data):
+            steps = load_round_data(data[-1])[2]
+            return Start(path, round=round_, env_steps=steps, data=tuple(data))
+    return Start()
+
+
+# --- TensorBoard -----------------------------------------------------------------------------
+
+
+class _TensorBoard(TensorBoardOutputFormat):
+    """SB3's TensorBoard output at the run's environment steps (``offset`` + SB3's step)."""
+
+    def __init__(self, folder: Path, offset: int) -> None:
+        self.writer = SummaryWriter(log_dir=str(folder))
+        self._is_closed = False
+        self.offset = offset
+
+    def write(self, key_values: dict, key_excluded: dict, step: int = 0) -> None:
+        super().write(key_values, key_excluded, step + self.offset)
+
+
+def tensorboard_logger(folder: Path, offset: int = 0) -> Logger:
+    """An SB3 logger writing TensorBoard events into ``folder`` at ``offset`` + step."""
+    return Logger(str(folder), [_TensorBoard(folder, offset)])
+
+
+def trim_tensorboard(folder: Path, last_step: int) -> int:
+    """Drop the summaries logged after ``last_step`` from every event file under ``folder``
+    (a killed run's steps past its checkpoint, which the resumed run logs again); returns how
+    many were dropped."""
+    from tensorboard.backend.event_processing.event_file_loader import RawEventFileLoader
+    from tensorboard.compat.proto.event_pb2 import Event
+    from tensorboard.summary.writer.record_writer import RecordWriter
+
+    dropped = 0
+    for path in sorted(folder.glob("**/events.out.tfevents.*")):
+        records = list(RawEventFileLoader(str(path)).Load())
+        keep = [r for r in records if not _logged_after(Event.FromString(r), last_step)]
+        if len(keep) < len(records):
+            buffer = io.BytesIO()
+            writer = RecordWriter(buffer)
+            for record in keep:
+                writer.write(record)
+            write_atomically(path, buffer.getvalue())
+            dropped += len(records) - len(keep)
+    return dropped
+
+
+def _logged_after(event: Any, step: int) -> bool:
+    return event.HasField("summary") and event.step > step
