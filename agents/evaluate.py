@@ -9,29 +9,36 @@ trajectory); the total grip force sum_i |P_i| against the expert's; and the succ
 MuJoCo confirms (:class:`grasp_env.physics.StabilityChecker`) on the first few scenes.
 
 Writes ``report.md``, ``comparison.csv`` and ``grip_along_alpha.png`` (learned and optimal
-k_ij and max friction angle along alpha on held-out scenes) into the run directory, beside the
-learning curve that training wrote.
+k_ij and max friction angle along alpha on held-out scenes). ``grasp-env train`` writes them
+into the run directory, as the run's report; ``grasp-env evaluate RUN`` into
+``RUN/evaluation-<N>-scenes/`` (N held-out scenes), or ``--out DIR``, so that it never replaces
+the run's own report unless asked to (``--out RUN``). The same run, scenes and options give
+the same report, so writing it again to the same folder replaces it with the same numbers
+(unless the run has trained further since).
 """
 
 from __future__ import annotations
 
 import argparse
 import csv
+import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
-from stable_baselines3 import PPO
 from stable_baselines3.common.evaluation import evaluate_policy
-from stable_baselines3.common.vec_env import VecNormalize
 
 from grasp_env import MinimaxExpert
+from grasp_env.mechanics import contact_pairs
 
-from .baselines import ConstantPolicy, RandomPolicy, TrainedAgent, equal_k_policy
+from .baselines import ConstantPolicy, RandomPolicy, equal_k_policy
 from .config import load_config
 from .envs import HELD_OUT_SEED, Episode, find_held_out, make_held_out_env, summarise
+from .models import load_agent
+from .plotting import plot_series
+from .progress import status
 
 HELP = "compare a trained agent with the minimax expert and baselines"
 #: Default number of held-out scenes also checked in MuJoCo physics.
@@ -62,10 +69,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=int,
         help=f"of those, scenes also checked in MuJoCo (default {PHYSICS_EPISODES}; 0: none)",
     )
+    parser.add_argument(
+        "--out",
+        type=Path,
+        metavar="DIR",
+        help="folder for the report, comparison.csv and the plot (default:"
+        " RUN/evaluation-<N>-scenes; --out RUN replaces the run's own report)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
-    comparison = evaluate_run(args.run_dir, args.episodes, args.physics_episodes)
+    out = args.out
+    if out is None:
+        episodes = args.episodes or load_config(Path(args.run_dir) / "config.yaml").eval_episodes
+        out = Path(args.run_dir) / f"evaluation-{episodes}-scenes"
+    comparison = evaluate_run(args.run_dir, args.episodes, args.physics_episodes, out)
     print(comparison.markdown)
     print(f"\nreport: {comparison.report}")
     return 0
@@ -80,19 +98,6 @@ class Comparison:
     report: Path
 
 
-def load_agent(run_dir: Path) -> TrainedAgent:
-    """The run's final model, with its observation normalisation if it was trained with one."""
-    run_dir = Path(run_dir)
-    if not (run_dir / "model.zip").is_file():
-        raise ValueError(f"{str(run_dir)!r} holds no model.zip: not a finished training run")
-    model = PPO.load(run_dir / "model.zip", device="cpu")
-    normalizer = None
-    if (run_dir / "vecnormalize.pkl").is_file():
-        normalizer = VecNormalize.load(str(run_dir / "vecnormalize.pkl"), model.get_env())
-        normalizer.training = False
-    return TrainedAgent(model, normalizer)
-
-
 def _cell(fmt: str, value: float) -> str:
     text = fmt.format(value)
     # what rounds to zero reads 0, not -0 (the expert against itself differs by ~1e-14 rad)
@@ -100,14 +105,19 @@ def _cell(fmt: str, value: float) -> str:
 
 
 def evaluate_run(
-    run_dir: Path, episodes: int | None = None, physics_episodes: int | None = None
+    run_dir: Path,
+    episodes: int | None = None,
+    physics_episodes: int | None = None,
+    out: Path | None = None,
 ) -> Comparison:
-    """Compare the run's agent with the expert and the baselines; write the report and plots.
+    """Compare the run's agent with the expert and the baselines; write the report and plots
+    into ``out`` (default: the run directory).
 
     ``episodes`` defaults to the run's ``eval_episodes``, ``physics_episodes`` (how many of
     them MuJoCo also checks) to :data:`PHYSICS_EPISODES` or all if fewer.
     """
     run_dir = Path(run_dir)
+    out = run_dir if out is None else Path(out)
     if not (run_dir / "config.yaml").is_file():
         raise ValueError(f"{str(run_dir)!r} is not a run directory (no config.yaml)")
     config = load_config(run_dir / "config.yaml")
@@ -122,6 +132,8 @@ def evaluate_run(
     env = make_held_out_env(config.env_id, config.env_kwargs, episodes)
     m = env.action_space.shape[0]
     k_max_ratio = config.k_max_ratio
+    if not (run_dir / "model.zip").is_file():
+        raise ValueError(f"{str(run_dir)!r} holds no model.zip: not a finished training run")
     policies: dict[str, Any] = {
         "trained agent": load_agent(run_dir),
         "minimax expert": MinimaxExpert(k_max_ratio),
@@ -131,26 +143,29 @@ def evaluate_run(
     }
     metrics, played = {}, {}
     for name, policy in policies.items():
-        evaluate_policy(policy, env, n_eval_episodes=episodes, warn=False)
+        with status(f"evaluate: {name} on {episodes} held-out scenes"):
+            evaluate_policy(policy, env, n_eval_episodes=episodes, warn=False)
         played[name] = list(find_held_out(env).episodes)
         metrics[name] = summarise(played[name])
         if physics_episodes:
-            metrics[name]["physics_success_rate"] = physics_success(
-                policy, config.env_id, config.env_kwargs, physics_episodes
-            )
+            with status(f"evaluate: {name} in MuJoCo on {physics_episodes} scenes"):
+                metrics[name]["physics_success_rate"] = physics_success(
+                    policy, config.env_id, config.env_kwargs, physics_episodes
+                )
     expert_force = metrics["minimax expert"]["mean_force"]
     for row in metrics.values():
         row["force_ratio"] = row["mean_force"] / expert_force
 
-    plot_grip(played["trained agent"][:3], run_dir / "grip_along_alpha.png")
-    with (run_dir / "comparison.csv").open("w", newline="") as file:
+    out.mkdir(parents=True, exist_ok=True)
+    plot_grip(played["trained agent"][:3], out / "grip_along_alpha.png")
+    with (out / "comparison.csv").open("w", newline="") as file:
         fields = ["policy", *next(iter(metrics.values()))]
         writer = csv.DictWriter(file, fields)
         writer.writeheader()
         writer.writerows({"policy": name, **row} for name, row in metrics.items())
-    markdown = report(run_dir, config.env_id, episodes, physics_episodes, metrics)
-    (run_dir / "report.md").write_text(markdown)
-    return Comparison(metrics, markdown, run_dir / "report.md")
+    markdown = report(run_dir, out, config.env_id, episodes, physics_episodes, metrics)
+    (out / "report.md").write_text(markdown)
+    return Comparison(metrics, markdown, out / "report.md")
 
 
 def physics_success(policy: Any, env_id: str, env_kwargs: dict[str, Any], episodes: int) -> float:
@@ -179,6 +194,7 @@ def physics_success(policy: Any, env_id: str, env_kwargs: dict[str, Any], episod
 
 def report(
     run_dir: Path,
+    out: Path,
     env_id: str,
     episodes: int,
     physics_episodes: int,
@@ -207,16 +223,26 @@ def report(
         if rows:
             last = rows[-1]
             minutes = float(last["wall_seconds"]) / 60
+            learning_curve = os.path.relpath(run_dir / "learning_curve.png", out)
             lines += [
                 "",
                 f"Training: {int(last['env_steps']):,} environment steps in {minutes:.1f} min "
-                f"(learning curve: `learning_curve.png`); grip along alpha: "
+                f"(learning curve: `{learning_curve}`); grip along alpha: "
                 "`grip_along_alpha.png`.",
             ]
     return "\n".join(lines) + "\n"
 
 
 def plot_grip(episodes: list[Episode], path: Path) -> None:
+    """Save :func:`grip_figure` of a few played episodes."""
+    import matplotlib.pyplot as plt
+
+    figure = grip_figure(episodes)
+    figure.savefig(path, dpi=110)
+    plt.close(figure)
+
+
+def grip_figure(episodes: list[Episode]) -> Any:
     """Learned vs optimal k_ij, and the max friction angle, along alpha for a few scenes."""
     import matplotlib
 
@@ -227,19 +253,27 @@ def plot_grip(episodes: list[Episode], path: Path) -> None:
     for column, episode in enumerate(episodes):
         alpha = np.array(episode.alpha_deg)
         k, expert_k = np.array(episode.k), np.array(episode.expert_k)
+        n_contacts = round((1 + np.sqrt(1 + 8 * k.shape[1])) / 2)  # m = n (n - 1) / 2 pairs
+        names = [f"k{i + 1}{j + 1}" for i, j in contact_pairs(n_contacts)]
         top, bottom = axes[0, column], axes[1, column]
-        for pair in range(k.shape[1]):
-            (line,) = top.plot(alpha, expert_k[:, pair], "-", label=f"optimal k{pair + 1}")
-            top.plot(alpha, k[:, pair], "--", color=line.get_color(), label=f"learned k{pair + 1}")
+        for name, learned in zip(names, k.T, strict=True):
+            top.plot(alpha, learned, "--", label=f"learned {name}")
+        top.set_prop_cycle(None)  # the optimal k_ij in their learned ones' colours
+        plot_series(top, alpha, expert_k.T, [f"optimal {n}" for n in names], "N", ls="-")
         top.set_title(f"held-out scene {column + 1}")
-        top.set_ylabel("interaction force k (N)")
-        bottom.plot(alpha, np.degrees(episode.expert_max_theta), "-", label="optimal")
-        bottom.plot(alpha, np.degrees(episode.max_theta), "--", label="learned")
-        bottom.axhline(np.degrees(episode.limit), color="k", lw=0.8, label="friction limit")
+        top.set_ylabel("interaction force k_ij (N)")
+        optimal, learned = np.degrees(episode.expert_max_theta), np.degrees(episode.max_theta)
+        limit = np.degrees(episode.limit)
+        bottom.plot(alpha, optimal, "-", label="optimal")
+        bottom.plot(alpha, learned, "--", label="learned")
+        bottom.axhline(limit, color="k", lw=0.8, ls=":", label="friction limit atan(mu)")
+        # the limit and a zero curve inside the frame, not on its edges
+        top_deg = 1.15 * max(limit, optimal.max(), learned.max())
+        bottom.set_ylim(-0.04 * top_deg, top_deg)
         bottom.set_xlabel("alpha (deg)")
         bottom.set_ylabel("max friction angle (deg)")
-    axes[0, 0].legend(fontsize=7, ncol=2)
-    axes[1, 0].legend(fontsize=8)
+    for row in axes:  # beside the last column, clear of every curve and note
+        row[-1].legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.02, 1.0))
+    fig.suptitle("Learned and optimal grip along each held-out trajectory")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    return fig

@@ -12,6 +12,7 @@ import argparse
 import csv
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -27,6 +28,7 @@ from grasp_env.mechanics import (
 )
 from grasp_env.mechanics.forces import Grasp
 
+from .plotting import plot_series
 from .scene_args import add_scene_arguments, floats, scene_from_arguments
 
 HELP = "the paper's quasi-static sweep: optimal k_ij and friction angles, table and plots"
@@ -126,21 +128,18 @@ def plot_trend(sweep: Sweep, path: Path) -> None:
     import matplotlib.pyplot as plt
 
     alphas = sweep.trajectory.alphas_deg
-    fig, (ax_theta, ax_k) = plt.subplots(2, 1, figsize=(7, 7), sharex=True)
-    styles = ["-", "--", ":", "-.", (0, (5, 1)), (0, (1, 3))]  # equal curves stay visible
+    fig, (ax_theta, ax_k) = plt.subplots(2, 1, figsize=(7, 7.5), sharex=True)
+    n = sweep.scene.n_contacts
     angles = np.rad2deg(sweep.optimum.angles).T
-    for i, (theta, style) in enumerate(zip(angles, styles, strict=False)):
-        ax_theta.plot(alphas, theta, ls=style, marker=".", label=f"theta{i + 1}")
     ax_theta.axhline(np.rad2deg(sweep.scene.friction_limit), color="k", ls="--", label="atan(mu)")
+    plot_series(ax_theta, alphas, angles, [f"theta{i + 1}" for i in range(n)], "deg")
     ax_theta.set_ylabel("friction angle at the optimum (deg)")
-    ax_theta.legend()
+    ax_theta.legend(loc="center right")
     ax_theta.set_title("Minimised maximum friction angle along the trajectory")
-    names = pair_names(sweep.scene.n_contacts)
-    for name, k, style in zip(names, sweep.optimum.k.T, styles, strict=False):
-        ax_k.plot(alphas, k, ls=style, marker=".", label=name)
+    plot_series(ax_k, alphas, sweep.optimum.k.T, pair_names(n), "N")
     ax_k.set_xlabel("alpha (deg)")
     ax_k.set_ylabel("optimal interaction scalar k_ij (N)")
-    ax_k.legend()
+    ax_k.legend(loc="best")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
@@ -165,6 +164,17 @@ def theta1_grid(sweep: Sweep, points: int = 100) -> tuple[np.ndarray, ...]:
 
 
 def plot_theta1_grid(sweep: Sweep, path: Path) -> None:
+    """Save :func:`theta1_figure`."""
+    import matplotlib.pyplot as plt
+
+    figure = theta1_figure(sweep)
+    figure.savefig(path, dpi=120)
+    plt.close(figure)
+
+
+def theta1_figure(sweep: Sweep) -> Any:
+    """The paper's Fig. 2: theta_1 over (k12, k13) at alpha = 0, as a surface and contours,
+    the optimum marked, the other k_ij's values said."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -177,7 +187,12 @@ def plot_theta1_grid(sweep: Sweep, path: Path) -> None:
     ax3d.set_xlabel("k12 (N)")
     ax3d.set_ylabel("k13 (N)")
     ax3d.set_zlabel("theta1 (deg)")
-    ax3d.set_title("theta1 over (k12, k13) at alpha = 0")
+    names = pair_names(sweep.scene.n_contacts)
+    others = ", ".join(f"{name} = {k:.4f} N" for name, k in zip(names[2:], k_opt[2:], strict=True))
+    fig.suptitle(
+        "theta1 over (k12, k13) at alpha = 0 (the paper's Fig. 2); "
+        f"{others} (held at the optimum; it does not act on finger 1)"
+    )
     ax = fig.add_subplot(1, 2, 2)
     contour = ax.contourf(k12, k13, theta1, levels=30, cmap="viridis")
     fig.colorbar(contour, ax=ax, label="theta1 (deg)")
@@ -185,9 +200,8 @@ def plot_theta1_grid(sweep: Sweep, path: Path) -> None:
     ax.set_xlabel("k12 (N)")
     ax.set_ylabel("k13 (N)")
     ax.legend(loc="upper right")
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    fig.tight_layout(rect=(0, 0, 1, 0.95))
+    return fig
 
 
 def run(args: argparse.Namespace) -> int:
