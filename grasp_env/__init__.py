@@ -35,9 +35,16 @@ _ENVS = {
     "CubeGraspMujoco-v0": ("CubeGraspEnv", None, {"physics": "mujoco"}),
     "CubeGraspRandomMujoco-v0": ("CubeGraspRandomEnv", None, {"physics": "mujoco"}),
     "CubeGrasp4Mujoco-v0": ("CubeGraspEnv", None, {**_FOUR_FINGERS, "physics": "mujoco"}),
+    # issue 16: a hand with reach phases fingers out and in along a long rotation
+    "CubeGait-v0": ("gait:CubeGaitEnv", "gait:CubeGaitVectorEnv", {}),
 }
 ENV_IDS = tuple(f"grasp_env/{name}" for name in _ENVS)
 _REGISTRATION = "gymnasium.envs.registration"
+
+
+def _module(entry: str, default: str) -> str:
+    """The entry point ``module:Class`` in grasp_env.envs (a bare class name: in ``default``)."""
+    return entry if ":" in entry else f"{default}:{entry}"
 
 
 def _register(registration: ModuleType) -> None:
@@ -45,8 +52,8 @@ def _register(registration: ModuleType) -> None:
         if f"grasp_env/{name}" not in registration.registry:
             registration.register(
                 id=f"grasp_env/{name}",
-                entry_point=f"grasp_env.envs.cube_grasp:{single}",
-                vector_entry_point=None if vector is None else f"grasp_env.envs.vector:{vector}",
+                entry_point=f"grasp_env.envs.{_module(single, 'cube_grasp')}",
+                vector_entry_point=vector and f"grasp_env.envs.{_module(vector, 'vector')}",
                 kwargs=kwargs,
             )
 

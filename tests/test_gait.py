@@ -452,3 +452,192 @@ def test_gait_command_refuses_bad_options(capsys):
     assert main(["gait", "--cone", "200", "--no-plots"]) == 2
     assert "cone_deg" in capsys.readouterr().err
     assert main(["gait", "--k-max", "-1", "--no-plots"]) == 2
+
+
+# ------------------------------------------------------------------------ the environment
+
+GAIT_ID = "grasp_env/CubeGait-v0"
+
+
+def make_gait(**kwargs):
+    import gymnasium as gym
+
+    import grasp_env  # noqa: F401  (registers the environments)
+
+    return gym.make(GAIT_ID, **kwargs)
+
+
+def play(env, policy, steps=None):
+    """Rewards and infos of one episode played by ``policy(obs) -> action``."""
+    obs, _ = env.reset(seed=0)
+    rewards, infos = [], []
+    done = False
+    while not done and (steps is None or len(rewards) < steps):
+        obs, reward, terminated, truncated, info = env.step(policy(obs))
+        rewards.append(reward)
+        infos.append(info)
+        done = terminated or truncated
+    return np.array(rewards), infos, terminated
+
+
+def test_gait_env_check_env():
+    import warnings
+
+    from gymnasium.utils.env_checker import check_env
+
+    env = make_gait()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        check_env(env.unwrapped, skip_render_check=True)
+    assert GAIT_ID in __import__("grasp_env").ENV_IDS
+
+
+def test_gait_expert_earns_the_certified_margin():
+    from grasp_env.envs.gait import GaitExpert, GreedyGait
+
+    env = make_gait()
+    solution = env.unwrapped.task.solution
+    expert = GaitExpert()
+    rewards, infos, terminated = play(env, lambda o: expert.predict(o)[0])
+    assert len(rewards) == len(PAPER_TURN) and not terminated
+    # the certified optimum, to float32 rounding of the action
+    np.testing.assert_allclose(rewards, solution.optimal.margins, atol=1e-6)
+    assert abs(rewards.min() - solution.optimal.margin) < 1e-6
+    moves = sum(info["move"] != 0 for info in infos)
+    assert moves == solution.optimal.changes and not any(info["refused"] for info in infos)
+    # the greedy baseline from the same start loses a contact and drops the cube
+    greedy = GreedyGait()
+    rewards, infos, terminated = play(env, lambda o: greedy.predict(o)[0])
+    assert terminated and rewards.min() < 0 and len(rewards) < len(PAPER_TURN)
+    assert infos[-1]["lost"].any()
+
+
+def test_gait_env_is_sequential():
+    """A policy that never moves a finger (the best it can do at gamma = 0 wherever the
+    current contacts hold) loses a contact; the expert, which plans, holds throughout."""
+    env = make_gait(terminate_on_slip=False)
+    task = env.unwrapped.task
+    from grasp_env.envs.gait import GaitExpert
+
+    expert = GaitExpert()
+
+    def keep(obs):
+        action = expert.predict(obs)[0]
+        action[task.n_pairs :] = -1.0
+        action[task.n_pairs] = 1.0  # move 0: keep
+        return action
+
+    rewards, infos, terminated = play(env, keep)
+    assert terminated and infos[-1]["lost"].any()  # dropped: fewer than three fingers left
+    assert np.isclose(rewards[-1], task.limit - np.pi / 2)
+
+
+def test_gait_env_rules():
+    env = make_gait(terminate_on_slip=False)
+    task = env.unwrapped.task
+    P, N = task.n_pairs, task.n_sites
+    obs, _ = env.reset()
+    start = task.table.states[task.start]  # three fingers touch
+    assert (start >= 0).sum() == 3
+
+    def move(m):
+        action = np.zeros(P + task.n_moves, np.float32)
+        action[P + m] = 1.0
+        return action
+
+    toggle = lambda f, s: 1 + f * N + s  # noqa: E731
+    touching = int(np.flatnonzero(start >= 0)[0])
+    _, _, _, _, info = env.step(move(toggle(touching, int(start[touching]))))
+    assert info["refused"] and info["move"] == 0  # a lift would leave two fingers
+    free = int(np.flatnonzero(start < 0)[0])
+    taken = int(start[touching])
+    _, _, _, _, info = env.step(move(toggle(free, taken)))
+    assert info["refused"]  # the site is taken
+    reach = task.solution.reach[2]
+    far = [s for s in range(N) if not reach[free, s] and s not in start]
+    if far:
+        _, _, _, _, info = env.step(move(toggle(free, far[0])))
+        assert info["refused"]  # out of reach
+    # observation: contacts one-hot and reach flags
+    obs, _ = env.reset()
+    F = task.n_fingers
+    width = task.pose_size()
+    contacts = obs[width : width + F * N].reshape(F, N)
+    for f in range(F):
+        assert contacts[f].sum() == (start[f] >= 0) and (start[f] < 0 or contacts[f, start[f]])
+    np.testing.assert_array_equal(obs[width + F * N :].reshape(F, N), task.solution.reach[0])
+
+
+def test_gait_vector_env_equals_single_envs():
+    import gymnasium as gym
+    from gymnasium.vector import AutoresetMode
+
+    from grasp_env.envs.gait import GaitExpert
+
+    expert = GaitExpert()
+    num = 3
+    for mode in (AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP):
+        envs = gym.make_vec(
+            GAIT_ID, num_envs=num, vectorization_mode="vector_entry_point",
+            autoreset_mode=mode, terminate_on_slip=False,
+        )  # fmt: skip
+        singles = [make_gait(terminate_on_slip=False) for _ in range(num)]
+        obs, _ = envs.reset(seed=0)
+        single_obs = [s.reset(seed=0)[0] for s in singles]
+        rng = np.random.default_rng(0)
+        restart = np.zeros(num, bool)
+        for _ in range(200):
+            np.testing.assert_array_equal(obs, np.stack(single_obs))
+            actions = expert.predict(obs)[0]
+            noisy = rng.random(num) < 0.3  # some sub-environments act at random
+            actions[noisy] = rng.uniform(-1, 1, actions[noisy].shape)
+            obs, reward, terminated, truncated, info = envs.step(actions)
+            for i, single in enumerate(singles):
+                if restart[i]:  # NEXT_STEP: this step resets it
+                    single_obs[i] = single.reset()[0]
+                    assert reward[i] == 0
+                    continue
+                o, r, te, tr, inf = single.step(actions[i])
+                assert r == reward[i] and te == terminated[i] and tr == truncated[i]
+                np.testing.assert_array_equal(inf["theta"], info["theta"][i])
+                single_obs[i] = o
+                if (te or tr) and mode == AutoresetMode.SAME_STEP:
+                    np.testing.assert_array_equal(info["final_obs"][i], o)
+                    single_obs[i] = single.reset()[0]
+            restart = (terminated | truncated) & (mode == AutoresetMode.NEXT_STEP)
+
+
+def test_gait_env_other_trajectory_and_bad_keywords():
+    env = make_gait(trajectory={"axis": (0, 0, 1), "alpha_start_deg": -180, "alpha_end_deg": 180})
+    task = env.unwrapped.task
+    assert task.n_poses == 361 and task.solution.optimal.margin > np.deg2rad(8)
+    for kwargs, match in [
+        ({"cone_deg": 0}, "cone_deg"),
+        ({"mu": True}, "mu"),
+        ({"start": (0, 0, 1, 2, -1)}, "no state"),
+        ({"trajectory": {"axis": (0, 0, 0)}}, "axis"),
+        ({"terminate_on_slip": 1}, "terminate_on_slip"),
+        ({"cone_deg": 10.0}, "no gait"),
+    ]:
+        with pytest.raises(ValueError, match=match):
+            make_gait(**kwargs)
+    env = make_gait()
+    env.reset()
+    P = env.unwrapped.task.n_pairs
+    with pytest.raises(ValueError, match="action"):
+        env.step(np.zeros(P))
+    with pytest.raises(ValueError, match="finite"):
+        env.step(np.full(env.action_space.shape, np.nan, np.float32))
+
+
+def test_gait_env_pickles():
+    import pickle
+
+    env = make_gait()
+    env.reset(seed=1)
+    action = np.zeros(env.action_space.shape, np.float32)
+    clone = pickle.loads(pickle.dumps(env))
+    a = env.step(action)
+    b = clone.step(action)
+    np.testing.assert_array_equal(a[0], b[0])
+    assert a[1] == b[1]

@@ -1,0 +1,818 @@
+"""The gait environment: hold the cube along a long rotation, choosing at every pose the grip
+and which finger to phase out or in (issue 16, docs/gait.md).
+
+Everything that does not depend on the agent is computed once per configuration (and shared by
+every environment made with it): the certified minimax of every site set at every pose, the
+hand's reach, the state tables of :mod:`grasp_env.mechanics.gait` and the dynamic programme's
+policy, which is the expert. A step looks up the move in the tables and scores the grip with
+the environments' step kernel :func:`~grasp_env.envs.kernels.evaluate_grips`; the single and
+the vector environments share :func:`_step`, so they compute the very same numbers.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from functools import cached_property, lru_cache
+from itertools import combinations
+from numbers import Integral
+from typing import Any
+
+import gymnasium as gym
+import numba
+import numpy as np
+from gymnasium import spaces
+from gymnasium.utils import seeding
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+
+from ..mechanics import (
+    PAPER_TURN,
+    GaitScene,
+    GaitSolution,
+    Hand,
+    Trajectory,
+    contact_pairs,
+    solve_gait,
+)
+from ..mechanics.gait import MIN_LOADED, GaitStates, gait_states
+from .kernels import evaluate_grips
+from .scenes import TRAJECTORY_KEYS, check_trajectory
+from .validation import (
+    DEFAULT_K_MAX_RATIO,
+    MAX_ENVS,
+    MU_RANGE,
+    check_array,
+    check_bool,
+    check_integer,
+    check_k_max_ratio,
+    check_number,
+    check_seed,
+)
+
+#: The paper's axis over [-90, 90] deg in 1 deg steps, as the ``trajectory`` keyword's mapping.
+PAPER_TURN_SPEC = {key: getattr(PAPER_TURN, key) for key in TRAJECTORY_KEYS}
+_SQRT3 = float(np.sqrt(3.0))
+#: Finger forces below this fraction of the weight are released (see :func:`_step`); float32
+#: rounding of an action moves a force by at most 6 k_max 2^-24 (7e-7 w for k_max = 2 w).
+RELEASE = 1e-5
+
+
+# ------------------------------------------------------------------------------- the task
+
+
+@dataclass(frozen=True, eq=False)
+class GaitTask:
+    """One configuration's precomputed tables (read-only, shared between environments).
+
+    Attributes:
+        solution: the certified gait problem solved (values, reach, optimal and greedy gaits
+            with their policies over every state).
+        start: the state index episodes start from.
+        csr: (X, M) the CSR index of move m from state x, -1 where the move breaks the rules.
+        pair_columns: (K, 6) for every CSR move, the action column (finger pair) of each
+            interaction pair of the loaded set, in the set's order (its sites increasing).
+        set_fingers: (K, 4) the finger at each contact of the loaded set, -1 past its size.
+        group, column: (K,) the loaded set's size group (0: three, 1: four) and its column.
+        grasps: per group, (T * S_n, n, 3) equilibrating forces F / w, (T * S_n, m, 3) unit
+            pair directions u_ij, (T * S_n, n, 3) normals (row t * S_n + column) and the
+            pairs (m, 2).
+        observations: (T + 1, 14 + 6 N) the pose part of the observation, row T after the end.
+        reach_obs: (T + 1, F N) float32 reach flags.
+        contact_obs: (X, F N) float32 one-hot contacts of every state.
+    """
+
+    solution: GaitSolution
+    start: int
+    csr: np.ndarray
+    pair_columns: np.ndarray
+    set_fingers: np.ndarray
+    group: np.ndarray
+    column: np.ndarray
+    grasps: tuple[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray], ...]
+    observations: np.ndarray
+    reach_obs: np.ndarray
+    contact_obs: np.ndarray
+    k_max_ratio: float
+    alphas: np.ndarray
+
+    @cached_property
+    def table(self) -> GaitStates:
+        return self.solution.optimal.table
+
+    @cached_property
+    def n_poses(self) -> int:
+        return len(self.alphas)
+
+    @cached_property
+    def n_fingers(self) -> int:
+        return self.solution.hand.n_fingers
+
+    @cached_property
+    def n_sites(self) -> int:
+        return self.solution.scene.n_sites
+
+    @cached_property
+    def n_pairs(self) -> int:
+        return self.n_fingers * (self.n_fingers - 1) // 2
+
+    @cached_property
+    def n_moves(self) -> int:
+        return 1 + self.n_fingers * self.n_sites
+
+    @cached_property
+    def weight(self) -> float:
+        return self.solution.scene.weight
+
+    @cached_property
+    def limit(self) -> float:
+        return self.solution.scene.friction_limit
+
+    def pose_size(self) -> int:
+        return 14 + 6 * self.n_sites
+
+
+def _pose_observations(solution: GaitSolution) -> np.ndarray:
+    """Rotation (6), site positions / L (3N), site normals (3N), load / w (3), torque / (w L)
+    (3), theta_lim and phase: (T + 1, 14 + 6N) float32, row T the last pose with phase 1."""
+    scene = solution.scene
+    rotations = solution.trajectory.rotations()
+    T = len(rotations)
+    relative = scene.sites - np.asarray(scene.cg_offset)
+    positions = np.einsum("tij,nj->tni", rotations, relative) / scene.size
+    normals = np.einsum("tij,nj->tni", rotations, scene.normals)
+    force = np.array([0.0, 0.0, -1.0]) + np.asarray(scene.extra_force) / scene.weight
+    torque = np.asarray(scene.extra_torque) / (scene.weight * scene.size)
+    rows = np.concatenate(
+        [
+            rotations[:, :, 0],
+            rotations[:, :, 1],
+            positions.reshape(T, -1),
+            normals.reshape(T, -1),
+            np.broadcast_to(force, (T, 3)),
+            np.broadcast_to(torque, (T, 3)),
+            np.full((T, 1), scene.friction_limit),
+            (np.arange(T) / T)[:, None],
+        ],
+        axis=1,
+    )
+    last = rows[-1:].copy()
+    last[0, -1] = 1.0
+    return np.vstack([rows, last]).astype(np.float32)
+
+
+@lru_cache(maxsize=8)
+def gait_task(
+    trajectory: Trajectory, mu: float, cone_deg: float, k_max_ratio: float, start: tuple | None
+) -> GaitTask:
+    """The task of one configuration (cached: every environment made with it shares it)."""
+    scene = GaitScene(mu=mu)
+    hand = Hand(cone_deg=cone_deg)
+    table = gait_states(hand.n_fingers, scene.n_sites)
+    first = None if start is None else table.states[table.index(start)]  # ValueError if no state
+    solution = solve_gait(scene, hand, trajectory, k_max_ratio * scene.weight, first)
+    F, N = table.n_fingers, table.n_sites
+    X, M = len(table.states), table.n_moves
+    if solution.optimal.margin == -np.inf:
+        raise ValueError(
+            "no gait keeps three fingers on sites within reach along this trajectory"
+            f" (cone_deg={cone_deg}); widen the cone or shorten the trajectory"
+        )
+    x0 = int(solution.optimal.states[0])
+    csr = np.full((X, M), -1, np.int64)
+    owner = np.repeat(np.arange(X), np.diff(table.ptr))
+    csr[owner, table.move] = np.arange(len(table.move))
+    finger_pairs = {p: q for q, p in enumerate(combinations(range(F), 2))}
+    K = len(table.move)
+    pair_columns = np.zeros((K, 6), np.int64)
+    set_fingers = np.full((K, 4), -1, np.int64)
+    group = np.empty(K, np.int64)
+    column = np.empty(K, np.int64)
+    lookup = {}
+    for members in solution.values.groups:
+        for c, s in enumerate(members.members):
+            lookup[int(s)] = (members.sites.shape[1] - 3, c)
+    sets = solution.values.sets
+    for k in range(K):
+        a = table.states[owner[k]].copy()
+        m = int(table.move[k])
+        if m:
+            f, s = divmod(m - 1, N)
+            if a[f] == s:
+                a[f] = -1  # lifted: carries no load
+        sites = sets[table.loaded[k]]
+        fingers = [int(np.flatnonzero(a == s)[0]) for s in sites]
+        set_fingers[k, : len(fingers)] = fingers
+        for q, (i, j) in enumerate(combinations(range(len(fingers)), 2)):
+            pair_columns[k, q] = finger_pairs[tuple(sorted((fingers[i], fingers[j])))]
+        group[k], column[k] = lookup[int(table.loaded[k])]
+    grasps = []
+    for n in (3, 4):
+        p = contact_pairs(n)
+        found = [m for m in solution.values.groups if m.sites.shape[1] == n]
+        if not found:  # no usable set of this size: a placeholder no move refers to
+            grasps.append((np.zeros((0, n, 3)), np.zeros((0, len(p), 3)), np.zeros((0, n, 3)), p))
+            continue
+        g = found[0].grasp
+        T, S = g.equilibrating.shape[:2]
+        u = g.basis[:, :, np.arange(len(p)), p[:, 0], :]  # +u_ij at contact i
+        grasps.append(
+            (
+                np.ascontiguousarray(g.equilibrating.reshape(T * S, n, 3) / scene.weight),
+                np.ascontiguousarray(u.reshape(T * S, len(p), 3)),
+                np.ascontiguousarray(g.normals.reshape(T * S, n, 3)),
+                p,
+            )
+        )
+    reach = solution.reach.reshape(len(solution.trajectory), -1).astype(np.float32)
+    contact_obs = np.zeros((X, F, N), np.float32)
+    fingers, touched = np.nonzero(table.states >= 0)
+    contact_obs[fingers, touched, table.states[fingers, touched]] = 1.0
+    task = GaitTask(
+        solution,
+        x0,
+        csr,
+        pair_columns,
+        set_fingers,
+        group,
+        column,
+        tuple(grasps),
+        _pose_observations(solution),
+        np.vstack([reach, reach[-1:]]),
+        contact_obs.reshape(X, F * N),
+        k_max_ratio,
+        solution.trajectory.alphas_deg,
+    )
+    for array in (csr, pair_columns, set_fingers, group, column, task.observations):
+        array.flags.writeable = False
+    return task
+
+
+# ------------------------------------------------------------------------------ the step
+
+
+@numba.njit(cache=True, nogil=True)
+def _step_kernel(
+    xs, ts, actions, csr, states, ptr, move, nxt, code, reach, group, column, pair_columns,
+    set_fingers, grasps3, grasps4, k_max_ratio, weight, limit, release, observations,
+    contact_obs, reach_obs,
+    next_x, reward, dropped, refused, lost, moves, theta, loaded, k_out, forces, obs_out,
+):  # fmt: skip
+    """One step of B sub-environments in states ``xs`` at poses ``ts`` (see :func:`_step`)."""
+    B = xs.shape[0]
+    F = states.shape[1]
+    N = reach.shape[2]
+    T = reach.shape[0]
+    P = F * (F - 1) // 2
+    base = N + 1
+    chosen = np.full(B, -1, np.int64)
+    theta[:] = 0.0
+    loaded[:] = False
+    k_out[:] = 0.0
+    forces[:] = 0.0
+    lost[:] = False
+    refused[:] = False
+    moves[:] = 0
+    for b in range(B):
+        x, t = xs[b], ts[b]
+        # 1. contacts out of reach are lost under load: the move is void
+        left = 0
+        c = 0
+        power = 1
+        for f in range(F):
+            s = states[x, f]
+            if s >= 0 and not reach[t, f, s]:
+                lost[b, f] = True
+            elif s >= 0:
+                left += 1
+                c += (s + 1) * power
+            power *= base
+        if left < F and lost[b].any():
+            reward[b] = limit - 0.5 * np.pi  # a lost finger's angle counts as 90 deg
+            next_x[b] = code[c] if left >= MIN_LOADED else -1
+            continue
+        # 2. the move: the argmax of the scores (ties: the lower move, keep first)
+        m = 0
+        for j in range(1, actions.shape[1] - P):
+            if actions[b, P + j] > actions[b, P + m]:
+                m = j
+        k = csr[x, m]
+        if k >= 0 and m > 0:
+            f = (m - 1) // N
+            s = (m - 1) % N
+            if states[x, f] < 0 and not reach[t, f, s]:
+                k = -1  # a placement out of reach
+        if k < 0:
+            refused[b] = True
+            k = ptr[x]  # keep
+        chosen[b] = k
+        moves[b] = move[k]
+        next_x[b] = nxt[k]
+    # 3. the grips of the loaded sets, by the environments' step kernel (eq. 4, eq. 2), one
+    # call per set size
+    for size in range(2):
+        g = grasps3 if size == 0 else grasps4
+        n = g[0].shape[1]
+        m_pairs = g[1].shape[1]
+        count = 0
+        for b in range(B):
+            if chosen[b] >= 0 and group[chosen[b]] == size:
+                count += 1
+        if count == 0:
+            continue
+        S = g[0].shape[0] // T
+        items = np.empty(count, np.int64)
+        rows = np.empty(count, np.int64)
+        grip = np.empty((count, m_pairs))
+        j = 0
+        for b in range(B):
+            k = chosen[b]
+            if k >= 0 and group[k] == size:
+                items[j] = b
+                rows[j] = ts[b] * S + column[k]
+                for q in range(m_pairs):
+                    grip[j, q] = actions[b, pair_columns[k, q]]
+                j += 1
+        _, kk, net, angles, _, _ = evaluate_grips(
+            g[0], g[1], g[2], g[3], rows, grip, k_max_ratio, np.full(count, weight),
+            np.full(count, limit),
+        )  # fmt: skip
+        for j in range(count):
+            b = items[j]
+            k = chosen[b]
+            worst = np.inf
+            for i in range(n):
+                f = set_fingers[k, i]
+                size_i = math.sqrt(net[j, i, 0] ** 2 + net[j, i, 1] ** 2 + net[j, i, 2] ** 2)
+                # released (below RELEASE w): no meaningful direction, inside its cone
+                angle = 0.0 if size_i < release * weight else angles[j, i]
+                theta[b, f] = angle
+                loaded[b, f] = True
+                worst = min(worst, limit - angle)
+                for a in range(3):
+                    forces[b, f, a] = net[j, i, a]
+            for q in range(m_pairs):
+                k_out[b, pair_columns[k, q]] = kk[j, q]
+            reward[b] = worst
+    # 4. the next observations (the last pose's, phase 1, after the end)
+    width = observations.shape[1]
+    cells = contact_obs.shape[1]
+    for b in range(B):
+        dropped[b] = next_x[b] < 0
+        t1 = min(ts[b] + 1, T)
+        obs_out[b, :width] = observations[t1]
+        if dropped[b]:
+            obs_out[b, width : width + cells] = 0.0
+        else:
+            obs_out[b, width : width + cells] = contact_obs[next_x[b]]
+        obs_out[b, width + cells :] = reach_obs[t1]
+
+
+def _step(task: GaitTask, xs: np.ndarray, ts: np.ndarray, actions: np.ndarray):
+    """Step a batch of states ``xs`` (B,) at poses ``ts`` with ``actions`` (B, P + M): returns
+    (next states (-1: dropped), rewards, observations, info arrays)."""
+    table = task.table
+    B, F, P = len(xs), task.n_fingers, task.n_pairs
+    out = {
+        "next": np.empty(B, np.int64),
+        "reward": np.empty(B),
+        "dropped": np.empty(B, bool),
+        "refused": np.empty(B, bool),
+        "lost": np.empty((B, F), bool),
+        "move": np.empty(B, np.int64),
+        "theta": np.empty((B, F)),
+        "loaded": np.empty((B, F), bool),
+        "k": np.empty((B, P)),
+        "contact_forces": np.empty((B, F, 3)),
+        "obs": np.empty((B, task.observations.shape[1] + 2 * task.contact_obs.shape[1]),
+                        np.float32),
+    }  # fmt: skip
+    _step_kernel(
+        xs, ts, actions, task.csr, table.states, table.ptr, table.move, table.next, table.code,
+        task.solution.reach, task.group, task.column, task.pair_columns, task.set_fingers,
+        task.grasps[0], task.grasps[1], task.k_max_ratio, task.weight, task.limit, RELEASE,
+        task.observations, task.contact_obs, task.reach_obs, *out.values(),
+    )  # fmt: skip
+    return out
+
+
+_INFO = ("refused", "lost", "move", "theta", "loaded", "k", "contact_forces")
+
+
+def _check_actions(actions: Any, shape: tuple[int, ...]) -> np.ndarray:
+    if type(actions) is np.ndarray and actions.dtype.kind == "f" and actions.shape == shape:
+        array = actions
+    else:
+        array = check_array("action", actions, shape)
+    if not np.isfinite(array).all():
+        raise ValueError(f"actions must be finite numbers, got {array.tolist()}")
+    return array
+
+
+# ------------------------------------------------------------------------- the policies
+
+
+class _GaitPolicy:
+    """Acts from observations with a move table over (pose, state) and the certified grip."""
+
+    def __init__(
+        self,
+        trajectory: Mapping[str, Any] | None = None,
+        mu: float = 0.5,
+        cone_deg: float = 60.0,
+        k_max_ratio: float = DEFAULT_K_MAX_RATIO,
+    ) -> None:
+        self.task = _task(trajectory, mu, cone_deg, k_max_ratio, None)
+
+    def _policy(self) -> np.ndarray:
+        raise NotImplementedError
+
+    def predict(
+        self,
+        observation: Any,
+        state: Any = None,
+        episode_start: Any = None,
+        deterministic: bool = True,
+    ) -> tuple[np.ndarray, None]:
+        """Actions for one observation (size,) or a batch (B, size): returns (actions, None)
+        (the signature of a Stable-Baselines3 model's ``predict``)."""
+        task = self.task
+        obs = np.asarray(observation, dtype=np.float64)
+        size = task.pose_size() + 2 * task.n_fingers * task.n_sites
+        if obs.ndim not in (1, 2) or obs.shape[-1] != size:
+            raise ValueError(f"observation must be ({size},) or (batch, {size}), got {obs.shape}")
+        if not np.all(np.isfinite(obs)):
+            raise ValueError("observation must be finite")
+        batch = obs.reshape(-1, size)
+        T, F, N = task.n_poses, task.n_fingers, task.n_sites
+        t = np.minimum(np.rint(batch[:, task.pose_size() - 1] * T).astype(np.int64), T - 1)
+        onehot = batch[:, task.pose_size() : task.pose_size() + F * N].reshape(-1, F, N) > 0.5
+        assignment = np.where(onehot.any(axis=2), onehot.argmax(axis=2), -1)
+        code = ((assignment + 1) * (N + 1) ** np.arange(F)).sum(axis=1)
+        x = task.table.code[code]
+        if np.any(x < 0):
+            raise ValueError("the observation's contacts are no state of the hand")
+        k = self._policy()[t, x]
+        actions = np.full((len(batch), task.n_pairs + task.n_moves), -1.0, np.float32)
+        actions[np.arange(len(batch)), task.n_pairs + task.table.move[k]] = 1.0
+        actions[:, : task.n_pairs] = 0.0
+        for members in task.solution.values.groups:
+            rows = np.flatnonzero(task.group[k] == members.sites.shape[1] - 3)
+            grip = members.optimum.k[t[rows], task.column[k[rows]]] / (
+                task.k_max_ratio * task.weight
+            )
+            m = grip.shape[1]
+            actions[rows[:, None], task.pair_columns[k[rows], :m]] = np.clip(grip, -1, 1)
+        return (actions[0] if obs.ndim == 1 else actions), None
+
+
+class GaitExpert(_GaitPolicy):
+    """The certified optimal gait as a policy: from the pose (the observation's phase) and the
+    hand's contacts, the dynamic programme's move (optimal from any state, not only along
+    its own gait) and the certified minimax grip of the fingers that then carry load.
+
+    Args: the gait environment's ``trajectory``, ``mu``, ``cone_deg`` and ``k_max_ratio``.
+    """
+
+    def _policy(self) -> np.ndarray:
+        return self.task.solution.optimal.policy
+
+
+class GreedyGait(_GaitPolicy):
+    """The greedy baseline as a policy: at each pose the move that maximises the smaller of
+    this pose's margin and the best the next pose then allows, with the certified grip."""
+
+    def _policy(self) -> np.ndarray:
+        return self.task.solution.greedy.policy
+
+
+def _task(
+    trajectory: Mapping[str, Any] | None,
+    mu: float,
+    cone_deg: float,
+    k_max_ratio: float,
+    start: Sequence[int] | None,
+) -> GaitTask:
+    spec = {**PAPER_TURN_SPEC, **(dict(trajectory) if trajectory is not None else {})}
+    trajectory = check_trajectory(spec)
+    mu = check_number("mu", mu, *MU_RANGE)
+    cone_deg = check_number("cone_deg", cone_deg, 0.0, 180.0, open_low=True, open_high=True)
+    k_max_ratio = check_k_max_ratio(k_max_ratio)
+    start = None if start is None else tuple(int(s) for s in start)
+    return gait_task(trajectory, mu, cone_deg, k_max_ratio, start)
+
+
+# ------------------------------------------------------------------------ the environments
+
+
+class CubeGaitEnv(gym.Env[np.ndarray, np.ndarray]):
+    """Phase fingers out and in: hold the cube along a long rotation with a hand that reaches.
+
+    ## Description
+    The paper promises "an algorithm ... when to phase out a finger": a finger may reach a
+    joint limit while the object turns, and must then hand its load to the others. A hand of
+    five fingers (`grasp_env.mechanics.Hand`: four below the cube pushing up and inwards a
+    quarter turn apart, a thumb above pushing down) can push on a face only while the face's
+    inward normal lies within `cone_deg` (60 deg) of the finger's approach. The cube (unit
+    edge, w = 5 N, centre of gravity 0.05 m off centre) carries one contact site per face,
+    off-centre (`grasp_env.mechanics.gait.SITE_OFFSETS`); it turns about the paper's axis
+    from -90 to +90 deg in 1 deg steps (181 poses). No fixed set of fingers stays within
+    reach for the whole turn: at every pose the agent chooses the grip (the interaction
+    forces of the fingers that carry load) and may lift one finger or place one. It is
+    sequential: a finger must be lifted (with zero force, the others holding) before its
+    site leaves its reach, and placed (within reach) before it is needed. The certified
+    optimal gait (the dynamic programme of docs/gait.md) keeps a worst margin of 6.97 deg;
+    the greedy one-pose lookahead drops the cube at alpha = -19 deg.
+
+    ## Action Space
+    `Box(-1, 1, (P + M,), float32)` with P = F (F - 1) / 2 = 10 finger pairs and
+    M = 1 + F N = 31 moves (F = 5 fingers, N = 6 sites):
+    - `action[:P]`: the grip, k_fg = a_fg x k_max for the finger pairs (f, g), f < g, in the
+      order of `grasp_env.mechanics.contact_pairs(5)` (k_max = `k_max_ratio` x w; k > 0
+      squeezes the pair, eq. 4); pairs whose fingers do not both carry load are ignored.
+    - `action[P:]`: scores of the moves; the move made is the argmax (ties: the lower index).
+      Move 0 keeps the contacts; move 1 + f N + s toggles finger f on site s: it lifts f if f
+      is on s (f carries no force at this pose and is gone from the next), and places f on s
+      if both are free (f touches with zero force now and carries load from the next pose).
+      Fingers are 0-3 (finger1-finger4) and 4 (the thumb); sites 0-5 on the faces
+      -x, -y, -z, +x, +y, +z.
+
+    ## Observation Space
+    `Box(low, high, (110,), float32)`, world frame, forces in units of w, lengths of L:
+
+    | index     | observation                                                | bounds  |
+    |-----------|------------------------------------------------------------|---------|
+    | 0-5       | first two columns of the orientation R                     | [-1, 1] |
+    | 6-23      | site positions R (c_s - g) / L, site by site               | [-√3, √3] |
+    | 24-41     | inward site normals R nu_s                                 | [-1, 1] |
+    | 42-44     | load force (0, 0, -1) + f_d / w                            | [-2, 1] |
+    | 45-47     | extra torque tau_d / (w L)                                 | [-1, 1] |
+    | 48        | friction limit theta_lim = atan(mu), radians               | [0, pi/2] |
+    | 49        | phase: steps taken / trajectory length                     | [0, 1]  |
+    | 50-79     | contacts: 1 where finger f touches site s (index 50 + f N + s) | {0, 1} |
+    | 80-109    | reach: 1 where finger f can push on site s at this pose    | {0, 1}  |
+
+    ## Rewards
+    min over the fingers that carry load of (theta_lim - theta_i), radians (eq. 2, 4), as in
+    the other environments; a finger commanded below 1e-5 w (`RELEASE`) is released, its
+    angle counted as 0 (the optimum often lets the fourth finger go, and float32 actions
+    alone leave such a finger ~1e-6 w in an arbitrary direction). A finger whose site has
+    left its reach while it touches the object has lost its contact under load: the step's
+    reward is theta_lim - pi/2 (its friction angle counts as 90 deg: it cannot push).
+
+    ## The hand's rules
+    - Refused (the move is ignored, `info["refused"]`, the grip still applies): lifting a
+      finger when only three touch (fewer than three would carry load), placing a finger when
+      four touch, on a site taken or out of its reach, or toggling a finger on a site it is
+      not on while it touches another.
+    - Lost contact (`info["lost"]`): a touching finger whose site is out of its reach at this
+      pose leaves the hand; a slip (see Episode End). With fewer than three fingers left the
+      cube drops.
+    - A finger is never lifted under load: a lift takes its force to zero at that pose.
+
+    ## Starting State
+    The first pose (alpha = -90 deg), the hand in the optimal gait's first state (finger1 on
+    -z, finger3 on +x, finger4 on +y); nothing is random. `start` sets another first state.
+
+    ## Episode End
+    - Termination: the cube drops (fewer than three fingers left), or, with
+      `terminate_on_slip=True`, a loaded finger slips (theta_i > theta_lim) or a contact is
+      lost.
+    - Truncation: after the last pose.
+
+    ## Info
+    `alpha_deg`, `contacts` (F,) the site each finger touches after the step's move (-1: none),
+    `move` (the move made, 0 if refused), `refused`, `lost` (F,) bool, `loaded` (F,) bool (the
+    fingers that carried load), `theta` (F,) radians (0 for a finger carrying no load), `k`
+    (P,) newtons (0 for pairs not both loaded),
+    `contact_forces` (F, 3) newtons, `slip` (F,) bool, `expert_reward` (the optimal gait's
+    margin at this pose, from the episode's start).
+
+    ## Arguments
+    ```python
+    gym.make("grasp_env/CubeGait-v0", trajectory=None, mu=0.5, cone_deg=60.0,
+             k_max_ratio=2.0, terminate_on_slip=True, start=None)
+    ```
+    - `trajectory`: a mapping with the keys `axis`, `alpha_start_deg`, `alpha_end_deg`,
+      `alpha_step_deg` (missing keys: the paper's axis over [-90, 90] deg by 1 deg); e.g.
+      `{"axis": (0, 0, 1), "alpha_start_deg": -180, "alpha_end_deg": 180}`, a full turn about
+      the vertical (the cube turns about its own diagonal).
+    - `mu`: the friction coefficient. `cone_deg`: the half-angle of every finger's cone.
+    - `k_max_ratio`: k_max / w. `terminate_on_slip`: see Episode End.
+    - `start`: the first state, an assignment of a site (0-5, or -1 for none) to each of the
+      five fingers, 3 or 4 touching; default the optimal gait's.
+    The configuration is solved when the first environment with it is made (about 3 s: the
+    certified minimax of 35 site sets at 181 poses and the dynamic programme), then shared.
+
+    ## Version History
+    - v0: initial version.
+    """
+
+    metadata = {"render_modes": []}  # noqa: RUF012
+
+    def __init__(
+        self,
+        trajectory: Mapping[str, Any] | None = None,
+        mu: float = 0.5,
+        cone_deg: float = 60.0,
+        k_max_ratio: float = DEFAULT_K_MAX_RATIO,
+        terminate_on_slip: bool = True,
+        start: Sequence[int] | None = None,
+        render_mode: str | None = None,
+    ) -> None:
+        if render_mode is not None:
+            raise ValueError(f"the gait environment has no render modes, got {render_mode!r}")
+        self.render_mode = None
+        self.task = _task(trajectory, mu, cone_deg, k_max_ratio, start)
+        self.terminate_on_slip = check_bool("terminate_on_slip", terminate_on_slip)
+        task = self.task
+        P, M = task.n_pairs, task.n_moves
+        F, N = task.n_fingers, task.n_sites
+        self.action_space = spaces.Box(-1.0, 1.0, (P + M,), dtype=np.float32)
+        low = np.concatenate(
+            [-np.ones(6), np.full(3 * N, -_SQRT3), -np.ones(3 * N), [-2.0, -2.0, -2.0],
+             -np.ones(3), [0.0, 0.0], np.zeros(2 * F * N)]
+        )  # fmt: skip
+        high = np.concatenate(
+            [np.ones(6), np.full(3 * N, _SQRT3), np.ones(3 * N), np.ones(3), np.ones(3),
+             [np.pi / 2, 1.0], np.ones(2 * F * N)]
+        )  # fmt: skip
+        self.observation_space = spaces.Box(
+            low.astype(np.float32), high.astype(np.float32), dtype=np.float32
+        )
+        self._x = task.start
+        self._t = 0
+        self._done = True
+
+    def _observation(self, x: int, t: int) -> np.ndarray:
+        task = self.task
+        return np.concatenate([task.observations[t], task.contact_obs[x], task.reach_obs[t]])
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        super().reset(seed=check_seed("seed", seed))
+        if options:  # None and {} are the only options
+            raise ValueError(f"the gait environment takes no reset options, got {options!r}")
+        self._x, self._t, self._done = self.task.start, 0, False
+        return self._observation(self._x, 0), {}
+
+    def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        if self._done:
+            raise RuntimeError("the episode has ended (or not started): call reset()")
+        task = self.task
+        a = _check_actions(action, self.action_space.shape)
+        t = self._t
+        F = task.n_fingers
+        out = _step(task, np.array([self._x]), np.array([t]), a.reshape(1, -1))
+        dropped = bool(out["dropped"][0])
+        slip = (out["theta"][0] > task.limit) | out["lost"][0]
+        terminated = dropped or (self.terminate_on_slip and bool(slip.any()))
+        self._t = t + 1
+        truncated = self._t == task.n_poses and not terminated
+        self._done = terminated or truncated
+        if not dropped:
+            self._x = int(out["next"][0])
+        info = {key: out[key][0] for key in _INFO}
+        info.update(
+            alpha_deg=float(task.alphas[t]),
+            contacts=task.table.states[self._x].copy() if not dropped else np.full(F, -1),
+            slip=slip,
+            expert_reward=float(task.solution.optimal.margins[t]),
+        )
+        return out["obs"][0], float(out["reward"][0]), terminated, truncated, info
+
+
+class CubeGaitVectorEnv(VectorEnv):
+    """Batched `grasp_env/CubeGait-v0`: N sub-environments stepped by one table look-up and
+    one step-kernel call per set size; step for step equal to N single environments.
+
+    Args:
+        num_envs: number of sub-environments.
+        autoreset_mode: ``AutoresetMode.NEXT_STEP`` (the step after an episode ends resets
+            that sub-environment, ignoring its action, with reward 0) or ``SAME_STEP`` (it
+            resets at once; the last observation and info are in ``info["final_obs"]`` and
+            ``info["final_info"]``).
+        **kwargs: the single environment's keywords.
+    """
+
+    metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP, "render_modes": []}  # noqa: RUF012
+
+    def __init__(
+        self,
+        num_envs: int = 1,
+        autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
+        **kwargs: Any,
+    ) -> None:
+        self.num_envs = check_integer("num_envs", num_envs, 1, MAX_ENVS)
+        modes = (AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP)
+        try:
+            mode = AutoresetMode(autoreset_mode)
+        except ValueError:
+            mode = None
+        if mode not in modes:
+            raise ValueError(
+                f"autoreset_mode must be one of {[m.value for m in modes]}, got {autoreset_mode!r}"
+            )
+        self.autoreset_mode = mode
+        self.metadata = {**self.metadata, "autoreset_mode": mode}
+        self.render_mode = None
+        self.template = CubeGaitEnv(**kwargs)
+        self.task = self.template.task
+        self.terminate_on_slip = self.template.terminate_on_slip
+        self.single_observation_space = self.template.observation_space
+        self.single_action_space = self.template.action_space
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+        self._x = np.full(self.num_envs, self.task.start, np.int64)
+        self._t = np.zeros(self.num_envs, np.int64)
+        self._autoreset = np.zeros(self.num_envs, bool)
+        self._started = False
+
+    def _observations(self, x: np.ndarray, t: np.ndarray) -> np.ndarray:
+        task = self.task
+        return np.concatenate(
+            [task.observations[t], task.contact_obs[x], task.reach_obs[t]], axis=1
+        )
+
+    def reset(
+        self, *, seed: int | Sequence[int | None] | None = None, options: Any = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        """Reset every sub-environment (nothing is random: ``seed`` seeds ``np_random``)."""
+        if seed is None or isinstance(seed, Integral):
+            check_seed("seed", seed)
+        elif isinstance(seed, Sequence | np.ndarray) and not isinstance(seed, str | bytes):
+            if len(seed) != self.num_envs:
+                raise ValueError(f"seed must list {self.num_envs} seeds, got {len(seed)}")
+            for i, s in enumerate(seed):
+                check_seed(f"seed[{i}]", s)
+            seed = seed[0]
+        else:
+            raise ValueError(f"seed must be None, an integer >= 0 or a list, got {seed!r}")
+        if seed is not None:
+            self._np_random, _ = seeding.np_random(int(seed))
+        if options:  # None and {} are the only options
+            raise ValueError(f"the gait environment takes no reset options, got {options!r}")
+        self._x[:] = self.task.start
+        self._t[:] = 0
+        self._autoreset[:] = False
+        self._started = True
+        return self._observations(self._x, self._t), {}
+
+    def step(
+        self, actions: Any
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+        if not self._started:
+            raise RuntimeError("call reset() before step()")
+        task = self.task
+        a = _check_actions(actions, self.action_space.shape)
+        restarting = np.flatnonzero(self._autoreset)
+        if restarting.size:  # NEXT_STEP: these reset and ignore their action (stepped from the
+            self._x[restarting] = task.start  # start so that the kernel has a state; undone below)
+            self._t[restarting] = 0
+        t = self._t.copy()
+        out = _step(task, self._x, t, a)
+        dropped, reward, observations = out["dropped"], out["reward"], out["obs"]
+        slip = (out["theta"] > task.limit) | out["lost"]
+        terminated = dropped | (slip.any(axis=1) if self.terminate_on_slip else False)
+        self._t = t + 1
+        truncated = (self._t == task.n_poses) & ~terminated
+        self._x = np.where(dropped, self._x, out["next"])
+        info = {key: out[key] for key in _INFO}
+        info.update(
+            alpha_deg=task.alphas[t],
+            contacts=np.where(dropped[:, None], -1, task.table.states[self._x]),
+            slip=slip,
+            expert_reward=task.solution.optimal.margins[t],
+        )
+        mask = np.ones(self.num_envs, bool)
+        if restarting.size:  # they start afresh: the first observation, nothing happened
+            self._x[restarting] = task.start
+            self._t[restarting] = 0
+            observations[restarting] = self._observations(self._x[restarting], self._t[restarting])
+            reward[restarting] = 0.0
+            terminated[restarting] = False
+            truncated[restarting] = False
+            mask[restarting] = False
+        done = terminated | truncated
+        if self.autoreset_mode == AutoresetMode.SAME_STEP and done.any():
+            ended = np.flatnonzero(done)
+            final_obs = np.full(self.num_envs, None, dtype=object)
+            final_obs[ended] = list(observations[ended])
+            final_info = {**info, **{f"_{key}": done for key in info}}
+            self._x[ended] = task.start
+            self._t[ended] = 0
+            observations[ended] = self._observations(self._x[ended], self._t[ended])
+            info.update({f"_{key}": ~done for key in list(info)})
+            info.update(
+                final_obs=final_obs, _final_obs=done, final_info=final_info, _final_info=done
+            )
+        else:
+            if self.autoreset_mode == AutoresetMode.NEXT_STEP:
+                self._autoreset = done
+            info.update({f"_{key}": mask for key in list(info)})
+        return observations, reward, terminated, truncated, info
+
+
+__all__ = ["CubeGaitEnv", "CubeGaitVectorEnv", "GaitExpert", "GaitTask", "GreedyGait", "gait_task"]
