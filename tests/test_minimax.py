@@ -2,6 +2,11 @@
 
 from __future__ import annotations
 
+import importlib
+import os
+import pkgutil
+import subprocess
+import sys
 from dataclasses import fields
 
 import numpy as np
@@ -351,3 +356,63 @@ def test_bad_shapes_and_values() -> None:
     bad = type(g)(g.positions, g.normals, g.equilibrating[..., :2, :], g.basis, g.friction_limit)
     with pytest.raises(ValueError, match="shape"):
         solve_minimax(bad, 10.0)
+
+
+CALLEE = (
+    "from grasp_env.mechanics.minimax.jit import kernel\n\n\n@kernel\ndef value():\n    return {}\n"
+)
+CALLER = (
+    "from grasp_env.mechanics.minimax.jit import entry\n\nfrom .callee import value\n\n\n"
+    "@entry\ndef call():\n    return value()\n"
+)
+KEYED = (
+    "import os\n\nfrom grasp_env.mechanics.minimax import jit\n\n"
+    "jit.register_package(os.path.dirname(__file__))\n"
+)
+
+
+def test_kernel_cache_follows_an_edited_callee(tmp_path) -> None:
+    """numba checks only the cached function's own file, but its machine code holds its
+    callees' from other modules; the kernels' cache is keyed on every module of their package,
+    so an edit to a callee in another module recompiles the caller (run in subprocesses, on a
+    small package made with the kernels' decorators, as the solver's would take a minute)."""
+    package = tmp_path / "kernels_copy"
+    package.mkdir()
+    (package / "__init__.py").write_text(KEYED)
+    (package / "caller.py").write_text(CALLER)
+    script = (
+        "from kernels_copy.caller import call; "
+        "print(call(), sum(call.stats.cache_hits.values()), sum(call.stats.cache_misses.values()))"
+    )
+    env = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_CACHE")}
+
+    def run() -> list[int]:
+        done = subprocess.run(
+            [sys.executable, "-c", script], cwd=tmp_path, env=env, capture_output=True, text=True
+        )
+        assert done.returncode == 0, done.stderr
+        return [int(word) for word in done.stdout.split()]
+
+    (package / "callee.py").write_text(CALLEE.format(1))
+    assert run() == [1, 0, 1]  # compiled
+    assert run() == [1, 1, 0]  # loaded from the cache
+    (package / "callee.py").write_text(CALLEE.format(2))
+    assert run() == [2, 0, 1]  # the caller's file did not change, yet it is compiled again
+    assert run() == [2, 1, 0]
+
+
+def test_every_kernel_is_keyed_on_its_package() -> None:
+    """Every compiled function of the solver's package uses the package-keyed cache."""
+    from numba.core.registry import CPUDispatcher
+
+    import grasp_env.mechanics.minimax as package
+    from grasp_env.mechanics.minimax import jit
+
+    count = 0
+    for info in pkgutil.iter_modules(package.__path__):
+        module = importlib.import_module(f"{package.__name__}.{info.name}")
+        for value in vars(module).values():
+            if isinstance(value, CPUDispatcher) and value.__module__ == module.__name__:
+                assert isinstance(value._cache._impl.locator, jit.LOCATORS), value
+                count += 1
+    assert count >= 30

@@ -2,7 +2,8 @@
 
 The problem is quasi-convex: theta_i <= t < 90 deg exactly when P_i(k) = F_i + A_i k (eq. 4)
 lies in the cone |P_i - (n_i . P_i) n_i| <= tan(t) (n_i . P_i), convex in k. The solver
-(numba kernels in ``_minimax_kernels``) works in three stages for each grasp:
+(numba kernels in the modules of this package, see docs/solver.md) works in three stages
+for each grasp:
 
 1. **Primal.** From the k that minimises the tangential forces (exact when they can all
    vanish: the paper's scene, whose normal lines meet at the centre of gravity, has optimum
@@ -48,13 +49,16 @@ import math
 import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from enum import IntEnum
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-from . import _minimax_kernels as kernels
-from .forces import Grasp, n_pairs
+from ..forces import Grasp, n_pairs
+from . import codes
+from .codes import Path, Status
+
+__all__ = ["MinimaxResult", "Path", "Status", "solve_minimax"]
+from .driver import solve_batch
 
 _THREADS = max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else 1)
 _PARALLEL_FROM = 64  # smaller batches are not worth the hand-off to threads
@@ -67,14 +71,6 @@ def _pool() -> ThreadPoolExecutor:
     if _executor is None:
         _executor = ThreadPoolExecutor(_THREADS, thread_name_prefix="minimax")
     return _executor
-
-
-class Status(IntEnum):
-    """Where the optimum lies."""
-
-    INTERIOR = kernels.INTERIOR  #: the box does not limit the optimum
-    BOUNDARY = kernels.BOUNDARY  #: the optimum is on the box: the interaction forces would grow
-    NOT_PUSHING = kernels.NOT_PUSHING  #: no k in the box keeps every finger pushing (>= 90 deg)
 
 
 @dataclass(frozen=True)
@@ -117,7 +113,8 @@ def _positive_limit(name: str, value: ArrayLike, batch: tuple[int, ...]) -> np.n
     array = _broadcast(name, np.asarray(value, dtype=float), batch)
     if not np.all(np.isfinite(array)) or np.any(array <= 0):
         raise ValueError(f"{name} must be finite and > 0 (newtons), got {np.unique(array)[:5]}")
-    return np.ascontiguousarray(array, dtype=float).reshape(-1)
+    # a kernel array: a read-only one would make numba compile the whole solver again
+    return _kernel_array(array.reshape(-1))
 
 
 def _positive_number(name: str, value: ArrayLike) -> float:
@@ -153,22 +150,22 @@ def _refused(
     b = int(np.flatnonzero(path < 0)[0])
     code = int(path[b])
     where = f" (grasp {b} of the flattened batch)" if path.size > 1 else ""
-    scale = float(np.linalg.norm(F[b], axis=-1).max()) if code != kernels.INVALID else 0.0
-    low, high = kernels.RATIO_RANGE
-    if code == kernels.BAD_NORMAL:
+    scale = float(np.linalg.norm(F[b], axis=-1).max()) if code != codes.INVALID else 0.0
+    low, high = codes.RATIO_RANGE
+    if code == codes.BAD_NORMAL:
         lengths = np.linalg.norm(N[b], axis=-1)
         return ValueError(
-            f"grasp normals must be unit vectors (length within {kernels.UNIT_TOL:g} of 1), "
+            f"grasp normals must be unit vectors (length within {codes.UNIT_TOL:g} of 1), "
             f"got lengths {np.round(lengths, 9).tolist()}{where}"
         )
-    if code == kernels.BAD_LOAD:
+    if code == codes.BAD_LOAD:
         return ValueError(
             "the load's scale (the largest equilibrating force |F_i|) must be 0 or within "
-            f"[{kernels.LOAD_RANGE[0]:g}, {kernels.LOAD_RANGE[1]:g}] N, got {scale:.3g} N{where}"
+            f"[{codes.LOAD_RANGE[0]:g}, {codes.LOAD_RANGE[1]:g}] N, got {scale:.3g} N{where}"
         )
     for name, value, bad in (
-        ("k_max", k_lim[b], kernels.BAD_K_MAX),
-        ("f_max", f_lim[b], kernels.BAD_F_MAX),
+        ("k_max", k_lim[b], codes.BAD_K_MAX),
+        ("f_max", f_lim[b], codes.BAD_F_MAX),
     ):
         if code == bad:
             return ValueError(
@@ -229,7 +226,7 @@ def solve_minimax(
         lower = np.empty(1)
         status = np.empty(1, dtype=np.int8)
         path = np.empty(1, dtype=np.int8)
-        kernels.solve_batch(
+        solve_batch(
             _kernel_array(F)[None],
             _kernel_array(E)[None],
             _kernel_array(N)[None],
@@ -267,7 +264,7 @@ def solve_minimax(
     path = np.empty(size, dtype=np.int8)
     arrays = (F, E, N, k_lim, f_lim, k, angles, lower, status, path, follows)
     if size < _PARALLEL_FROM or _THREADS == 1:
-        kernels.solve_batch(*arrays, 0, size)
+        solve_batch(*arrays, 0, size)
     else:
         # the kernel releases the GIL: the cores share a few contiguous chunks each, so that
         # one that finishes early takes the next (hard grasps cluster along trajectories);
@@ -278,8 +275,7 @@ def solve_minimax(
         bounds = np.unique(heads[np.searchsorted(heads, even)])
         bounds = np.unique(np.append(0, bounds))
         chunks = [
-            _pool().submit(kernels.solve_batch, *arrays, lo, hi)
-            for lo, hi in itertools.pairwise(bounds)
+            _pool().submit(solve_batch, *arrays, lo, hi) for lo, hi in itertools.pairwise(bounds)
         ]
         for chunk in chunks:
             chunk.result()

@@ -1,0 +1,91 @@
+"""The kernels' numba decorators, with a cache keyed on every kernel module's source.
+
+numba's cache checks only the source file of the function it caches, but a compiled kernel
+holds the code of every callee it calls, from whatever module: after an edit to a callee in
+another module, numba would silently load the stale machine code. Here the cache of every
+function defined in a registered package directory is keyed on a hash of all the ``.py``
+files in that directory, so that an edit to any of them recompiles every kernel (numba
+overwrites an index whose key differs). Everything else (where the cache lives,
+NUMBA_CACHE_DIR, the fallbacks for a read-only install) is numba's own.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import os
+
+from numba import njit
+from numba.core import caching
+
+_PACKAGES: set[str] = set()
+
+
+def _package_stamp(directory: str) -> str:
+    """SHA-256 of the names and contents of the directory's ``.py`` files."""
+    files = tuple(
+        (name, os.stat(os.path.join(directory, name)).st_mtime_ns)
+        for name in sorted(os.listdir(directory))
+        if name.endswith(".py")
+    )
+    return _hash_files(directory, files)
+
+
+@functools.cache
+def _hash_files(directory: str, files: tuple[tuple[str, int], ...]) -> str:
+    # (keyed on the modification times too, so that an edit within one process rehashes)
+    digest = hashlib.sha256()
+    for name, _ in files:
+        digest.update(name.encode())
+        with open(os.path.join(directory, name), "rb") as file:
+            digest.update(hashlib.sha256(file.read()).digest())
+    return digest.hexdigest()
+
+
+class _PackageStamp:
+    """Locator mixin: the source stamp is the package's, not the function's file's."""
+
+    @classmethod
+    def from_function(cls, py_func, py_file):  # type: ignore[no-untyped-def]
+        if os.path.dirname(os.path.abspath(py_file)) not in _PACKAGES:
+            return None
+        return super().from_function(py_func, py_file)  # type: ignore[misc]
+
+    def get_source_stamp(self) -> str:
+        return _package_stamp(os.path.dirname(os.path.abspath(self._py_file)))  # type: ignore[attr-defined]
+
+
+class _UserProvided(_PackageStamp, caching.UserProvidedCacheLocator):
+    pass
+
+
+class _InTree(_PackageStamp, caching.InTreeCacheLocator):
+    pass
+
+
+class _UserWide(_PackageStamp, caching.UserWideCacheLocator):
+    pass
+
+
+#: The locators that key a cache on its package (numba tries them before its own).
+LOCATORS = (_UserProvided, _InTree, _UserWide)
+caching.CacheImpl._locator_classes[:0] = [
+    c for c in LOCATORS if c not in caching.CacheImpl._locator_classes
+]
+
+
+def register_package(directory: str) -> None:
+    """Key the cache of every kernel defined in ``directory`` on all of its sources."""
+    _PACKAGES.add(os.path.abspath(directory))
+
+
+register_package(os.path.dirname(__file__))
+
+_options = dict(cache=True, nogil=True, error_model="numpy")
+#: A compiled kernel without a Python wrapper (called from other kernels only).
+kernel = njit(**_options, no_cpython_wrapper=True)
+#: Inlined into its callers: small helpers and the attempts (numba compiles every callee's
+#: code again into each caller that links it, so inlining costs no more and saves a call).
+inline = njit(**_options, no_cpython_wrapper=True, inline="always")
+#: An entry point, callable from Python.
+entry = njit(**_options)

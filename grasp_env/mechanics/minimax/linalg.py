@@ -1,0 +1,104 @@
+"""Dense linear algebra for the kernels: small in-place helpers, Gaussian elimination and a
+Cholesky inverse (sizes <= 24, where loops beat LAPACK calls).
+"""
+
+from __future__ import annotations
+
+from math import isfinite, sqrt
+
+from .jit import inline, kernel
+
+
+@inline
+def all_finite(x):
+    for value in x.ravel():
+        if not isfinite(value):
+            return False
+    return True
+
+
+@inline
+def zero(A):
+    for p in range(A.shape[0]):
+        for q in range(A.shape[1]):
+            A[p, q] = 0.0
+
+
+@inline
+def copy_into(dst, src, count):
+    for j in range(count):
+        dst[j] = src[j]
+
+
+@kernel
+def lu_solve(A, b, size):
+    """Solve A x = b in place (b <- x) by Gaussian elimination with partial pivoting.
+
+    Returns False for a (numerically) singular matrix.
+    """
+    big = 0.0
+    for r in range(size):
+        for c in range(size):
+            big = max(big, abs(A[r, c]))
+    if big == 0.0:
+        return False
+    for c in range(size):
+        p = c
+        for r in range(c + 1, size):
+            if abs(A[r, c]) > abs(A[p, c]):
+                p = r
+        if abs(A[p, c]) <= 1e-14 * big:
+            return False
+        if p != c:
+            for cc in range(size):
+                A[c, cc], A[p, cc] = A[p, cc], A[c, cc]
+            b[c], b[p] = b[p], b[c]
+        for r in range(c + 1, size):
+            f = A[r, c] / A[c, c]
+            if f != 0.0:
+                for cc in range(c + 1, size):
+                    A[r, cc] -= f * A[c, cc]
+                b[r] -= f * b[c]
+    for c in range(size - 1, -1, -1):
+        s = b[c]
+        for cc in range(c + 1, size):
+            s -= A[c, cc] * b[cc]
+        b[c] = s / A[c, c]
+    return True
+
+
+@kernel
+def cholesky_inverse(H, size, out, L, Li):
+    """out <- H^-1 for symmetric H via Cholesky (L, Li scratch); False unless H is positive
+    definite."""
+    for r in range(size):
+        for c in range(size):
+            L[r, c] = 0.0
+            Li[r, c] = 0.0
+    for j in range(size):
+        s = H[j, j]
+        for q in range(j):
+            s -= L[j, q] * L[j, q]
+        if s <= 1e-14 * max(1.0, abs(H[j, j])):
+            return False
+        L[j, j] = sqrt(s)
+        for r in range(j + 1, size):
+            s = H[r, j]
+            for q in range(j):
+                s -= L[r, q] * L[j, q]
+            L[r, j] = s / L[j, j]
+    # invert L (lower triangular), then out = L^-T L^-1
+    for j in range(size):
+        Li[j, j] = 1.0 / L[j, j]
+        for r in range(j + 1, size):
+            s = 0.0
+            for q in range(j, r):
+                s -= L[r, q] * Li[q, j]
+            Li[r, j] = s / L[r, r]
+    for r in range(size):
+        for c in range(size):
+            s = 0.0
+            for q in range(max(r, c), size):
+                s += Li[q, r] * Li[q, c]
+            out[r, c] = s
+    return True
