@@ -75,6 +75,8 @@ class GaitTask:
             interaction pair of the loaded set, in the set's order (its sites increasing).
         set_fingers: (K, 4) the finger at each contact of the loaded set, -1 past its size.
         group, column: (K,) the loaded set's size group (0: three, 1: four) and its column.
+        moves_table: (K, 14) the step kernel's per-move table: move, next state, group,
+            column, pair_columns, set_fingers.
         grasps: per group, (T * S_n, n, 3) equilibrating forces F / w, (T * S_n, m, 3) unit
             pair directions u_ij, (T * S_n, n, 3) normals (row t * S_n + column) and the
             pairs (m, 2).
@@ -90,6 +92,7 @@ class GaitTask:
     set_fingers: np.ndarray
     group: np.ndarray
     column: np.ndarray
+    moves_table: np.ndarray
     grasps: tuple[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray], ...]
     observations: np.ndarray
     reach_obs: np.ndarray
@@ -237,6 +240,7 @@ def gait_task(
         set_fingers,
         group,
         column,
+        np.column_stack([table.move, table.next, group, column, pair_columns, set_fingers]),
         tuple(grasps),
         _pose_observations(solution),
         np.vstack([reach, reach[-1:]]),
@@ -244,7 +248,7 @@ def gait_task(
         k_max_ratio,
         solution.trajectory.alphas_deg,
     )
-    for array in (csr, pair_columns, set_fingers, group, column, task.observations):
+    for array in (csr, pair_columns, set_fingers, group, column, task.moves_table):
         array.flags.writeable = False
     return task
 
@@ -253,13 +257,66 @@ def gait_task(
 
 
 @numba.njit(cache=True, nogil=True)
-def _step_kernel(
-    xs, ts, actions, csr, states, ptr, move, nxt, code, reach, group, column, pair_columns,
-    set_fingers, grasps3, grasps4, k_max_ratio, weight, limit, release, observations,
-    contact_obs, reach_obs,
-    next_x, reward, dropped, refused, lost, moves, theta, loaded, k_out, forces, obs_out,
+def _score_grips(
+    size, forces_w, directions, normals, pairs, chosen, ts, actions, moves_table, k_max_ratio,
+    weight, limit, release, T, F, P, floats, flags,
 ):  # fmt: skip
-    """One step of B sub-environments in states ``xs`` at poses ``ts`` (see :func:`_step`)."""
+    """The grips of the sub-environments whose loaded set has 3 + ``size`` fingers, scored by
+    :func:`~grasp_env.envs.kernels.evaluate_grips` in one call (layout: :func:`_step`)."""
+    n = forces_w.shape[1]
+    m_pairs = directions.shape[1]
+    count = 0
+    for b in range(chosen.shape[0]):
+        if chosen[b] >= 0 and moves_table[chosen[b], 2] == size:
+            count += 1
+    if count == 0:
+        return
+    S = forces_w.shape[0] // T
+    items = np.empty(count, np.int64)
+    rows = np.empty(count, np.int64)
+    grip = np.empty((count, m_pairs))
+    j = 0
+    for b in range(chosen.shape[0]):
+        k = chosen[b]
+        if k >= 0 and moves_table[k, 2] == size:
+            items[j] = b
+            rows[j] = ts[b] * S + moves_table[k, 3]
+            for q in range(m_pairs):
+                grip[j, q] = actions[b, moves_table[k, 4 + q]]
+            j += 1
+    _, kk, net, angles, _, _ = evaluate_grips(
+        forces_w, directions, normals, pairs, rows, grip, k_max_ratio, np.full(count, weight),
+        np.full(count, limit),
+    )  # fmt: skip
+    FT, FK, FF, LOADED = 1, 1 + F, 1 + F + P, 4 + F
+    for j in range(count):
+        b = items[j]
+        k = chosen[b]
+        worst = np.inf
+        for i in range(n):
+            f = moves_table[k, 10 + i]
+            size_i = math.sqrt(net[j, i, 0] ** 2 + net[j, i, 1] ** 2 + net[j, i, 2] ** 2)
+            # released (below RELEASE w): no meaningful direction, inside its cone
+            angle = 0.0 if size_i < release * weight else angles[j, i]
+            floats[b, FT + f] = angle
+            flags[b, LOADED + f] = True
+            worst = min(worst, limit - angle)
+            for a in range(3):
+                floats[b, FF + 3 * f + a] = net[j, i, a]
+        for q in range(m_pairs):
+            floats[b, FK + moves_table[k, 4 + q]] = kk[j, q]
+        floats[b, 0] = worst
+
+
+@numba.njit(cache=True, nogil=True)
+def _step_kernel(
+    xs, ts, actions, csr, states, ptr, code, moves_table, reach,
+    forces3, directions3, normals3, pairs3, forces4, directions4, normals4, pairs4,
+    k_max_ratio, weight, limit, release, terminate_on_slip, observations, contact_obs,
+    reach_obs, floats, ints, flags, obs_out,
+):  # fmt: skip
+    """One step of B sub-environments in states ``xs`` at poses ``ts`` (see :func:`_step` for
+    the layout of the outputs ``floats``, ``ints`` and ``flags``)."""
     B = xs.shape[0]
     F = states.shape[1]
     N = reach.shape[2]
@@ -267,30 +324,35 @@ def _step_kernel(
     P = F * (F - 1) // 2
     base = N + 1
     chosen = np.full(B, -1, np.int64)
-    theta[:] = 0.0
-    loaded[:] = False
-    k_out[:] = 0.0
-    forces[:] = 0.0
-    lost[:] = False
-    refused[:] = False
-    moves[:] = 0
+    floats[:] = 0.0
+    flags[:] = False
+    # floats: reward, theta (F), k (P), forces (3F); ints: next, move, contacts (F);
+    # flags: dropped, refused, terminated, bad, lost (F), loaded (F), slip (F)
+    FT = 1
+    LOST, SLIP = 4, 4 + 2 * F
     for b in range(B):
+        for a in range(actions.shape[1]):
+            if not math.isfinite(actions[b, a]):
+                flags[b, 3] = True
         x, t = xs[b], ts[b]
+        ints[b, 1] = 0
         # 1. contacts out of reach are lost under load: the move is void
         left = 0
         c = 0
         power = 1
+        lost_any = False
         for f in range(F):
             s = states[x, f]
             if s >= 0 and not reach[t, f, s]:
-                lost[b, f] = True
+                flags[b, LOST + f] = True
+                lost_any = True
             elif s >= 0:
                 left += 1
                 c += (s + 1) * power
             power *= base
-        if left < F and lost[b].any():
-            reward[b] = limit - 0.5 * np.pi  # a lost finger's angle counts as 90 deg
-            next_x[b] = code[c] if left >= MIN_LOADED else -1
+        if lost_any:
+            floats[b, 0] = limit - 0.5 * np.pi  # a lost finger's angle counts as 90 deg
+            ints[b, 0] = code[c] if left >= MIN_LOADED else -1
             continue
         # 2. the move: the argmax of the scores (ties: the lower move, keep first)
         m = 0
@@ -304,100 +366,117 @@ def _step_kernel(
             if states[x, f] < 0 and not reach[t, f, s]:
                 k = -1  # a placement out of reach
         if k < 0:
-            refused[b] = True
+            flags[b, 1] = True
             k = ptr[x]  # keep
         chosen[b] = k
-        moves[b] = move[k]
-        next_x[b] = nxt[k]
+        ints[b, 1] = moves_table[k, 0]
+        ints[b, 0] = moves_table[k, 1]
     # 3. the grips of the loaded sets, by the environments' step kernel (eq. 4, eq. 2), one
     # call per set size
-    for size in range(2):
-        g = grasps3 if size == 0 else grasps4
-        n = g[0].shape[1]
-        m_pairs = g[1].shape[1]
-        count = 0
-        for b in range(B):
-            if chosen[b] >= 0 and group[chosen[b]] == size:
-                count += 1
-        if count == 0:
-            continue
-        S = g[0].shape[0] // T
-        items = np.empty(count, np.int64)
-        rows = np.empty(count, np.int64)
-        grip = np.empty((count, m_pairs))
-        j = 0
-        for b in range(B):
-            k = chosen[b]
-            if k >= 0 and group[k] == size:
-                items[j] = b
-                rows[j] = ts[b] * S + column[k]
-                for q in range(m_pairs):
-                    grip[j, q] = actions[b, pair_columns[k, q]]
-                j += 1
-        _, kk, net, angles, _, _ = evaluate_grips(
-            g[0], g[1], g[2], g[3], rows, grip, k_max_ratio, np.full(count, weight),
-            np.full(count, limit),
-        )  # fmt: skip
-        for j in range(count):
-            b = items[j]
-            k = chosen[b]
-            worst = np.inf
-            for i in range(n):
-                f = set_fingers[k, i]
-                size_i = math.sqrt(net[j, i, 0] ** 2 + net[j, i, 1] ** 2 + net[j, i, 2] ** 2)
-                # released (below RELEASE w): no meaningful direction, inside its cone
-                angle = 0.0 if size_i < release * weight else angles[j, i]
-                theta[b, f] = angle
-                loaded[b, f] = True
-                worst = min(worst, limit - angle)
-                for a in range(3):
-                    forces[b, f, a] = net[j, i, a]
-            for q in range(m_pairs):
-                k_out[b, pair_columns[k, q]] = kk[j, q]
-            reward[b] = worst
-    # 4. the next observations (the last pose's, phase 1, after the end)
+    _score_grips(
+        0,
+        forces3,
+        directions3,
+        normals3,
+        pairs3,
+        chosen,
+        ts,
+        actions,
+        moves_table,
+        k_max_ratio,
+        weight,
+        limit,
+        release,
+        T,
+        F,
+        P,
+        floats,
+        flags,
+    )
+    _score_grips(
+        1,
+        forces4,
+        directions4,
+        normals4,
+        pairs4,
+        chosen,
+        ts,
+        actions,
+        moves_table,
+        k_max_ratio,
+        weight,
+        limit,
+        release,
+        T,
+        F,
+        P,
+        floats,
+        flags,
+    )
+    # 4. the outcome and the next observations (the last pose's, phase 1, after the end)
     width = observations.shape[1]
     cells = contact_obs.shape[1]
     for b in range(B):
-        dropped[b] = next_x[b] < 0
+        y = ints[b, 0]
+        flags[b, 0] = y < 0
+        any_slip = False
+        for f in range(F):
+            slip = flags[b, LOST + f] or floats[b, FT + f] > limit
+            flags[b, SLIP + f] = slip
+            any_slip = any_slip or slip
+            ints[b, 2 + f] = -1 if y < 0 else states[y, f]
+        flags[b, 2] = y < 0 or (terminate_on_slip and any_slip)
         t1 = min(ts[b] + 1, T)
         obs_out[b, :width] = observations[t1]
-        if dropped[b]:
+        if y < 0:
             obs_out[b, width : width + cells] = 0.0
         else:
-            obs_out[b, width : width + cells] = contact_obs[next_x[b]]
+            obs_out[b, width : width + cells] = contact_obs[y]
         obs_out[b, width + cells :] = reach_obs[t1]
 
 
-def _step(task: GaitTask, xs: np.ndarray, ts: np.ndarray, actions: np.ndarray):
-    """Step a batch of states ``xs`` (B,) at poses ``ts`` with ``actions`` (B, P + M): returns
-    (next states (-1: dropped), rewards, observations, info arrays)."""
+def _step(
+    task: GaitTask, xs: np.ndarray, ts: np.ndarray, actions: np.ndarray, terminate_on_slip: bool
+) -> dict[str, np.ndarray]:
+    """Step a batch of states ``xs`` (B,) at poses ``ts`` with ``actions`` (B, P + M): the
+    next states (-1: dropped), rewards, terminations, observations and the info arrays, as
+    views of three fresh buffers (one kernel call with few arguments: the single environment
+    pays numba's per-argument dispatch on every step); a ValueError (and nothing changed) if
+    an action is not finite."""
     table = task.table
     B, F, P = len(xs), task.n_fingers, task.n_pairs
-    out = {
-        "next": np.empty(B, np.int64),
-        "reward": np.empty(B),
-        "dropped": np.empty(B, bool),
-        "refused": np.empty(B, bool),
-        "lost": np.empty((B, F), bool),
-        "move": np.empty(B, np.int64),
-        "theta": np.empty((B, F)),
-        "loaded": np.empty((B, F), bool),
-        "k": np.empty((B, P)),
-        "contact_forces": np.empty((B, F, 3)),
-        "obs": np.empty((B, task.observations.shape[1] + 2 * task.contact_obs.shape[1]),
-                        np.float32),
-    }  # fmt: skip
+    floats = np.empty((B, 1 + F + P + 3 * F))
+    ints = np.empty((B, 2 + F), np.int64)
+    flags = np.empty((B, 4 + 3 * F), bool)
+    obs = np.empty((B, task.observations.shape[1] + 2 * task.contact_obs.shape[1]), np.float32)
     _step_kernel(
-        xs, ts, actions, task.csr, table.states, table.ptr, table.move, table.next, table.code,
-        task.solution.reach, task.group, task.column, task.pair_columns, task.set_fingers,
-        task.grasps[0], task.grasps[1], task.k_max_ratio, task.weight, task.limit, RELEASE,
-        task.observations, task.contact_obs, task.reach_obs, *out.values(),
+        xs, ts, actions, task.csr, table.states, table.ptr, table.code, task.moves_table,
+        task.solution.reach, *task.grasps[0], *task.grasps[1], task.k_max_ratio, task.weight,
+        task.limit, RELEASE, terminate_on_slip, task.observations, task.contact_obs,
+        task.reach_obs, floats, ints, flags, obs,
     )  # fmt: skip
-    return out
+    if flags[:, 3].any():
+        rows = np.flatnonzero(flags[:, 3]).tolist()
+        raise ValueError(f"actions must be finite numbers; rows {rows} are not")
+    return {
+        "reward": floats[:, 0],
+        "theta": floats[:, 1 : 1 + F],
+        "k": floats[:, 1 + F : 1 + F + P],
+        "contact_forces": floats[:, 1 + F + P :].reshape(B, F, 3),
+        "next": ints[:, 0],
+        "move": ints[:, 1],
+        "contacts": ints[:, 2:],
+        "dropped": flags[:, 0],
+        "refused": flags[:, 1],
+        "terminated": flags[:, 2],
+        "lost": flags[:, 4 : 4 + F],
+        "loaded": flags[:, 4 + F : 4 + 2 * F],
+        "slip": flags[:, 4 + 2 * F :],
+        "obs": obs,
+    }
 
 
-_INFO = ("refused", "lost", "move", "theta", "loaded", "k", "contact_forces")
+_INFO = ("refused", "lost", "move", "theta", "loaded", "k", "contact_forces", "slip", "contacts")
 
 
 def _check_actions(actions: Any, shape: tuple[int, ...]) -> np.ndarray:
@@ -405,9 +484,7 @@ def _check_actions(actions: Any, shape: tuple[int, ...]) -> np.ndarray:
         array = actions
     else:
         array = check_array("action", actions, shape)
-    if not np.isfinite(array).all():
-        raise ValueError(f"actions must be finite numbers, got {array.tolist()}")
-    return array
+    return array  # finiteness: checked by the step kernel
 
 
 # ------------------------------------------------------------------------- the policies
@@ -644,6 +721,8 @@ class CubeGaitEnv(gym.Env[np.ndarray, np.ndarray]):
         self._x = task.start
         self._t = 0
         self._done = True
+        self._xs = np.zeros(1, np.int64)  # the kernel's inputs, reused
+        self._ts = np.zeros(1, np.int64)
 
     def _observation(self, x: int, t: int) -> np.ndarray:
         task = self.task
@@ -664,23 +743,17 @@ class CubeGaitEnv(gym.Env[np.ndarray, np.ndarray]):
         task = self.task
         a = _check_actions(action, self.action_space.shape)
         t = self._t
-        F = task.n_fingers
-        out = _step(task, np.array([self._x]), np.array([t]), a.reshape(1, -1))
-        dropped = bool(out["dropped"][0])
-        slip = (out["theta"][0] > task.limit) | out["lost"][0]
-        terminated = dropped or (self.terminate_on_slip and bool(slip.any()))
+        self._xs[0], self._ts[0] = self._x, t
+        out = _step(task, self._xs, self._ts, a.reshape(1, -1), self.terminate_on_slip)
+        terminated = bool(out["terminated"][0])
         self._t = t + 1
         truncated = self._t == task.n_poses and not terminated
         self._done = terminated or truncated
-        if not dropped:
+        if not out["dropped"][0]:
             self._x = int(out["next"][0])
         info = {key: out[key][0] for key in _INFO}
-        info.update(
-            alpha_deg=float(task.alphas[t]),
-            contacts=task.table.states[self._x].copy() if not dropped else np.full(F, -1),
-            slip=slip,
-            expert_reward=float(task.solution.optimal.margins[t]),
-        )
+        info["alpha_deg"] = float(task.alphas[t])
+        info["expert_reward"] = float(task.solution.optimal.margins[t])
         return out["obs"][0], float(out["reward"][0]), terminated, truncated, info
 
 
@@ -768,24 +841,20 @@ class CubeGaitVectorEnv(VectorEnv):
         task = self.task
         a = _check_actions(actions, self.action_space.shape)
         restarting = np.flatnonzero(self._autoreset)
+        xs, t = self._x.copy(), self._t.copy()
         if restarting.size:  # NEXT_STEP: these reset and ignore their action (stepped from the
-            self._x[restarting] = task.start  # start so that the kernel has a state; undone below)
-            self._t[restarting] = 0
-        t = self._t.copy()
-        out = _step(task, self._x, t, a)
+            xs[restarting] = task.start  # start with a zero action, and undone below)
+            t[restarting] = 0
+            a = a.copy()
+            a[restarting] = 0.0
+        out = _step(task, xs, t, a, self.terminate_on_slip)  # ValueError before any change
         dropped, reward, observations = out["dropped"], out["reward"], out["obs"]
-        slip = (out["theta"] > task.limit) | out["lost"]
-        terminated = dropped | (slip.any(axis=1) if self.terminate_on_slip else False)
+        terminated = out["terminated"]
         self._t = t + 1
         truncated = (self._t == task.n_poses) & ~terminated
-        self._x = np.where(dropped, self._x, out["next"])
+        self._x = np.where(dropped, xs, out["next"])
         info = {key: out[key] for key in _INFO}
-        info.update(
-            alpha_deg=task.alphas[t],
-            contacts=np.where(dropped[:, None], -1, task.table.states[self._x]),
-            slip=slip,
-            expert_reward=task.solution.optimal.margins[t],
-        )
+        info.update(alpha_deg=task.alphas[t], expert_reward=task.solution.optimal.margins[t])
         mask = np.ones(self.num_envs, bool)
         if restarting.size:  # they start afresh: the first observation, nothing happened
             self._x[restarting] = task.start
