@@ -205,6 +205,8 @@ def try_fallback(a0, al, tau0, T, K, f, k_start, best, k_best):
     centre = np.empty(k.shape[0])
     t_up, low, status, share = fallback(a0, al, tau0, T, K, f, k, 1e-11, centre)
     best = fold(best, k_best, k, t_up, max(low, 0.0), status, FALLBACK)
+    if status == NOT_PUSHING and t_up >= pi:
+        copy_into(k_best, k, k.shape[0])  # no k meets the force limits: k exceeds them least
     if closed(best) or status == NOT_PUSHING:
         return best
     k_fallback = k.copy()
@@ -358,13 +360,22 @@ def solve_one(F, E, N, K_in, f_in, k, theta, k_near, near):
         done = closed(best)
     if not done:
         best = try_fallback(a0, al, tau0, T, K, f, k_start, best, k_best)
-    for j in range(m):
-        k[j] = k_best[j] * scale
     t_best = evaluate(k_best, a0, al, tau0, T, a, tau, rho, theta)
-    status = best.status
     excess = False
     for i in range(n):
         excess = excess or sqrt(a[i] ** 2 + rho[i] ** 2) > f * (1.0 + 1e-9)
+    if excess and best.lower < pi / 2 and best.path != FALLBACK:
+        # the best point exceeds the force limits, so its certificate says nothing about
+        # them (where no k meets them, any bound holds): the fallback decides whether some
+        # k does (its phase one), with a certificate if none does
+        best = try_fallback(a0, al, tau0, T, K, f, k_best.copy(), best, k_best)
+        t_best = evaluate(k_best, a0, al, tau0, T, a, tau, rho, theta)
+        excess = False
+        for i in range(n):
+            excess = excess or sqrt(a[i] ** 2 + rho[i] ** 2) > f * (1.0 + 1e-9)
+    for j in range(m):
+        k[j] = k_best[j] * scale
+    status = best.status
     if t_best >= pi / 2 or excess:
         # no k keeps every finger pushing (or meets the force limits; k then exceeds them
         # least): certified when lower == pi / 2
