@@ -107,18 +107,25 @@ class RunResult:
     curve: list[dict[str, float]] = field(default_factory=list)
 
 
-def read_run(run_dir: Path, episodes: int | None = None) -> RunResult:
-    """The run's results, evaluating it first if it has no comparison on ``episodes`` scenes."""
+def read_run(run_dir: Path, episodes: int | None = None, final: str = "evaluation") -> RunResult:
+    """The run's results, evaluating it first if it has no comparison on ``episodes`` scenes.
+
+    With ``final="curve"`` the final metrics are the learning curve's last evaluation instead
+    (the run's ``eval_episodes`` held-out scenes, no new evaluation).
+    """
     run_dir = Path(run_dir)
-    comparison = run_dir / "comparison.csv"
-    agent = _agent_row(comparison) if comparison.is_file() else None
-    if agent is None or (episodes is not None and int(agent["episodes"]) != episodes):
+    if final == "curve":
+        agent = {k: str(v) for k, v in read_curve(run_dir / "learning_curve.csv")[-1].items()}
+    else:
+        agent = find_evaluation(run_dir, episodes)
+    if agent is None:
         from .evaluate import evaluate_run
 
-        evaluate_run(run_dir, episodes)
-        agent = _agent_row(comparison)
+        out = None if episodes is None else evaluation_dir(run_dir, episodes)
+        evaluate_run(run_dir, episodes, None, out)
+        agent = find_evaluation(run_dir, episodes)
     if agent is None:
-        raise ValueError(f"{comparison} has no row for the trained agent")
+        raise ValueError(f"{run_dir}: its evaluation has no row for the trained agent")
     curve = read_curve(run_dir / "learning_curve.csv")
     config = yaml.safe_load((run_dir / "config.yaml").read_text())
     # training time from the initial evaluation on: numba's one-off compilation of the
@@ -132,6 +139,24 @@ def read_run(run_dir: Path, episodes: int | None = None) -> RunResult:
         (last.get("cpu_seconds", 0.0) - first.get("cpu_seconds", 0.0)) / 60,
         curve,
     )
+
+
+def evaluation_dir(run_dir: Path, episodes: int) -> Path:
+    """Where ``grasp-env evaluate RUN --episodes N`` writes its report."""
+    return Path(run_dir) / f"evaluation-{episodes}-scenes"
+
+
+def find_evaluation(run_dir: Path, episodes: int | None) -> dict[str, str] | None:
+    """The trained agent's row of an evaluation of the run on ``episodes`` scenes (None: any,
+    the run's own first), or None if it has none."""
+    candidates = [run_dir / "comparison.csv"]
+    if episodes is not None:
+        candidates.insert(0, evaluation_dir(run_dir, episodes) / "comparison.csv")
+    for path in candidates:
+        row = _agent_row(path) if path.is_file() else None
+        if row is not None and (episodes is None or int(row["episodes"]) == episodes):
+            return row
+    return None
 
 
 def _agent_row(path: Path) -> dict[str, str] | None:
@@ -151,12 +176,13 @@ def read_curve(path: Path) -> list[dict[str, float]]:
 
 
 def expand_runs(runs: str | Sequence[str], base: Path) -> list[Path]:
-    """Run directories from a glob or a list (relative to ``base``), sorted."""
+    """Finished run directories (with a model.zip) from a glob or a list (relative to
+    ``base``), sorted."""
     patterns = [runs] if isinstance(runs, str) else list(runs)
     found: list[Path] = []
     for pattern in patterns:
         full = pattern if Path(pattern).is_absolute() else str(base / pattern)
-        found += [Path(p) for p in sorted(glob.glob(full)) if (Path(p) / "config.yaml").is_file()]
+        found += [Path(p) for p in sorted(glob.glob(full)) if (Path(p) / "model.zip").is_file()]
     if not found:
         raise ValueError(f"no run directories match {patterns} (relative to {base})")
     return found
@@ -259,16 +285,22 @@ def plot_curves(groups: Sequence[Group], path: Path) -> None:
     plt.close(fig)
 
 
-def load_spec(path: Path) -> tuple[int, list[dict]]:
-    """A results spec: the held-out scenes and the groups (label, config, runs)."""
+def load_spec(path: Path) -> tuple[int, str, list[dict]]:
+    """A results spec: the held-out scenes, where final metrics come from, the groups."""
     if not path.is_file():
         raise ValueError(f"results spec {str(path)!r} does not exist")
     spec = yaml.safe_load(path.read_text()) or {}
-    if not isinstance(spec, dict) or set(spec) - {"episodes", "groups"}:
-        raise ValueError(f"results spec {path}: a mapping with keys episodes and groups")
+    if not isinstance(spec, dict) or set(spec) - {"episodes", "final", "groups"}:
+        raise ValueError(f"results spec {path}: a mapping with keys episodes, final and groups")
     episodes = spec.get("episodes", 2048)
     if not isinstance(episodes, int) or episodes < 1:
         raise ValueError(f"results spec {path}: episodes must be a positive integer")
+    final = spec.get("final", "evaluation")
+    if final not in ("evaluation", "curve"):
+        raise ValueError(
+            f"results spec {path}: final must be evaluation (grasp-env evaluate on episodes "
+            f"scenes) or curve (the learning curve's last evaluation), got {final!r}"
+        )
     groups = spec.get("groups")
     if not isinstance(groups, list) or not groups:
         raise ValueError(f"results spec {path}: groups must be a non-empty list")
@@ -277,22 +309,48 @@ def load_spec(path: Path) -> tuple[int, list[dict]]:
             raise ValueError(f"results spec {path}: groups[{i}] needs a label and runs")
         if set(group) - {"label", "runs", "config"}:
             raise ValueError(f"results spec {path}: groups[{i}] accepts label, config and runs")
-    return episodes, groups
+    return episodes, final, groups
 
 
 def build_groups(spec: Path) -> tuple[int, list[Group]]:
-    """Read the spec, evaluate what needs it and collect every group's runs."""
-    episodes, entries = load_spec(spec)
+    """Read the spec, evaluate what needs it and collect every group's runs; returns the
+    held-out scenes per run and the groups."""
+    episodes, final, entries = load_spec(spec)
     base = spec.parent
     groups = [
         Group(
             entry["label"],
-            [read_run(run, episodes) for run in expand_runs(entry["runs"], base)],
+            [read_run(run, episodes, final) for run in expand_runs(entry["runs"], base)],
             entry.get("config", ""),
         )
         for entry in entries
     ]
+    if final == "curve":
+        config = yaml.safe_load((groups[0].runs[0].run_dir / "config.yaml").read_text())
+        episodes = int(config["eval_episodes"])
     return episodes, groups
+
+
+def group_runs(run_dirs: Sequence[Path], episodes: int | None = None) -> list[Group]:
+    """Runs grouped by their config without the seed (one group per recipe), in order."""
+    groups: dict[str, list[RunResult]] = {}
+    for run_dir in run_dirs:
+        config = yaml.safe_load((Path(run_dir) / "config.yaml").read_text())
+        config.pop("seed", None)
+        groups.setdefault(yaml.safe_dump(config, sort_keys=True), []).append(
+            read_run(Path(run_dir), episodes)
+        )
+    return [Group(_common_name([r.run_dir for r in runs]), runs) for runs in groups.values()]
+
+
+def _common_name(run_dirs: Sequence[Path]) -> str:
+    """What the run directories' names share (``ppo-s0``, ``ppo-s1``: ``ppo-s``)."""
+    names = [p.name for p in run_dirs]
+    prefix = names[0]
+    for name in names[1:]:
+        while not name.startswith(prefix):
+            prefix = prefix[:-1]
+    return prefix.rstrip("-_") or names[0]
 
 
 def replace_table(readme: Path, markdown: str) -> None:

@@ -236,7 +236,7 @@ def run_trial(params: dict[str, Any], sweep: dict[str, Any], out: str) -> None:
     from ray import tune
 
     from .evaluate import evaluate_run
-    from .results import read_run
+    from .results import evaluation_dir, read_run
     from .train import train
 
     config = trial_config(sweep, params)
@@ -245,8 +245,9 @@ def run_trial(params: dict[str, Any], sweep: dict[str, Any], out: str) -> None:
     started = (run_dir / "config.yaml").is_file()
     if not (run_dir / "model.zip").is_file() or not _finished(run_dir, config):
         train(config, run_dir, resume=started, progress_bar=False)
-    evaluate_run(run_dir, sweep["episodes"], 0)
-    result = read_run(run_dir, sweep["episodes"])
+    episodes = sweep["episodes"]
+    evaluate_run(run_dir, episodes, 0, evaluation_dir(run_dir, episodes))
+    result = read_run(run_dir, episodes)
     metrics = {**result.metrics, "wall_minutes": result.wall_minutes}
     tune.report({**metrics, "cpu_minutes": result.cpu_minutes, "run_dir": str(run_dir)})
 

@@ -135,7 +135,7 @@ def test_two_trial_sweep_on_a_local_ray_then_resumed(tmp_path: Path) -> None:
         assert sorted(p.name for p in (run / "checkpoints").glob("ppo_*_steps.zip"))
         config = yaml.safe_load((run / "config.yaml").read_text())
         rates.add(config["ppo"]["learning_rate"])
-        with (run / "comparison.csv").open() as file:
+        with (run / "evaluation-8-scenes" / "comparison.csv").open() as file:
             agent = next(r for r in csv.DictReader(file) if r["policy"] == "trained agent")
         assert int(agent["episodes"]) == 8
     assert rates == {1e-4, 3e-4}
