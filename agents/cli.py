@@ -13,6 +13,8 @@ import sys
 
 from grasp_env import __version__
 
+from .progress import status, watch_numba
+
 SUMMARIES = {
     "reproduce": "the paper's quasi-static sweep: optimal k_ij and friction angles, plots",
     "train": "train a PPO agent from a YAML config (default: a few minutes here)",
@@ -34,15 +36,14 @@ def main(argv: list[str] | None = None) -> int:
     for name, summary in SUMMARIES.items():
         command = sub.add_parser(name, help=summary, description=summary)
         if name == chosen:
-            module = importlib.import_module(f".{name}", __package__)
+            with status(f"grasp-env {name}: loading its libraries"):
+                module = importlib.import_module(f".{name}", __package__)
             module.add_arguments(command)
             command.set_defaults(run=module.run)
     args = parser.parse_args(argv)
     if args.command is None:
         parser.print_help()
         return 2
-    from .progress import watch_numba
-
     watch_numba()  # the first command after installing compiles for a while: say so
     try:
         return int(args.run(args) or 0)

@@ -129,18 +129,19 @@ def evaluate_run(
     if not 0 <= physics_episodes <= episodes:
         raise ValueError(f"--physics-episodes must be in [0, {episodes}], got {physics_episodes}")
 
-    env = make_held_out_env(config.env_id, config.env_kwargs, episodes)
-    m = env.action_space.shape[0]
-    k_max_ratio = config.k_max_ratio
     if not (run_dir / "model.zip").is_file():
         raise ValueError(f"{str(run_dir)!r} holds no model.zip: not a finished training run")
-    policies: dict[str, Any] = {
-        "trained agent": load_agent(run_dir),
-        "minimax expert": MinimaxExpert(k_max_ratio),
-        "equal k (paper eq. 8)": equal_k_policy(m, k_max_ratio),
-        "zero interaction": ConstantPolicy(np.zeros(m)),
-        "random": RandomPolicy(m, seed=config.seed),
-    }
+    with status(f"evaluate: loading the agent and {episodes} held-out scenes"):
+        env = make_held_out_env(config.env_id, config.env_kwargs, episodes)
+        m = env.action_space.shape[0]
+        k_max_ratio = config.k_max_ratio
+        policies: dict[str, Any] = {
+            "trained agent": load_agent(run_dir),
+            "minimax expert": MinimaxExpert(k_max_ratio),
+            "equal k (paper eq. 8)": equal_k_policy(m, k_max_ratio),
+            "zero interaction": ConstantPolicy(np.zeros(m)),
+            "random": RandomPolicy(m, seed=config.seed),
+        }
     metrics, played = {}, {}
     for name, policy in policies.items():
         with status(f"evaluate: {name} on {episodes} held-out scenes"):
@@ -157,7 +158,8 @@ def evaluate_run(
         row["force_ratio"] = row["mean_force"] / expert_force
 
     out.mkdir(parents=True, exist_ok=True)
-    plot_grip(played["trained agent"][:3], out / "grip_along_alpha.png")
+    with status("evaluate: drawing grip_along_alpha.png"):
+        plot_grip(played["trained agent"][:3], out / "grip_along_alpha.png")
     with (out / "comparison.csv").open("w", newline="") as file:
         fields = ["policy", *next(iter(metrics.values()))]
         writer = csv.DictWriter(file, fields)

@@ -136,6 +136,7 @@ class _Compiling:
         with _LINE.lock:
             if self.block is None:
                 self.block = _LINE.push(COMPILING)
+                self.kernels = 0  # counted per block
             self.depth += 1
 
     def on_end(self, event: object) -> None:

@@ -29,6 +29,7 @@ from grasp_env.mechanics import (
 from grasp_env.mechanics.forces import Grasp
 
 from .plotting import plot_series
+from .progress import status
 from .scene_args import add_scene_arguments, floats, scene_from_arguments
 
 HELP = "the paper's quasi-static sweep: optimal k_ij and friction angles, table and plots"
@@ -209,14 +210,16 @@ def run(args: argparse.Namespace) -> int:
     trajectory = Trajectory(args.axis, args.alpha_start, args.alpha_end, args.alpha_step)
     if args.k_max is not None and not (np.isfinite(args.k_max) and args.k_max > 0):
         raise ValueError(f"--k-max must be a finite number > 0, got {args.k_max}")
-    sweep = run_sweep(scene, trajectory, args.k_max)
+    with status(f"solving the minimax problem at {len(trajectory)} poses"):
+        sweep = run_sweep(scene, trajectory, args.k_max)
     args.out.mkdir(parents=True, exist_ok=True)
     print_table(sweep)
     write_csv(sweep, args.out / "sweep.csv")
     written = ["sweep.csv"]
     if not args.no_plots:
-        plot_trend(sweep, args.out / "trend.png")
-        plot_theta1_grid(sweep, args.out / "theta1_grid.png")
+        with status("drawing trend.png and theta1_grid.png"):
+            plot_trend(sweep, args.out / "trend.png")
+            plot_theta1_grid(sweep, args.out / "theta1_grid.png")
         written += ["trend.png", "theta1_grid.png"]
     worst = np.rad2deg(sweep.optimum.max_angle.max())
     print(

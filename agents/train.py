@@ -109,7 +109,8 @@ def run(args: argparse.Namespace) -> int:
         stamp = time.strftime("%Y%m%d-%H%M%S")
         run_dir = args.run_dir or Path("runs") / f"{path.stem}-{stamp}"
     train(config, run_dir, resume=args.resume is not None)
-    from .evaluate import evaluate_run
+    with status("loading the evaluation"):
+        from .evaluate import evaluate_run
 
     print(evaluate_run(run_dir).markdown)
     return 0
@@ -145,31 +146,9 @@ def train(
     torch.set_num_threads(config.torch_threads)
     set_random_seed(config.seed + start.ppo_steps)
 
-    # 2. Environments: training scenes from the seed, held-out scenes from a fixed far seed.
-    env: VecEnv = make_vec_env(
-        config.env_id, config.env_kwargs, config.n_envs, config.seed + start.ppo_steps
-    )
-    eval_env: VecEnv = make_held_out_env(config.env_id, config.env_kwargs, config.eval_episodes)
+    with status("building the environments and the model"):
+        env, eval_env, model = build(config, start, run_dir)
     held_out = find_held_out(eval_env)
-    if config.normalize:
-        if start.vecnormalize is not None:
-            env = load_vecnormalize(start.vecnormalize, env)
-        else:
-            env = VecNormalize(env, norm_obs=True, norm_reward=False)
-        eval_env = VecNormalize(eval_env, training=False, norm_reward=False)
-
-    # 3. The model, as the config says; on resume with the checkpoint's weights, optimiser
-    # state and step count (so the run's config.yaml stays the one source of hyperparameters).
-    model = new_model(config, env)
-    if start.checkpoint is not None:
-        try:
-            model.set_parameters(str(start.checkpoint), device="cpu")
-        except Exception as error:  # intact, but another network than the config's
-            config_file = run_dir / "config.yaml"
-            raise ValueError(
-                f"{start.checkpoint} does not fit {config_file}'s network ({error})"
-            ) from None
-        model.num_timesteps = start.ppo_steps
     # a resumed run drops what the killed one logged after its checkpoint
     kept = start.env_steps if start.checkpoint is not None else None
     curve = LearningCurve(run_dir / "learning_curve.csv", keep_until=kept)
@@ -224,6 +203,35 @@ def train(
     # 6. The final model and the learning curve.
     finish(model, run_dir, curve)
     return model
+
+
+def build(config: TrainConfig, start: Start, run_dir: Path) -> tuple[VecEnv, VecEnv, PPO]:
+    """The training and held-out environments and the model, fresh or from ``start``."""
+    # 2. Environments: training scenes from the seed, held-out scenes from a fixed far seed.
+    env: VecEnv = make_vec_env(
+        config.env_id, config.env_kwargs, config.n_envs, config.seed + start.ppo_steps
+    )
+    eval_env: VecEnv = make_held_out_env(config.env_id, config.env_kwargs, config.eval_episodes)
+    if config.normalize:
+        if start.vecnormalize is not None:
+            env = load_vecnormalize(start.vecnormalize, env)
+        else:
+            env = VecNormalize(env, norm_obs=True, norm_reward=False)
+        eval_env = VecNormalize(eval_env, training=False, norm_reward=False)
+
+    # 3. The model, as the config says; on resume with the checkpoint's weights, optimiser
+    # state and step count (so the run's config.yaml stays the one source of hyperparameters).
+    model = new_model(config, env)
+    if start.checkpoint is not None:
+        try:
+            model.set_parameters(str(start.checkpoint), device="cpu")
+        except Exception as error:  # intact, but another network than the config's
+            config_file = run_dir / "config.yaml"
+            raise ValueError(
+                f"{start.checkpoint} does not fit {config_file}'s network ({error})"
+            ) from None
+        model.num_timesteps = start.ppo_steps
+    return env, eval_env, model
 
 
 def log_held_out(logger: Logger, metrics: dict[str, float], wall: float, step: int) -> None:
@@ -381,8 +389,9 @@ def new_model(config: TrainConfig, env: VecEnv) -> PPO:
 
 def finish(model: PPO, run_dir: Path, curve: LearningCurve) -> None:
     """The run's final files: model.zip, vecnormalize.pkl (if used), learning_curve.png."""
-    save_model(model, run_dir / "model.zip")
-    curve.plot(run_dir / "learning_curve.png")
+    with status("saving the model and drawing learning_curve.png"):
+        save_model(model, run_dir / "model.zip")
+        curve.plot(run_dir / "learning_curve.png")
 
 
 # --- callbacks -----------------------------------------------------------------------------
