@@ -135,6 +135,26 @@ class GaitTask:
     def pose_size(self) -> int:
         return 14 + 6 * self.n_sites
 
+    @cached_property
+    def expert_margins(self) -> np.ndarray:
+        return self.solution.optimal.margins
+
+    @cached_property
+    def observation_size(self) -> int:
+        return self.pose_size() + 2 * self.n_fingers * self.n_sites
+
+    @cached_property
+    def kernel_arrays(self) -> tuple:
+        """The step kernel's task arguments, in its order."""
+        table = self.table
+        return (
+            self.csr, table.states, table.ptr, table.code, self.moves_table, self.solution.reach,
+            *self.grasps[0], *self.grasps[1],
+            np.array([self.k_max_ratio, self.weight, self.limit, RELEASE]),
+            np.ascontiguousarray(np.hstack([self.observations, self.reach_obs])),
+            self.contact_obs,
+        )  # fmt: skip
+
 
 def _pose_observations(solution: GaitSolution) -> np.ndarray:
     """Rotation (6), site positions / L (3N), site normals (3N), load / w (3), torque / (w L)
@@ -312,11 +332,13 @@ def _score_grips(
 def _step_kernel(
     xs, ts, actions, csr, states, ptr, code, moves_table, reach,
     forces3, directions3, normals3, pairs3, forces4, directions4, normals4, pairs4,
-    k_max_ratio, weight, limit, release, terminate_on_slip, observations, contact_obs,
-    reach_obs, floats, ints, flags, obs_out,
+    params, observations, contact_obs, terminate_on_slip, floats, ints, flags, obs_out,
 ):  # fmt: skip
     """One step of B sub-environments in states ``xs`` at poses ``ts`` (see :func:`_step` for
-    the layout of the outputs ``floats``, ``ints`` and ``flags``)."""
+    the layout of the outputs ``floats``, ``ints`` and ``flags``); ``params`` holds k_max / w,
+    w, theta_lim and the release fraction, ``observations`` (T + 1, pose part + reach part).
+    Returns False if an action is not finite."""
+    k_max_ratio, weight, limit, release = params[0], params[1], params[2], params[3]
     B = xs.shape[0]
     F = states.shape[1]
     N = reach.shape[2]
@@ -414,8 +436,8 @@ def _step_kernel(
         flags,
     )
     # 4. the outcome and the next observations (the last pose's, phase 1, after the end)
-    width = observations.shape[1]
     cells = contact_obs.shape[1]
+    width = observations.shape[1] - cells
     for b in range(B):
         y = ints[b, 0]
         flags[b, 0] = y < 0
@@ -427,12 +449,16 @@ def _step_kernel(
             ints[b, 2 + f] = -1 if y < 0 else states[y, f]
         flags[b, 2] = y < 0 or (terminate_on_slip and any_slip)
         t1 = min(ts[b] + 1, T)
-        obs_out[b, :width] = observations[t1]
+        obs_out[b, :width] = observations[t1, :width]
         if y < 0:
             obs_out[b, width : width + cells] = 0.0
         else:
             obs_out[b, width : width + cells] = contact_obs[y]
-        obs_out[b, width + cells :] = reach_obs[t1]
+        obs_out[b, width + cells :] = observations[t1, width:]
+    finite = True
+    for b in range(B):
+        finite = finite and not flags[b, 3]
+    return finite
 
 
 def _step(
@@ -443,19 +469,11 @@ def _step(
     views of three fresh buffers (one kernel call with few arguments: the single environment
     pays numba's per-argument dispatch on every step); a ValueError (and nothing changed) if
     an action is not finite."""
-    table = task.table
     B, F, P = len(xs), task.n_fingers, task.n_pairs
-    floats = np.empty((B, 1 + F + P + 3 * F))
-    ints = np.empty((B, 2 + F), np.int64)
-    flags = np.empty((B, 4 + 3 * F), bool)
-    obs = np.empty((B, task.observations.shape[1] + 2 * task.contact_obs.shape[1]), np.float32)
-    _step_kernel(
-        xs, ts, actions, task.csr, table.states, table.ptr, table.code, task.moves_table,
-        task.solution.reach, *task.grasps[0], *task.grasps[1], task.k_max_ratio, task.weight,
-        task.limit, RELEASE, terminate_on_slip, task.observations, task.contact_obs,
-        task.reach_obs, floats, ints, flags, obs,
-    )  # fmt: skip
-    if flags[:, 3].any():
+    floats, ints, flags, obs = _buffers(task, B)
+    if not _step_kernel(
+        xs, ts, actions, *task.kernel_arrays, terminate_on_slip, floats, ints, flags, obs
+    ):
         rows = np.flatnonzero(flags[:, 3]).tolist()
         raise ValueError(f"actions must be finite numbers; rows {rows} are not")
     return {
@@ -474,6 +492,16 @@ def _step(
         "slip": flags[:, 4 + 2 * F :],
         "obs": obs,
     }
+
+
+def _buffers(task: GaitTask, B: int) -> tuple[np.ndarray, ...]:
+    F, P = task.n_fingers, task.n_pairs
+    return (
+        np.empty((B, 1 + F + P + 3 * F)),
+        np.empty((B, 2 + F), np.int64),
+        np.empty((B, 4 + 3 * F), bool),
+        np.empty((B, task.observation_size), np.float32),
+    )
 
 
 _INFO = ("refused", "lost", "move", "theta", "loaded", "k", "contact_forces", "slip", "contacts")
@@ -744,17 +772,34 @@ class CubeGaitEnv(gym.Env[np.ndarray, np.ndarray]):
         a = _check_actions(action, self.action_space.shape)
         t = self._t
         self._xs[0], self._ts[0] = self._x, t
-        out = _step(task, self._xs, self._ts, a.reshape(1, -1), self.terminate_on_slip)
-        terminated = bool(out["terminated"][0])
+        floats, ints, flags, obs = _buffers(task, 1)
+        if not _step_kernel(
+            self._xs, self._ts, a.reshape(1, -1), *task.kernel_arrays, self.terminate_on_slip,
+            floats, ints, flags, obs,
+        ):  # fmt: skip
+            raise ValueError(f"actions must be finite numbers, got {a.tolist()}")
+        f, i, g = floats[0], ints[0], flags[0]  # the layout of _step
+        F, P = task.n_fingers, task.n_pairs
+        terminated = bool(g[2])
         self._t = t + 1
         truncated = self._t == task.n_poses and not terminated
         self._done = terminated or truncated
-        if not out["dropped"][0]:
-            self._x = int(out["next"][0])
-        info = {key: out[key][0] for key in _INFO}
-        info["alpha_deg"] = float(task.alphas[t])
-        info["expert_reward"] = float(task.solution.optimal.margins[t])
-        return out["obs"][0], float(out["reward"][0]), terminated, truncated, info
+        if not g[0]:
+            self._x = int(i[0])
+        info = {
+            "refused": bool(g[1]),
+            "lost": g[4 : 4 + F],
+            "move": int(i[1]),
+            "theta": f[1 : 1 + F],
+            "loaded": g[4 + F : 4 + 2 * F],
+            "k": f[1 + F : 1 + F + P],
+            "contact_forces": f[1 + F + P :].reshape(F, 3),
+            "slip": g[4 + 2 * F :],
+            "contacts": i[2:],
+            "alpha_deg": float(task.alphas[t]),
+            "expert_reward": float(task.expert_margins[t]),
+        }
+        return obs[0], float(f[0]), terminated, truncated, info
 
 
 class CubeGaitVectorEnv(VectorEnv):
@@ -854,7 +899,7 @@ class CubeGaitVectorEnv(VectorEnv):
         truncated = (self._t == task.n_poses) & ~terminated
         self._x = np.where(dropped, xs, out["next"])
         info = {key: out[key] for key in _INFO}
-        info.update(alpha_deg=task.alphas[t], expert_reward=task.solution.optimal.margins[t])
+        info.update(alpha_deg=task.alphas[t], expert_reward=task.expert_margins[t])
         mask = np.ones(self.num_envs, bool)
         if restarting.size:  # they start afresh: the first observation, nothing happened
             self._x[restarting] = task.start
