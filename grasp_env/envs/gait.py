@@ -527,8 +527,9 @@ class _GaitPolicy:
         mu: float = 0.5,
         cone_deg: float = 60.0,
         k_max_ratio: float = DEFAULT_K_MAX_RATIO,
+        start: Sequence[int] | None = None,
     ) -> None:
-        self.task = _task(trajectory, mu, cone_deg, k_max_ratio, None)
+        self.task = _task(trajectory, mu, cone_deg, k_max_ratio, start)
 
     def _policy(self) -> np.ndarray:
         raise NotImplementedError
@@ -577,7 +578,8 @@ class GaitExpert(_GaitPolicy):
     hand's contacts, the dynamic programme's move (optimal from any state, not only along
     its own gait) and the certified minimax grip of the fingers that then carry load.
 
-    Args: the gait environment's ``trajectory``, ``mu``, ``cone_deg`` and ``k_max_ratio``.
+    Args: the gait environment's ``trajectory``, ``mu``, ``cone_deg``, ``k_max_ratio`` and
+    ``start`` (the same configuration shares the environment's tables).
     """
 
     def _policy(self) -> np.ndarray:
@@ -628,7 +630,8 @@ class CubeGaitEnv(gym.Env[np.ndarray, np.ndarray]):
     sequential: a finger must be lifted (with zero force, the others holding) before its
     site leaves its reach, and placed (within reach) before it is needed. The certified
     optimal gait (the dynamic programme of docs/gait.md) keeps a worst margin of 6.97 deg;
-    the greedy one-pose lookahead drops the cube at alpha = -19 deg.
+    the greedy one-pose lookahead (`GreedyGait`) loses a contact and drops the cube, at
+    alpha = -44 deg from this environment's start (at -19 deg from its own best start).
 
     ## Action Space
     `Box(-1, 1, (P + M,), float32)` with P = F (F - 1) / 2 = 10 finger pairs and
