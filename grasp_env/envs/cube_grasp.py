@@ -11,7 +11,7 @@ from gymnasium import spaces
 
 from ..mechanics import FOUR_FINGER_FACES, PAPER_FACES, Scene, contact_pairs, n_pairs
 from .episodes import Episode, build_episodes, cached_episode, sample_episodes
-from .kernels import evaluate_grips
+from .kernels import step_grip
 from .observation import ObservationLayout
 from .scenes import (
     SceneBatch,
@@ -47,7 +47,12 @@ def action_array(action: Any, shape: tuple[int, ...]) -> np.ndarray:
     """``action`` as a float array of ``shape``, or a ValueError saying what an action must be
     (real numbers: booleans, complex numbers and strings are refused; finiteness is checked
     by the step kernel)."""
-    if type(action) is np.ndarray and action.dtype in _KERNEL_DTYPES and action.shape == shape:
+    if (
+        type(action) is np.ndarray
+        and action.dtype in _KERNEL_DTYPES
+        and action.shape == shape
+        and action.flags.c_contiguous
+    ):
         return action  # the common case, kept cheap
     return check_array("action", action, shape)
 
@@ -77,6 +82,7 @@ class _CubeGraspEnv(gym.Env[np.ndarray, np.ndarray]):
         self.observation_space = spaces.Box(low, high, dtype=np.float32)
         self.action_space = spaces.Box(-1.0, 1.0, (n_pairs(n),), dtype=np.float32)
         self._pairs = contact_pairs(n)
+        self._unit = np.empty((n, 3))  # the step kernel's scratch
         self._episode: Episode | None = None
         self._step = 0
         self._done = True
@@ -117,9 +123,6 @@ class _CubeGraspEnv(gym.Env[np.ndarray, np.ndarray]):
         super().reset(seed=check_seed("seed", seed))
         episode = self._next_episode(parse_options(options))
         self._episode = episode
-        self._rows = np.arange(len(episode))
-        self._weight = np.array([episode.weight])
-        self._limit = np.array([episode.limit])
         self._step = 0
         self._done = False
         self._last_forces = None
@@ -137,43 +140,36 @@ class _CubeGraspEnv(gym.Env[np.ndarray, np.ndarray]):
         assert episode is not None
         a = action_array(action, self.action_space.shape)
         t = self._step
-        ok, k, forces, theta, margin, reward = evaluate_grips(
-            episode.forces_w,
-            episode.directions,
-            episode.normals,
-            self._pairs,
-            self._rows[t : t + 1],
-            a.reshape(1, -1),
-            self.k_max_ratio,
-            self._weight,
-            self._limit,
-        )
-        if not ok:
+        n, m = len(self.faces), len(self._pairs)
+        k, forces, theta, margin = np.empty(m), np.empty((n, 3)), np.empty(n), np.empty(n)
+        finite, reward = step_grip(
+            episode.forces_w, episode.directions, episode.normals, self._pairs, t, a,
+            self.k_max_ratio, episode.weight, episode.limit, k, forces, theta, margin, self._unit,
+        )  # fmt: skip
+        if not finite:
             raise ValueError(f"action must be finite, got {a.tolist()}")
-        slip = margin[0] < 0.0  # theta_i > theta_lim, as the vector env computes it
-        reward = float(reward[0])
         expert_reward = float(episode.expert_reward[t])
         info = {
             "alpha_deg": float(episode.alphas[t]),
-            "theta": theta[0],
-            "margin": margin[0],
-            "k": k[0],
-            "contact_forces": forces[0],
-            "equilibrating_forces": episode.forces_w[t] * episode.weight,
-            "expert_k": episode.expert_k_w[t] * episode.weight,
+            "theta": theta,
+            "margin": margin,
+            "k": k,
+            "contact_forces": forces,
+            "equilibrating_forces": episode.forces[t],  # read-only views
+            "expert_k": episode.expert_k[t],
             "expert_reward": expert_reward,
             "optimality_gap": expert_reward - reward,
-            "slip": slip,
+            "slip": margin < 0.0,  # theta_i > theta_lim, as the vector env computes it
         }
         terminated = self.terminate_on_slip and reward < 0.0
         if self._checker is not None:
-            report = self._checker.check(episode.rotations[t], forces[0])
+            report = self._checker.check(episode.rotations[t], forces)
             info["physics"] = report.as_dict()
             terminated = self.terminate_on_slip and not report.holds
         self._step = t + 1
         truncated = self._step == len(episode)
         self._done = terminated or truncated
-        self._last_forces = forces[0]
+        self._last_forces = forces
         if self.render_mode == "human":
             self.render()
         return episode.observations[t + 1].copy(), reward, terminated, truncated, info

@@ -208,6 +208,7 @@ class EpisodeBatch:
         part = self.poses.take(np.arange(start, start + length))
         scene = self.scenes.take([index])
         observations = np.vstack([part.observations, self.final_observations()[index : index + 1]])
+        weight = float(part.weight[0])
         episode = Episode(
             scene,
             part.rotations,
@@ -218,8 +219,10 @@ class EpisodeBatch:
             part.alphas,
             part.expert_k_w,
             part.expert_reward,
+            part.forces_w * weight,
+            part.expert_k_w * weight,
             limit=float(part.limit[0]),
-            weight=float(part.weight[0]),
+            weight=weight,
         )
         _read_only(*(getattr(scene, name) for name in SCENE_ARRAYS))
         _read_only(*(getattr(episode, f.name) for f in fields(Episode)[1:-2]))
@@ -243,21 +246,13 @@ class Episode:
     alphas: np.ndarray  # (T,) degrees
     expert_k_w: np.ndarray  # (T, m) the optimal grip k* / w
     expert_reward: np.ndarray  # (T,) theta_lim - the certified optimum
+    forces: np.ndarray  # (T, n, 3) the equilibrating forces F_i, newtons
+    expert_k: np.ndarray  # (T, m) the optimal grips k*, newtons
     limit: float
     weight: float  # w, newtons
 
     def __len__(self) -> int:
         return self.rotations.shape[0]
-
-    @property
-    def forces(self) -> np.ndarray:
-        """The equilibrating forces F_i (T, n, 3), newtons."""
-        return self.forces_w * self.weight
-
-    @property
-    def expert_k(self) -> np.ndarray:
-        """The optimal grips k* (T, m), newtons."""
-        return self.expert_k_w * self.weight
 
     @property
     def scene(self) -> Scene:

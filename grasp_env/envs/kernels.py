@@ -206,18 +206,70 @@ def observation_grasps(observations, pairs, forces, basis, normals):
 
 
 @_kernel
-def evaluate_grips(forces, directions, normals, pairs, rows, actions, k_max_ratio, weight, limit):
-    """Net forces and friction angles of a batch of (pose, action) pairs, computed in units of
-    the weight w and reported in newtons.
+def step_grip(
+    forces, directions, normals, pairs, row, action, k_max_ratio, w, limit, k, net, theta, margin,
+    unit,
+):  # fmt: skip
+    """One (pose, action) pair: the step of every environment (eq. 4 and eq. 2), computed in
+    units of the weight w and reported in newtons.
 
     ``forces`` (R, n, 3) equilibrating forces F_i / w, ``directions`` (R, m, 3) the unit
-    vectors u_ij and ``normals`` (R, n, 3) of R stored poses; ``rows`` (B,) picks a pose per
-    item, whose ``actions`` (B, m) are clipped to [-1, 1] and scaled by ``k_max_ratio`` (k_max
-    / w); ``weight`` (B,) is w, newtons, and ``limit`` (B,) theta_lim. Returns (ok, k, P,
-    theta, margin, reward) with k (B, m) and P (B, n, 3) in newtons; ok is False if an action
-    is not finite (the outputs are then meaningless). The angles (eq. 2) of P / w do not depend
-    on w: nothing here can overflow or underflow for any w.
+    vectors u_ij and ``normals`` (R, n, 3) of R stored poses, of which ``row`` is the one;
+    ``action`` (m,) is clipped to [-1, 1] and scaled by ``k_max_ratio`` (k_max / w); ``w`` is
+    the weight, newtons, and ``limit`` theta_lim. Fills ``k`` (m,) and ``net`` (n, 3) P in
+    newtons, ``theta`` and ``margin`` (n,), using ``unit`` (n, 3) as scratch for P / w;
+    returns (finite, reward): finite is False if an action element is not finite (the outputs
+    are then meaningless). The angles of P / w do not depend on w, and nothing here can
+    overflow or underflow for any w.
     """
+    n = forces.shape[1]
+    m = directions.shape[1]
+    finite = True
+    for i in range(n):
+        for c in range(3):
+            unit[i, c] = forces[row, i, c]
+    for q in range(m):
+        a = action[q]
+        if not math.isfinite(a):
+            finite = False
+        kq = min(max(a, -1.0), 1.0) * k_max_ratio
+        k[q] = kq * w
+        # P_i += k_ij u_ij and P_j -= k_ij u_ij: the basis e_ij of eq. 4
+        i = pairs[q, 0]
+        j = pairs[q, 1]
+        for c in range(3):
+            v = kq * directions[row, q, c]
+            unit[i, c] += v
+            unit[j, c] -= v
+    worst = np.inf
+    for i in range(n):
+        px, py, pz = unit[i, 0], unit[i, 1], unit[i, 2]
+        net[i, 0], net[i, 1], net[i, 2] = px * w, py * w, pz * w
+        nx, ny, nz = normals[row, i, 0], normals[row, i, 1], normals[row, i, 2]
+        cx = py * nz - pz * ny
+        cy = pz * nx - px * nz
+        cz = px * ny - py * nx
+        # eq. 2 as atan2(|P x n|, P . n), accurate near 0 where acos is not; written with
+        # atan, which costs half as much as atan2 here (the step's largest cost)
+        tangential = math.sqrt(cx * cx + cy * cy + cz * cz)
+        normal = px * nx + py * ny + pz * nz
+        if normal > 0.0:
+            t = math.atan(tangential / normal)
+        elif tangential > 0.0:
+            t = 0.5 * math.pi + math.atan(-normal / tangential)
+        else:  # P_i = 0 (a released finger) counts as inside its cone, as in the solver
+            t = math.pi if normal < 0.0 else 0.0
+        theta[i] = t
+        margin[i] = limit - t
+        worst = min(worst, limit - t)
+    return finite, worst
+
+
+@_kernel
+def evaluate_grips(forces, directions, normals, pairs, rows, actions, k_max_ratio, weight, limit):
+    """:func:`step_grip` for a batch of (pose, action) pairs: ``rows`` (B,) pick the poses,
+    ``actions`` (B, m), ``weight`` and ``limit`` (B,). Returns (ok, k, P, theta, margin,
+    reward), k (B, m) and P (B, n, 3) in newtons; ok is False if an action is not finite."""
     count = rows.shape[0]
     n = forces.shape[1]
     m = directions.shape[1]
@@ -229,44 +281,49 @@ def evaluate_grips(forces, directions, normals, pairs, rows, actions, k_max_rati
     unit = np.empty((n, 3))
     ok = True
     for b in range(count):
+        finite, reward[b] = step_grip(
+            forces, directions, normals, pairs, rows[b], actions[b], k_max_ratio, weight[b],
+            limit[b], k[b], net[b], theta[b], margin[b], unit,
+        )  # fmt: skip
+        ok &= finite
+    return ok, k, net, theta, margin, reward
+
+
+@_kernel
+def step_batch(
+    forces, directions, normals, observations, alphas, expert_k, expert_reward, pairs, rows,
+    actions, k_max_ratio, weight, limit,
+    next_obs, reward, k, net, theta, margin, equilibrating, expert_k_out, expert_out, gap, alpha,
+):  # fmt: skip
+    """The vector environments' step: :func:`step_grip` for every sub-environment and, in the
+    same pass, the rest of its step's results (one read of each stored row, no temporaries).
+
+    Stored rows (the vector env's store): ``forces`` and ``expert_k`` in units of w,
+    ``directions``, ``normals``, ``observations`` (observation t + 1 follows pose t),
+    ``alphas`` and ``expert_reward``. Per sub-environment: ``rows``, ``actions``, ``weight``
+    and ``limit``. Fills ``next_obs``, ``reward``, ``k``, ``net``, ``theta``, ``margin``,
+    ``equilibrating`` (F in newtons), ``expert_k_out`` (newtons), ``expert_out``, ``gap`` =
+    expert reward - reward and ``alpha``.
+    """
+    n = forces.shape[1]
+    m = directions.shape[1]
+    unit = np.empty((n, 3))
+    for b in range(rows.shape[0]):
         row = rows[b]
         w = weight[b]
+        _, r = step_grip(
+            forces, directions, normals, pairs, row, actions[b], k_max_ratio, w, limit[b],
+            k[b], net[b], theta[b], margin[b], unit,
+        )  # fmt: skip
+        reward[b] = r
+        best = expert_reward[row]
+        expert_out[b] = best
+        gap[b] = best - r
+        alpha[b] = alphas[row]
         for i in range(n):
             for c in range(3):
-                unit[i, c] = forces[row, i, c]
+                equilibrating[b, i, c] = forces[row, i, c] * w
         for q in range(m):
-            a = actions[b, q]
-            if not math.isfinite(a):
-                ok = False
-            kq = min(max(a, -1.0), 1.0) * k_max_ratio
-            k[b, q] = kq * w
-            # P_i += k_ij u_ij and P_j -= k_ij u_ij: the basis e_ij of eq. 4
-            i = pairs[q, 0]
-            j = pairs[q, 1]
-            for c in range(3):
-                v = kq * directions[row, q, c]
-                unit[i, c] += v
-                unit[j, c] -= v
-        worst = np.inf
-        for i in range(n):
-            px, py, pz = unit[i, 0], unit[i, 1], unit[i, 2]
-            net[b, i, 0], net[b, i, 1], net[b, i, 2] = px * w, py * w, pz * w
-            nx, ny, nz = normals[row, i, 0], normals[row, i, 1], normals[row, i, 2]
-            cx = py * nz - pz * ny
-            cy = pz * nx - px * nz
-            cz = px * ny - py * nx
-            # eq. 2 as atan2(|P x n|, P . n), accurate near 0 where acos is not; written with
-            # atan, which costs half as much as atan2 here (the step's largest cost)
-            tangential = math.sqrt(cx * cx + cy * cy + cz * cz)
-            normal = px * nx + py * ny + pz * nz
-            if normal > 0.0:
-                t = math.atan(tangential / normal)
-            elif tangential > 0.0:
-                t = 0.5 * math.pi + math.atan(-normal / tangential)
-            else:  # P_i = 0 (a released finger) counts as inside its cone, as in the solver
-                t = math.pi if normal < 0.0 else 0.0
-            theta[b, i] = t
-            margin[b, i] = limit[b] - t
-            worst = min(worst, limit[b] - t)
-        reward[b] = worst
-    return ok, k, net, theta, margin, reward
+            expert_k_out[b, q] = expert_k[row, q] * w
+        for a in range(observations.shape[1]):
+            next_obs[b, a] = observations[row + 1, a]

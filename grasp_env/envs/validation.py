@@ -127,7 +127,7 @@ def check_array(name: str, value: Any, shape: tuple[int, ...]) -> np.ndarray:
         raise ValueError(f"{description}, got booleans in {value!r}")
     if array.shape != shape:
         raise ValueError(f"{description}, got shape {array.shape}")
-    array = array.astype(np.float64, copy=False)
+    array = np.ascontiguousarray(array, dtype=np.float64)
     if not np.all(np.isfinite(array)):
         raise ValueError(f"{description}, got {array.tolist()}")
     return array

@@ -20,7 +20,7 @@ from gymnasium.vector.utils import batch_space
 from ..mechanics import Scene, contact_pairs
 from .cube_grasp import CubeGraspEnv, CubeGraspRandomEnv, _CubeGraspEnv, action_array
 from .episodes import Episode, EpisodeBatch, build_episodes, sample_episodes
-from .kernels import evaluate_grips
+from .kernels import step_batch
 from .scenes import parse_options
 from .validation import MAX_ENVS, check_integer, check_seed
 
@@ -297,37 +297,35 @@ class _CubeGraspVectorEnv(VectorEnv):
             a = np.where(active[:, None], a, 0.0)
         arrays = self._store.arrays
         rows = self._base + self._t
-        _, k, forces, theta, margin, reward = evaluate_grips(
-            arrays["forces_w"],
-            arrays["directions"],
-            arrays["normals"],
-            self._pairs,
-            rows,
-            a,
-            self.template.k_max_ratio,
-            self._weight,
-            self._limit,
-        )
-        # theta_i > theta_lim exactly when the rounded margin is negative (and the minimum).
-        slip = margin < 0.0
+        n, m = self._n, len(self._pairs)
+        observations = np.empty((count, arrays["observations"].shape[1]), np.float32)
+        reward, expert_reward, gap, alpha = (np.empty(count) for _ in range(4))
+        k, expert_k = np.empty((count, m)), np.empty((count, m))
+        forces, equilibrating = np.empty((count, n, 3)), np.empty((count, n, 3))
+        theta, margin = np.empty((count, n)), np.empty((count, n))
+        step_batch(
+            arrays["forces_w"], arrays["directions"], arrays["normals"],
+            arrays["observations"], arrays["alphas"], arrays["expert_k_w"],
+            arrays["expert_reward"], self._pairs, rows, a, self.template.k_max_ratio,
+            self._weight, self._limit, observations, reward, k, forces, theta, margin,
+            equilibrating, expert_k, expert_reward, gap, alpha,
+        )  # fmt: skip
         terminated = reward < 0.0 if self.terminate_on_slip else np.zeros(count, bool)
         self._t += 1
         truncated = self._t == self._length
-        expert_reward = np.take(arrays["expert_reward"], rows)
         info = {
-            "alpha_deg": np.take(arrays["alphas"], rows),
+            "alpha_deg": alpha,
             "theta": theta,
             "margin": margin,
             "k": k,
             "contact_forces": forces,
-            "equilibrating_forces": np.take(arrays["forces_w"], rows, axis=0)
-            * self._weight[:, None, None],
-            "expert_k": np.take(arrays["expert_k_w"], rows, axis=0) * self._weight[:, None],
+            "equilibrating_forces": equilibrating,
+            "expert_k": expert_k,
             "expert_reward": expert_reward,
-            "optimality_gap": expert_reward - reward,
-            "slip": slip,
+            "optimality_gap": gap,
+            # theta_i > theta_lim exactly when the rounded margin is negative (and the minimum)
+            "slip": margin < 0.0,
         }
-        observations = np.take(arrays["observations"], rows + 1, axis=0)
         if restarting.size:
             # Restarted sub-environments: observation 0, no reward, no info, nothing ended.
             reward[restarting] = 0.0
