@@ -37,7 +37,7 @@ from grasp_env.mechanics import (
 
 EXAMPLES = int(os.environ.get("GRASP_FUZZ_EXAMPLES", "0"))
 FUZZ = settings(
-    max_examples=EXAMPLES or 60,
+    max_examples=EXAMPLES or 40,
     derandomize=not EXAMPLES,  # the suite's runs are reproducible; a study explores
     deadline=None,
     database=None,  # nothing written into the working tree
@@ -48,6 +48,7 @@ FIXED, RANDOM, FOUR = (
     "grasp_env/CubeGraspRandom-v0",
     "grasp_env/CubeGrasp4-v0",
 )
+MAX_STEPPED = 8  # sub-environments a fuzzed vector env is stepped with, at most
 GAP = 1e-12  # rad: no action may beat the certified optimum by more than rounding
 SAME = 1e-12  # rad: rewards of one action on one scene at two weights
 
@@ -157,6 +158,11 @@ def scene_options(draw: st.DrawFn, faces: tuple[str, ...]) -> dict:
     return scene
 
 
+def _cast(pair: tuple[np.ndarray, type]) -> np.ndarray:
+    with np.errstate(over="ignore"):
+        return pair[0].astype(pair[1])
+
+
 def action_values(m: int, batch: tuple[int, ...] = ()) -> st.SearchStrategy:
     """Actions of the right shape (finite, huge, tiny, NaN, inf, integers) or anything else."""
     element = st.one_of(
@@ -171,7 +177,7 @@ def action_values(m: int, batch: tuple[int, ...] = ()) -> st.SearchStrategy:
         lambda values: np.array(values).reshape(shape)
     )
     typed = st.tuples(right, st.sampled_from([np.float64, np.float32, np.float16])).map(
-        lambda pair: pair[0].astype(pair[1]) if np.all(np.isfinite(pair[0])) else pair[0]
+        _cast  # huge values become inf in float32 and float16: refused like any other inf
     )
     wrong = st.one_of(
         junk,
@@ -241,9 +247,11 @@ def check_step(space, scene, axis, alpha, action, ratio, result) -> None:
 def steps_checked(env, data, steps: int = 3) -> None:
     """Draw up to ``steps`` actions for a single environment and check every accepted step."""
     episode, m = env.episode, env.action_space.shape[0]
+    # drawn first, whatever happens: the draws must not depend on the episode (a seed of None
+    # makes it random)
+    actions = [data.draw(action_values(m), f"action {t}") for t in range(steps)]
     pose = 0  # a refused action does not move the episode on
-    for t in range(min(steps, len(episode))):
-        action = data.draw(action_values(m), f"action {t}")
+    for action in actions[: len(episode)]:
         result = refused(lambda a=action: env.step(a))
         if result is None:
             continue
@@ -341,6 +349,8 @@ def test_fuzz_vector_env(env_id, data):
     if venv is None:
         return
     n = venv.num_envs
+    if n > MAX_STEPPED:  # a valid, large num_envs: built; stepping it is for the benchmarks
+        return
     seed = data.draw(
         st.one_of(
             or_junk(st.integers(0, 2**40)),
@@ -393,7 +403,7 @@ def test_fuzz_sb3_adapter(data):
 
     num_envs = data.draw(or_junk(st.integers(1, 3)), "num_envs")
     venv = refused(lambda: SB3VecEnv(FIXED, num_envs=num_envs))
-    if venv is None:
+    if venv is None or venv.num_envs > MAX_STEPPED:
         return
     seed = data.draw(or_junk(st.integers(0, 2**40)), "seed")
     if refused(lambda: venv.seed(seed)) is None:
