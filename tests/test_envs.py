@@ -351,6 +351,7 @@ def test_step_before_reset_and_after_the_end_raises():
         ({"scene": {"mu": "high"}}, "'mu' must be a finite number"),
         ({"scene": {"weight": -1.0}}, r"'weight' must be a finite number in \[1e-06, 1e\+06\]"),
         ({"scene": {"weight": True}}, "'weight' must be a finite number"),
+        ({"scene": {"extra_force": [0, 0, 5 * (1 - 1e-9)]}}, "nearly cancel the weight"),
         ({"scene": {"trajectory": {"alpha_step_deg": 1e-6}}}, "at most 10000 poses"),
         ({"scene": {"trajectory": {"alpha_start_deg": "a"}}}, "'alpha_start_deg' must be"),
         ({"scene": {"cg_offset": [0.6, 0, 0]}}, "inside the box"),

@@ -146,11 +146,15 @@ def scene_options(draw: st.DrawFn, faces: tuple[str, ...]) -> dict:
             or_junk(st.lists(fraction.map(lambda x: x / 2), min_size=3, max_size=3))
         )
     w = weight if isinstance(scene.get("weight"), float) else 5.0
+    uniform = st.lists(st.floats(-1.0, 1.0).map(lambda x: x * w), min_size=3, max_size=3)
+    # loads that cancel the weight, exactly or nearly
+    cancelling = st.sampled_from([1.0, 1 - 1e-12, 1 - 1e-7, 1 - 1e-5]).map(
+        lambda x: [0.0, 0.0, x * w]
+    )
+    load = st.integers(0, 4).flatmap(lambda i: cancelling if i == 0 else uniform)
     for key in ("extra_force", "extra_torque"):
         if draw(st.booleans()):
-            scene[key] = draw(
-                or_junk(st.lists(st.floats(-1.0, 1.0).map(lambda x: x * w), min_size=3, max_size=3))
-            )
+            scene[key] = draw(or_junk(load))
     if draw(st.booleans()):
         scene["trajectory"] = draw(or_junk(trajectories()))
     if draw(st.integers(0, 20)) == 0:

@@ -18,7 +18,7 @@ import numpy as np
 from ..mechanics import START_ROTATION, Grasp, Scene, Status, contact_pairs, solve_minimax
 from .kernels import pose_geometry
 from .observation import ObservationLayout
-from .scenes import EDGE, SCENE_ARRAYS, SceneBatch, SceneSampler, layout_ok
+from .scenes import EDGE, SCENE_ARRAYS, SceneBatch, SceneSampler, layout_ok, load_ok
 
 _BOUNDS = {n: ObservationLayout(n).bounds() for n in (3, 4)}
 
@@ -306,7 +306,8 @@ def sample_episodes(
 
     Each generator draws :data:`DRAWS_PER_ROUND` candidates per round; candidates whose
     contacts are (nearly) collinear or coplanar (the rule of
-    :class:`~grasp_env.mechanics.Scene`) are dropped, a cheap screen solves the expert at the
+    :class:`~grasp_env.mechanics.Scene`) or whose load nearly cancels the weight
+    (:func:`~grasp_env.envs.scenes.load_ok`) are dropped, a cheap screen solves the expert at the
     trajectory's two ends and middle, then candidates that pass are solved along the whole
     trajectory in order, the first that holds being the episode. Which scene a generator yields
     depends on that generator alone, so a vector of environments gets the same episodes as
@@ -328,16 +329,18 @@ def sample_episodes(
             np.concatenate([sampler.raw(rngs[e], DRAWS_PER_ROUND) for e in pending])
         )
         drawn += len(drafts)
-        # Screen: the two ends and the middle of every candidate's trajectory.
+        # Screen the usable candidates (a grasp, a load): the two ends and the middle of
+        # every trajectory.
+        usable = np.flatnonzero(
+            layout_ok(drafts.contacts)
+            & load_ok(drafts.weight, drafts.extra_force, drafts.extra_torque)
+        )
         last = drafts.length - 1
         picks = np.stack([np.zeros_like(last), last // 2 + last % 2, last], axis=1)
-        screen = build_poses(
-            drafts, np.repeat(np.arange(len(drafts)), 3), picks.ravel(), k_max_ratio
-        )
-        worst = screen.expert_reward.reshape(len(drafts), 3).min(-1)
-        passed = ((worst >= min_margin) & layout_ok(drafts.contacts)).reshape(
-            len(pending), DRAWS_PER_ROUND
-        )
+        screen = build_poses(drafts, np.repeat(usable, 3), picks[usable].ravel(), k_max_ratio)
+        worst = np.full(len(drafts), -np.inf)
+        worst[usable] = screen.expert_reward.reshape(-1, 3).min(-1)
+        passed = (worst >= min_margin).reshape(len(pending), DRAWS_PER_ROUND)
         open_ = np.ones(len(pending), bool)
         for d in range(DRAWS_PER_ROUND):  # candidates in their draw order
             slots = np.flatnonzero(open_ & passed[:, d])
@@ -347,7 +350,8 @@ def sample_episodes(
             scenes = drafts.take(candidates)
             # The screened poses are solved already (the optimum ignores the phase).
             starts = np.cumsum(scenes.length) - scenes.length
-            known = screen.take((candidates[:, None] * 3 + np.arange(3)).ravel())
+            screened = np.searchsorted(usable, candidates)
+            known = screen.take((screened[:, None] * 3 + np.arange(3)).ravel())
             rows = (starts[:, None] + picks[candidates]).ravel()
             full = build_episodes(scenes, k_max_ratio, known, rows)
             holds = full.worst_expert_reward() >= min_margin

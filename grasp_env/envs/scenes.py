@@ -223,6 +223,12 @@ def parse_scene(spec: Mapping[str, Any] | None, defaults: Mapping[str, Any]) -> 
             f"scene 'extra_torque' {scene.extra_torque.tolist()} must be at most weight x edge"
             f" ({weight * EDGE}) per component"
         )
+    if not load_ok(np.array([weight]), scene.extra_force[None], scene.extra_torque[None])[0]:
+        raise ValueError(
+            f"scene 'extra_force' {scene.extra_force.tolist()} and 'extra_torque'"
+            f" {scene.extra_torque.tolist()} nearly cancel the weight ({weight}): the net load"
+            f" must be zero or at least {MIN_LOAD:g} w (w L for the torque) in some component"
+        )
     return SceneBatch.single(scene, trajectory)
 
 
@@ -236,6 +242,21 @@ def parse_options(options: Mapping[str, Any] | None) -> Mapping[str, Any] | None
         if key != "scene":
             raise ValueError(f"unknown option {key!r}; the only option is 'scene'")
     return options.get("scene")
+
+
+#: The smallest net load accepted besides none at all, in units of w (and w L for the torque):
+#: a load that nearly cancels the weight leaves equilibrating forces too small beside k_max
+#: for the solver's certificate (it accepts k_max up to 1e12 times the largest of them).
+MIN_LOAD = 1e-6
+
+
+def load_ok(weight: np.ndarray, extra_force: np.ndarray, extra_torque: np.ndarray) -> np.ndarray:
+    """(E,) bool: the net load f = (0, 0, -w) + f_d, tau_d is zero or at least
+    :data:`MIN_LOAD` (largest component, in units of w and w L)."""
+    force = np.array(extra_force, dtype=float) / weight[:, None]
+    force[:, 2] -= 1.0
+    size = np.maximum(np.abs(force).max(-1), np.abs(extra_torque).max(-1) / (weight * EDGE))
+    return (size == 0.0) | (size >= MIN_LOAD)
 
 
 def layout_ok(contacts: np.ndarray) -> np.ndarray:
