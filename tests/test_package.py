@@ -100,3 +100,14 @@ def test_pyproject_ships_every_package():
         top = parts[0] if parts[0] in folders else None  # a mapped folder: its installed name
         found.add(".".join([folders[top], *parts[1:]] if top else parts))
     assert sorted(found) == sorted(setuptools["packages"])
+
+
+def test_every_command_has_help():
+    """``grasp-env --help`` and each command's ``--help`` print and exit 0 (argparse formats
+    help strings with %, so a stray % crashes them)."""
+    from grasp_env_agents import cli
+
+    for argv in [[], *([name] for name in cli.SUMMARIES)]:
+        with pytest.raises(SystemExit) as done:
+            cli.main([*argv, "--help"])
+        assert done.value.code == 0, argv
