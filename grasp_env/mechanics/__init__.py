@@ -1,4 +1,4 @@
-"""Pure numpy mechanics of the grasp: no gymnasium, mujoco or torch here (docs/design.md, "Architecture")."""
+"""Pure numpy mechanics: no gymnasium, mujoco or torch (docs/design.md, "Architecture")."""
 
 from .forces import (
     Grasp,
