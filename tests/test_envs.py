@@ -269,6 +269,22 @@ def test_expert_matches_the_mechanics_optimum():
         assert reward == pytest.approx(unwrapped.scene.friction_limit - optimum.max_angle, abs=1e-6)
 
 
+@pytest.mark.parametrize("seed", [2, 13])
+def test_expert_releasing_a_finger_earns_the_optimum(seed):
+    """Four-finger optima often release a finger; the expert's float32 action leaves it a force
+    of about 1e-8 w in an arbitrary direction, which must count as released (angle 0), not as a
+    slip (seeds 2 and 13 lost 47 and 111 deg to it before kernels.RELEASE)."""
+    env = make("grasp_env/CubeGraspRandom-v0", faces=FOUR_FINGER_FACES)
+    expert = MinimaxExpert()
+    obs, _ = env.reset(seed=seed)
+    done = False
+    while not done:
+        obs, reward, terminated, truncated, info = env.step(expert.predict(obs)[0])
+        assert -1e-8 < info["expert_reward"] - reward < np.deg2rad(1e-3)  # certified to 1e-9
+        done = terminated or truncated
+    assert truncated and not terminated
+
+
 def test_expert_batched_and_evaluate_policy():
     from stable_baselines3.common.evaluation import evaluate_policy
 

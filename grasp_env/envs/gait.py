@@ -54,9 +54,6 @@ from .validation import (
 #: The paper's axis over [-90, 90] deg in 1 deg steps, as the ``trajectory`` keyword's mapping.
 PAPER_TURN_SPEC = {key: getattr(PAPER_TURN, key) for key in TRAJECTORY_KEYS}
 _SQRT3 = float(np.sqrt(3.0))
-#: Finger forces below this fraction of the weight are released (see :func:`_step`); float32
-#: rounding of an action moves a force by at most 6 k_max 2^-24 (7e-7 w for k_max = 2 w).
-RELEASE = 1e-5
 
 
 # ------------------------------------------------------------------------------- the task
@@ -150,7 +147,7 @@ class GaitTask:
         return (
             self.csr, table.states, table.ptr, table.code, self.moves_table, self.solution.reach,
             *self.grasps[0], *self.grasps[1],
-            np.array([self.k_max_ratio, self.weight, self.limit, RELEASE]),
+            np.array([self.k_max_ratio, self.weight, self.limit]),
             np.ascontiguousarray(np.hstack([self.observations, self.reach_obs])),
             self.contact_obs,
         )  # fmt: skip
@@ -279,7 +276,7 @@ def gait_task(
 @numba.njit(cache=True, nogil=True)
 def _score_grips(
     size, forces_w, directions, normals, pairs, chosen, ts, actions, moves_table, k_max_ratio,
-    weight, limit, release, T, F, P, floats, flags,
+    weight, limit, T, F, P, floats, flags,
 ):  # fmt: skip
     """The grips of the sub-environments whose loaded set has 3 + ``size`` fingers, scored by
     :func:`~grasp_env.envs.kernels.evaluate_grips` in one call (layout: :func:`_step`)."""
@@ -304,7 +301,7 @@ def _score_grips(
             for q in range(m_pairs):
                 grip[j, q] = actions[b, moves_table[k, 4 + q]]
             j += 1
-    _, kk, net, angles, _, _ = evaluate_grips(
+    _, kk, net, angles, _, reward = evaluate_grips(
         forces_w, directions, normals, pairs, rows, grip, k_max_ratio, np.full(count, weight),
         np.full(count, limit),
     )  # fmt: skip
@@ -312,20 +309,15 @@ def _score_grips(
     for j in range(count):
         b = items[j]
         k = chosen[b]
-        worst = np.inf
-        for i in range(n):
+        for i in range(n):  # released fingers (kernels.RELEASE) have angle 0
             f = moves_table[k, 10 + i]
-            size_i = math.sqrt(net[j, i, 0] ** 2 + net[j, i, 1] ** 2 + net[j, i, 2] ** 2)
-            # released (below RELEASE w): no meaningful direction, inside its cone
-            angle = 0.0 if size_i < release * weight else angles[j, i]
-            floats[b, FT + f] = angle
+            floats[b, FT + f] = angles[j, i]
             flags[b, LOADED + f] = True
-            worst = min(worst, limit - angle)
             for a in range(3):
                 floats[b, FF + 3 * f + a] = net[j, i, a]
         for q in range(m_pairs):
             floats[b, FK + moves_table[k, 4 + q]] = kk[j, q]
-        floats[b, 0] = worst
+        floats[b, 0] = reward[j]
 
 
 @numba.njit(cache=True, nogil=True)
@@ -336,9 +328,9 @@ def _step_kernel(
 ):  # fmt: skip
     """One step of B sub-environments in states ``xs`` at poses ``ts`` (see :func:`_step` for
     the layout of the outputs ``floats``, ``ints`` and ``flags``); ``params`` holds k_max / w,
-    w, theta_lim and the release fraction, ``observations`` (T + 1, pose part + reach part).
+    w and theta_lim, ``observations`` (T + 1, pose part + reach part).
     Returns False if an action is not finite."""
-    k_max_ratio, weight, limit, release = params[0], params[1], params[2], params[3]
+    k_max_ratio, weight, limit = params[0], params[1], params[2]
     B = xs.shape[0]
     F = states.shape[1]
     N = reach.shape[2]
@@ -408,7 +400,6 @@ def _step_kernel(
         k_max_ratio,
         weight,
         limit,
-        release,
         T,
         F,
         P,
@@ -428,7 +419,6 @@ def _step_kernel(
         k_max_ratio,
         weight,
         limit,
-        release,
         T,
         F,
         P,
@@ -663,9 +653,10 @@ class CubeGaitEnv(gym.Env[np.ndarray, np.ndarray]):
 
     ## Rewards
     min over the fingers that carry load of (theta_lim - theta_i), radians (eq. 2, 4), as in
-    the other environments; a finger commanded below 1e-5 w (`RELEASE`) is released, its
-    angle counted as 0 (the optimum often lets the fourth finger go, and float32 actions
-    alone leave such a finger ~1e-6 w in an arbitrary direction). A finger whose site has
+    the other environments; a released finger (its force at most 1e-6 of the forces it is
+    made of, `grasp_env.envs.kernels.RELEASE`) counts as inside its cone, angle 0 (the optimum
+    often lets the fourth finger go, and float32 actions alone leave such a finger about
+    1e-8 w in an arbitrary direction). A finger whose site has
     left its reach while it touches the object has lost its contact under load: the step's
     reward is theta_lim - pi/2 (its friction angle counts as 90 deg: it cannot push).
 

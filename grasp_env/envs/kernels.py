@@ -20,6 +20,15 @@ import numpy as np
 
 _kernel = numba.njit(cache=True, nogil=True)
 
+#: A finger is released when its net force is at most this fraction of the forces it is made
+#: of: |P_i| <= RELEASE (|F_i| + sum_j |k_ij|). Such a P_i is the rounding left by forces that
+#: cancel (the solver's optimum releases fingers exactly, but a float32 action leaves about
+#: 1e-8 of those forces, measured on random four-finger scenes and in the gait environment), so
+#: its direction means nothing: the finger counts as inside its cone, theta_i = 0, as in the
+#: solver (which holds a released finger at its cone's apex). Forces of 1e-5 w and more, which
+#: the optimum does use, are far above it.
+RELEASE = 1e-6
+
 
 @_kernel
 def _equilibrating(p, force, torque, out):
@@ -206,6 +215,18 @@ def observation_grasps(observations, pairs, forces, basis, normals):
 
 
 @_kernel
+def released(force, k, w, pairs, i, p):
+    """Whether finger ``i`` is released (:data:`RELEASE`): its net force ``p`` = P_i / w, at
+    most RELEASE times the equilibrating ``force`` F_i / w and the grips ``k`` (newtons, the
+    weight ``w``) it is made of."""
+    size = math.sqrt(force[0] ** 2 + force[1] ** 2 + force[2] ** 2)
+    for q in range(pairs.shape[0]):
+        if pairs[q, 0] == i or pairs[q, 1] == i:
+            size += abs(k[q]) / w
+    return math.sqrt(p[0] ** 2 + p[1] ** 2 + p[2] ** 2) <= RELEASE * size
+
+
+@_kernel
 def step_grip(
     forces, directions, normals, pairs, row, action, k_max_ratio, w, limit, k, net, theta, margin,
     unit,
@@ -219,8 +240,8 @@ def step_grip(
     the weight, newtons, and ``limit`` theta_lim. Fills ``k`` (m,) and ``net`` (n, 3) P in
     newtons, ``theta`` and ``margin`` (n,), using ``unit`` (n, 3) as scratch for P / w;
     returns (finite, reward): finite is False if an action element is not finite (the outputs
-    are then meaningless). The angles of P / w do not depend on w, and nothing here can
-    overflow or underflow for any w.
+    are then meaningless). A released finger (:data:`RELEASE`) has theta_i = 0. The angles of
+    P / w do not depend on w, and nothing here can overflow or underflow for any w.
     """
     n = forces.shape[1]
     m = directions.shape[1]
@@ -241,10 +262,20 @@ def step_grip(
             v = kq * directions[row, q, c]
             unit[i, c] += v
             unit[j, c] -= v
+    # A released finger has |P_i| <= RELEASE (|F_i| + S_i), S_i = sum_j |k_ij| / w, so (by
+    # |F_i| <= |P_i| + S_i) |P_i| <= 2 RELEASE S_i / (1 - RELEASE) <= 2.01 RELEASE (n - 1)
+    # k_max / w: only forces that small are looked at closely.
+    small = (2.01 * RELEASE * (n - 1) * k_max_ratio) ** 2
     worst = np.inf
     for i in range(n):
         px, py, pz = unit[i, 0], unit[i, 1], unit[i, 2]
         net[i, 0], net[i, 1], net[i, 2] = px * w, py * w, pz * w
+        tiny = px * px + py * py + pz * pz <= small
+        if tiny and released(forces[row, i], k, w, pairs, i, unit[i]):
+            theta[i] = 0.0
+            margin[i] = limit
+            worst = min(worst, limit)
+            continue
         nx, ny, nz = normals[row, i, 0], normals[row, i, 1], normals[row, i, 2]
         cx = py * nz - pz * ny
         cy = pz * nx - px * nz
@@ -257,8 +288,8 @@ def step_grip(
             t = math.atan(tangential / normal)
         elif tangential > 0.0:
             t = 0.5 * math.pi + math.atan(-normal / tangential)
-        else:  # P_i = 0 (a released finger) counts as inside its cone, as in the solver
-            t = math.pi if normal < 0.0 else 0.0
+        else:  # unreachable: P_i = 0 is released
+            t = 0.0
         theta[i] = t
         margin[i] = limit - t
         worst = min(worst, limit - t)
