@@ -1,7 +1,7 @@
 """Independent reference for the minimax optimiser: bisection over second-order-cone feasibility.
 
 Test-only (cvxpy + Clarabel). theta_i <= t < 90 deg holds exactly when the tangential part of
-P_i lies in the cone |P_i - (n_i . P_i) n_i| <= tan(t) (n_i . P_i) (DESIGN.md §1, "Minimax"),
+P_i lies in the cone |P_i - (n_i . P_i) n_i| <= tan(t) (n_i . P_i) (docs/design.md §1, "Minimax"),
 so the optimum is the smallest t whose cone constraints admit a k in the box. At each t we solve
 
     minimise s  subject to  cos t |(I - n_i n_i^T) P_i(k)| <= sin t (n_i . P_i(k)) + s,

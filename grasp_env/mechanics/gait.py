@@ -51,7 +51,7 @@ MIN_LOADED, MAX_LOADED = 3, 4
 MAX_TOUCHING = MAX_LOADED
 #: The default sites: one per face of the unit cube, off its centre (fractions of the
 #: half-widths, see :func:`~.scene.face_point`), so that the normal lines do not all pass
-#: through the centre of gravity (with face centres every optimum is 0 deg, DESIGN.md §1).
+#: through the centre of gravity (with face centres every optimum is 0 deg, docs/design.md §1).
 SITE_FACES = ("-x", "-y", "-z", "+x", "+y", "+z")
 SITE_OFFSETS = ((0.3, 0.1), (-0.2, 0.3), (0.1, -0.3), (0.2, -0.1), (-0.1, 0.2), (0.3, 0.2))
 #: The default centre of gravity, relative to the cube's centre (metres).

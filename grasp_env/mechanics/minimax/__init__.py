@@ -1,4 +1,5 @@
-"""The minimax grip: k* = argmin over the box |k_ij| <= k_max of max_i theta_i(k) (DESIGN.md §1).
+"""The minimax grip: k* = argmin over the box |k_ij| <= k_max of max_i theta_i(k)
+(docs/design.md §1).
 
 The problem is quasi-convex: theta_i <= t < 90 deg exactly when P_i(k) = F_i + A_i k (eq. 4)
 lies in the cone |P_i - (n_i . P_i) n_i| <= tan(t) (n_i . P_i), convex in k. The solver
