@@ -1,4 +1,10 @@
-"""The MuJoCo check agrees with the analytic friction cone; resets exactly; rejects bad input."""
+"""MuJoCo against the analytic friction cone: pose checks and continuous rollouts (docs/physics.md).
+
+The pose check and the rollout are one engine (:mod:`grasp_env.physics.motion` plans the steps,
+:mod:`grasp_env.physics.simulation` runs them): the tests hold both against the analytic verdict
+on grips that hold, grips that slip, grips that cross the limit only between poses, released
+fingers and fingers phased out and in; and they pin down determinism and the refusals.
+"""
 
 from __future__ import annotations
 
@@ -16,14 +22,28 @@ from grasp_env.mechanics import (
     START_ROTATION,
     Scene,
     Trajectory,
+    friction_angles,
     n_pairs,
     pose_rotation,
     scene_grasp,
     solve_minimax,
 )
-from grasp_env.physics import SETTINGS, PhysicsReport, StabilityChecker
-from grasp_env.physics.agreement import ForceSet, force_set_k, summarise
-from grasp_env.physics.model import pose_qpos
+from grasp_env.physics import SETTINGS, PhysicsReport, StabilityChecker, TrajectoryChecker
+from grasp_env.physics.agreement import (
+    CROSSINGS_DEG,
+    ForceSet,
+    check_cases,
+    check_sets,
+    coarse_steps_case,
+    force_set_k,
+    perturbed_k,
+    released_sets,
+    summarise,
+    summarise_trajectories,
+    trajectory_cases,
+)
+from grasp_env.physics.model import G, build_mjcf, model_cg, model_contacts
+from grasp_env.physics.simulation import PhysicsModel, available_cores
 from grasp_env_agents.cli import main
 
 EDGE_SCENES = {
@@ -73,6 +93,9 @@ def forces_at_angle(scene: Scene, alpha_deg: float, angle_deg: float, seed: int 
     return rotation, grasp.forces(k)
 
 
+# ------------------------------------------------------------------------------ the pose check
+
+
 @pytest.mark.parametrize("name", EDGE_SCENES)
 def test_verdict_flips_at_the_cone_edge(name):
     scene, alpha = EDGE_SCENES[name]
@@ -99,9 +122,9 @@ def test_paper_optimal_forces_hold_along_the_trajectory():
     optimum = grasp.forces(solve_minimax(grasp, 2 * scene.weight).k)
     equal_k = grasp.forces(scene.weight * np.tan(PHI) / (3 * np.sqrt(3)) * np.ones(n_pairs(3)))
     checker = StabilityChecker(scene)
-    optimal_reports = [checker.check(r, f) for r, f in zip(rotations, optimum, strict=True)]
+    optimal_reports = checker.check_batch(rotations, optimum)
     ends = [0, len(trajectory) - 1]
-    equal_k_reports = [checker.check(rotations[t], equal_k[t]) for t in ends]
+    equal_k_reports = checker.check_batch(rotations[ends], equal_k[ends])
     checker.close()
     assert all(r.holds for r in optimal_reports), [r.as_dict() for r in optimal_reports]
     assert max(r.slip.max() for r in optimal_reports) < 0.1 * SETTINGS["slip_threshold"]
@@ -109,42 +132,22 @@ def test_paper_optimal_forces_hold_along_the_trajectory():
     assert not any(r.holds for r in equal_k_reports)
 
 
-def _state(checker: StabilityChecker) -> dict:
-    """Every array of MuJoCo's data, its scalar counters, and the model's contact friction."""
-    data = checker.data
-    state = {}
-    for name in dir(data):
-        if not name.startswith("_"):
-            value = getattr(data, name)
-            if isinstance(value, np.ndarray):
-                state[name] = value.copy()
-    state.update(time=data.time, ncon=data.ncon, nefc=data.nefc)
-    state["pair_friction"] = checker.model.pair_friction.copy()
-    return state
-
-
-def test_reset_restores_the_state_exactly(paper_checker):
-    fresh = _state(paper_checker)
-    rotation, forces = forces_at_angle(paper_checker.scene, 3.0, 30.0)  # slips: state moves
-    report = paper_checker.check(rotation, forces)
-    assert not report.holds
-    moved = _state(paper_checker)
-    assert not np.array_equal(moved["qpos"], fresh["qpos"])
-    paper_checker.reset()
-    after = _state(paper_checker)
-    assert after.keys() == fresh.keys()
-    for name, value in fresh.items():
-        assert np.array_equal(after[name], value, equal_nan=True), name
-
-
-def test_same_input_same_report_whatever_came_before(paper_checker):
-    hold = forces_at_angle(paper_checker.scene, -4.0, 10.0)
-    slip = forces_at_angle(paper_checker.scene, 7.0, 25.0, seed=1)
-    first = paper_checker.check(*hold)
-    paper_checker.check(*slip)
-    again = paper_checker.check(*hold)
-    assert first.holds
-    assert first.as_dict() == again.as_dict()
+def test_same_report_alone_in_a_batch_and_on_any_number_of_threads(paper_checker):
+    scene = paper_checker.scene
+    cases = [
+        forces_at_angle(scene, -4.0, 10.0),
+        forces_at_angle(scene, 7.0, 25.0, seed=1),  # slips: a neighbour that moves
+        forces_at_angle(scene, 3.0, 16.0, seed=2),
+    ]
+    rotations = np.array([r for r, _ in cases])
+    forces = np.array([f for _, f in cases])
+    alone = [paper_checker.check(r, f) for r, f in cases]
+    again = paper_checker.check(*cases[0])
+    assert alone[0].as_dict() == again.as_dict()  # whatever came before
+    assert [r.holds for r in alone] == [True, False, True]
+    for threads in (1, 2):
+        batch = paper_checker.check_batch(rotations, forces, threads=threads)
+        assert [r.as_dict() for r in batch] == [r.as_dict() for r in alone]
 
 
 def test_report_is_plain_data(paper_checker):
@@ -152,7 +155,7 @@ def test_report_is_plain_data(paper_checker):
     assert isinstance(report, PhysicsReport)
     as_dict = report.as_dict()
     assert json.loads(json.dumps(as_dict)) == as_dict
-    assert set(as_dict) >= {"holds", "slip", "contact_lost", "drift", "rotation_deg"}
+    assert set(as_dict) >= {"holds", "slip", "contact_lost", "released", "drift", "rotation_deg"}
     assert len(as_dict["slip"]) == len(as_dict["contact_lost"]) == 3
 
 
@@ -176,6 +179,38 @@ def test_unbalanced_forces_do_not_hold(paper_checker):
     assert not report.holds
 
 
+def test_released_fingers_are_not_lost_holds():
+    # Four-finger optima that release a finger (its force about 1e-11 w): the checker before
+    # the rollout engine counted every one of them as "contact lost" (52 of these 52).
+    sets = released_sets(seed=0, scenes=60)
+    assert len(sets) >= 8
+    for case in sets:
+        report = StabilityChecker(case.scene).check(case.rotation, case.forces)
+        assert report.holds, report.as_dict()
+        assert report.released.any() and not report.contact_lost.any()
+        force = np.linalg.norm(case.forces, axis=-1) / case.scene.weight
+        np.testing.assert_array_equal(report.released, force <= SETTINGS["released_force"])
+
+
+def test_tiny_and_huge_scales_and_friction_build_well_conditioned_models():
+    # Units of w and L: a 1e-9 N, 1 mm box is the same model as the paper's (in newtons and
+    # metres MuJoCo would refuse its masses, below mjMINVAL); so is a 1e9 N, 50 m one; and a
+    # tiny mu builds (the settle's and the drawn cone's).
+    tiny = Scene.on_faces(PAPER_FACES, size=1e-3, weight=1e-9)
+    huge = Scene.on_faces(PAPER_FACES, size=50.0, weight=1e9, mu=40.0)
+    for scene in (tiny, huge):
+        physics = PhysicsModel(scene, SETTINGS["timestep"], SETTINGS["settle_mu"])
+        assert physics.model.body_mass[physics.object] == pytest.approx(1 / G)
+        checker = StabilityChecker(scene)
+        holds = checker.check(*forces_at_angle(scene, 5.0, 10.0))
+        assert holds.holds, holds.as_dict()
+        assert holds.slip.max() < 0.1 * SETTINGS["slip_threshold"] * scene.size.max()
+        assert holds.drift < 1e-4 * scene.size.max()
+    scene = Scene(mu=1e-6)
+    mujoco.MjModel.from_xml_string(build_mjcf(scene, visual=True))
+    assert not StabilityChecker(scene).check(*forces_at_angle(scene, 5.0, 10.0)).holds
+
+
 @pytest.mark.parametrize(
     ("rotation", "forces", "message"),
     [
@@ -196,12 +231,16 @@ def test_bad_inputs_raise_clear_errors(paper_checker, rotation, forces, message)
 
 
 def test_bad_settings_raise_clear_errors():
-    with pytest.raises(ValueError, match="unknown StabilityChecker settings"):
+    with pytest.raises(ValueError, match="unknown physics settings"):
         StabilityChecker(Scene(), hold=1.0)
     with pytest.raises(ValueError, match="hold_time must be a finite number > 0"):
         StabilityChecker(Scene(), hold_time=-1.0)
+    with pytest.raises(ValueError, match=r"timestep must be in \(0, 0.0025\]"):
+        TrajectoryChecker(Scene(), timestep=0.01)
     with pytest.raises(ValueError, match="scene must be"):
         StabilityChecker("paper")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="threads must be >= 1"):
+        StabilityChecker(Scene()).check_batch(START_ROTATION[None], np.zeros((1, 3, 3)), threads=0)
 
 
 def test_closed_checker_refuses_to_check():
@@ -212,33 +251,41 @@ def test_closed_checker_refuses_to_check():
 
 
 def test_model_carries_the_scene():
+    # The model is the scene in the hand's frame and in units of w and L (docs/physics.md): the
+    # box at rest, its centre of gravity at the origin, zero gravity (the load is applied), each
+    # fingertip touching its contact point along the contact's normal.
     scene = Scene.on_faces(
-        PAPER_FACES, size=(1.0, 0.8, 0.6), weight=7.0, mu=0.4, cg_offset=(0.1, 0.0, -0.05)
+        PAPER_FACES, size=(2.0, 1.6, 1.2), weight=7.0, mu=0.4, cg_offset=(0.2, 0.0, -0.1)
     )
-    checker = StabilityChecker(scene)
-    model = checker.model
+    physics = PhysicsModel(scene, SETTINGS["timestep"], SETTINGS["settle_mu"])
+    model = physics.model
     body = model.body("object")
-    assert model.body_mass[body.id] * -model.opt.gravity[2] == pytest.approx(7.0)
-    np.testing.assert_allclose(model.body_ipos[body.id], scene.cg_offset)
+    assert model.body_mass[body.id] == pytest.approx(1 / G)
+    np.testing.assert_allclose(model.opt.gravity, 0.0)
+    np.testing.assert_allclose(model.body_ipos[body.id], np.array([0.2, 0.0, -0.1]) / 2)
     np.testing.assert_allclose(model.geom("box").size, np.array([1.0, 0.8, 0.6]) / 2)
     np.testing.assert_allclose(model.pair_friction[:, :2], 0.4)
+    np.testing.assert_allclose(physics.settle_model.pair_friction[:, :2], SETTINGS["settle_mu"])
     assert model.opt.cone == mujoco.mjtCone.mjCONE_ELLIPTIC
     assert model.opt.jacobian == mujoco.mjtJacobian.mjJAC_DENSE
-    # The pose: the centre of gravity at the origin, each fingertip touching its contact point
-    # from outside, along the contact's normal (so MuJoCo's contact is the analytic one).
-    rotation = pose_rotation(PAPER_AXIS, np.radians(9.0))
-    data = checker.data
-    data.qpos[:] = pose_qpos(scene, rotation)
+    assert model.opt.timestep == SETTINGS["timestep"]
+    data = mujoco.MjData(model)
+    mujoco.mj_setState(
+        model, data, physics.initial_state(np.ones(3, bool)), mujoco.mjtState.mjSTATE_FULLPHYSICS
+    )
     mujoco.mj_forward(model, data)
     np.testing.assert_allclose(data.xipos[body.id], 0.0, atol=1e-12)
-    grasp = scene_grasp(scene, rotation)
+    np.testing.assert_allclose(data.xmat[body.id].reshape(3, 3), np.eye(3))
+    contacts = model_contacts(scene) - model_cg(scene)
     for i in range(3):
         tip = data.xpos[model.body(f"finger{i}").id]
-        offset = tip - grasp.positions[i]
-        np.testing.assert_allclose(np.cross(offset, grasp.normals[i]), 0.0, atol=1e-12)
-        assert 0 < -offset @ grasp.normals[i] < model.geom(f"tip{i}").size[0]
+        offset = tip - contacts[i]
+        np.testing.assert_allclose(np.cross(offset, scene.normals[i]), 0.0, atol=1e-12)
+        assert 0 < -offset @ scene.normals[i] < model.geom(f"tip{i}").size[0]
     assert data.ncon == 3
-    checker.close()
+    for contact in data.contact[: data.ncon]:  # geom1 the tip, geom2 the box: normal inward
+        i = int(model.geom(contact.geom1).name.removeprefix("tip"))
+        np.testing.assert_allclose(contact.frame[:3], scene.normals[i], atol=1e-9)
 
 
 def test_force_sets_hit_their_target_and_summary_counts():
@@ -261,6 +308,209 @@ def test_force_sets_hit_their_target_and_summary_counts():
     assert summary.n_far == 3
 
 
+def test_check_sets_reports_each_set_through_the_progress_wrapper():
+    scene = Scene.on_faces(PAPER_FACES, [[0.3, -0.2], [0.1, 0.25], [-0.2, 0.1]], mu=0.3)
+    limit = np.degrees(scene.friction_limit)
+    sets = []
+    for offset in (-1.0, 1.0):
+        rotation, forces = forces_at_angle(scene, 4.0, limit + offset)
+        sets.append(ForceSet(scene, 4.0, rotation, forces, limit + offset))
+    wrapped = []
+    reports = check_sets(sets, progress=lambda s: wrapped.append(s) or iter(s))
+    assert wrapped == [sets]  # e.g. tqdm wraps the iteration once
+    assert [r.holds for r in reports] == [True, False]
+    alone = StabilityChecker(scene).check(sets[1].rotation, sets[1].forces)
+    assert reports[1].as_dict() == alone.as_dict()
+
+
+# --------------------------------------------------------------------- the continuous rollout
+
+
+def paper_grips(mu: float):
+    """The paper's scene at ``mu`` along its trajectory: the optimum and the equal-k grip."""
+    scene = Scene(mu=mu)
+    rotations = Trajectory().rotations()
+    grasp = scene_grasp(scene, rotations)
+    optimum = grasp.forces(solve_minimax(grasp, 2 * scene.weight).k)
+    equal_k = grasp.forces(scene.weight * np.tan(PHI) / (3 * np.sqrt(3)) * np.ones(3))
+    return scene, rotations, optimum, equal_k
+
+
+def test_rollout_carries_the_optimal_grip_through_the_whole_trajectory():
+    scene, rotations, optimum, _ = paper_grips(0.05)
+    report = TrajectoryChecker(scene).check(rotations, optimum)
+    assert report.holds and report.predicted_holds, report.as_dict()
+    assert report.pose_holds.all() and report.pose_predicted.all()
+    assert report.first_failure is None and report.predicted_first_failure is None
+    # The optimum is 0 deg at every pose; k*(alpha) is smooth but not linear, so the grip
+    # interpolated between poses 1 deg apart leans a little (1.3e-3 deg at most).
+    assert report.max_angle_deg.max() < 0.01
+    assert report.margin_deg == pytest.approx(np.degrees(np.arctan(0.05)), abs=0.01)
+    assert report.slip.max() < 0.1 * SETTINGS["slip_threshold"]
+    assert report.drift.max() < 1e-4 and report.rotation_deg.max() < 1e-3
+    # One simulation: the poses follow each other, the load turns through 30 deg.
+    motion = report.motion
+    assert np.all(np.diff(motion.pose) >= 0) and motion.n_poses == len(rotations)
+    turned = np.degrees(np.arccos(np.clip(motion.load[0, :3] @ motion.load[-1, :3], -1, 1)))
+    assert turned == pytest.approx(30.0, abs=1e-6)
+    json.dumps(report.as_dict())
+
+
+def test_rollout_of_a_slipping_grip_fails_where_the_analytic_verdict_does():
+    # mu = 0.1 (5.71 deg): the equal-k grip passes the limit for |alpha| >~ 9 deg.
+    scene, rotations, _, equal_k = paper_grips(0.1)
+    report = TrajectoryChecker(scene).check(rotations, equal_k)
+    assert not report.holds and not report.predicted_holds
+    assert report.predicted_first_failure == 0.0 and report.first_failure == 0.0
+    assert not report.pose_holds[0] and not report.pose_predicted[0]
+    assert report.pose_predicted[15]
+    # The same grip from the middle of the trajectory out: it holds until the limit is passed.
+    middle = slice(15, 31)
+    later = TrajectoryChecker(scene).check(rotations[middle], equal_k[middle])
+    assert not later.holds and not later.predicted_holds
+    assert later.first_failure == pytest.approx(later.predicted_first_failure, abs=0.25)
+    assert later.pose_holds[: int(later.predicted_first_failure)].all()
+
+
+def test_a_grip_that_crosses_the_limit_mid_trajectory_slips_there():
+    scene = Scene.on_faces(
+        PAPER_FACES, [[0.3, -0.2], [0.1, 0.25], [-0.2, 0.1]], cg_offset=(0.05, -0.03, 0.02)
+    )
+    trajectory = Trajectory(alpha_start_deg=-8.0, alpha_end_deg=8.0)
+    rotations, alphas = trajectory.rotations(), trajectory.alphas_deg
+    grasp = scene_grasp(scene, rotations)
+    k = solve_minimax(grasp, 2 * scene.weight).k
+    limit = float(np.degrees(grasp.angles(k).max())) + 3.0
+    scene = Scene.on_faces(
+        PAPER_FACES,
+        [[0.3, -0.2], [0.1, 0.25], [-0.2, 0.1]],
+        cg_offset=(0.05, -0.03, 0.02),
+        mu=float(np.tan(np.radians(limit))),
+    )
+    checker = TrajectoryChecker(scene)
+    reports = {}
+    for name, offset in (("crossing", 0.3), ("inside", -0.3)):
+        perturbed = perturbed_k(
+            scene, rotations, alphas, k, np.radians(limit + offset), np.random.default_rng(1)
+        )
+        assert perturbed is not None
+        reports[name] = checker.check(rotations, grasp.forces(perturbed))
+        assert reports[name].margin_deg == pytest.approx(-offset, abs=1e-6)
+    crossing, inside = reports["crossing"], reports["inside"]
+    assert inside.holds and inside.predicted_holds, inside.as_dict()
+    assert not crossing.holds and not crossing.predicted_holds
+    start = crossing.predicted_first_failure
+    assert 0.0 < start < len(rotations) - 1  # the bump crosses mid-trajectory
+    assert start <= crossing.first_failure <= start + 0.5
+    assert crossing.pose_holds[: int(start)].all()
+
+
+def test_a_grip_that_holds_at_every_pose_can_slip_between_two():
+    # Coarse steps (30 deg apart): the expert's grip holds at each of the three poses, in the
+    # pose check and analytically, but the grip interpolated between the second and third
+    # passes the limit by 2.1 deg: the continuous rollout sees it, both verdicts alike.
+    case = coarse_steps_case()
+    grasp = scene_grasp(case.scene, case.rotations)
+    angles = np.degrees(friction_angles(case.forces, grasp.normals))
+    assert np.all(angles <= np.degrees(case.scene.friction_limit) - 0.5)
+    poses = StabilityChecker(case.scene).check_batch(case.rotations, case.forces)
+    assert all(r.holds for r in poses)
+    report = TrajectoryChecker(case.scene).check(case.rotations, case.forces)
+    assert not report.predicted_holds and not report.holds
+    assert 1.0 < report.predicted_first_failure < 2.0
+    assert 1.0 < report.first_failure < 2.0
+    assert report.margin_deg == pytest.approx(-2.05, abs=0.01)
+
+
+def phasing_grip():
+    """Four fingers along alpha in [-10, 10] deg; the thumb (+z) ramps to zero between poses 5
+    and 6, is out of contact at poses 7 to 13 and is placed again with no force at 14, whence
+    its force ramps up: the three-finger optimum while it is off, the four-finger one else."""
+    offsets = np.array([[0.2, -0.1], [-0.15, 0.2], [0.1, 0.1], [-0.2, -0.25]])
+    cg = (0.03, -0.02, 0.04)
+    rotations = Trajectory(alpha_start_deg=-10.0, alpha_end_deg=10.0).rotations()
+    four = Scene.on_faces(FOUR_FINGER_FACES, offsets, cg_offset=cg)
+    three = Scene.on_faces(PAPER_FACES, offsets[:3], cg_offset=cg)
+    grip4, grip3 = scene_grasp(four, rotations), scene_grasp(three, rotations)
+    forces = grip4.forces(solve_minimax(grip4, 2 * four.weight).k)
+    forces[6:15] = 0.0
+    forces[6:15, :3] = grip3.forces(solve_minimax(grip3, 2 * three.weight).k)[6:15]
+    contact = np.ones((len(rotations), 4), dtype=bool)
+    contact[7:14, 3] = False
+    scene = Scene.on_faces(FOUR_FINGER_FACES, offsets, cg_offset=cg, mu=0.3)  # 16.7 deg
+    return scene, rotations, forces, contact
+
+
+def test_a_finger_phased_out_ramps_to_zero_lifts_and_is_placed_again():
+    scene, rotations, forces, contact = phasing_grip()
+    report = TrajectoryChecker(scene).check(rotations, forces, contact)
+    assert report.holds and report.predicted_holds, report.as_dict()
+    assert report.slip.max() < SETTINGS["slip_threshold"]
+    motion = report.motion
+    thumb = np.linalg.norm(motion.forces[:, 3], axis=-1)
+    leaving = (motion.pose > 5) & (motion.pose < 6)
+    joining = (motion.pose > 14) & (motion.pose < 15)
+    assert np.all(np.diff(thumb[leaving]) < 0) and np.all(np.diff(thumb[joining]) > 0)
+    assert thumb[(motion.pose >= 6) & (motion.pose <= 14)].max() < 1e-12
+    touching = motion.contact[:, 3]
+    # Touching while it pushes; lifted once its force is spent (at pose 6), placed as it starts
+    # to push again (the first step after pose 14).
+    assert touching[leaving].all() and touching[joining].all()
+    assert not touching[(motion.pose >= 6) & (motion.pose <= 14)].any()
+    # The others hold on throughout: no finger slid, the object stayed put.
+    assert report.drift.max() < SETTINGS["drift_threshold"]
+    # A finger out of contact that is commanded to push is refused.
+    bad = forces.copy()
+    bad[10, 3] = [0.0, 0.0, -1.0]
+    with pytest.raises(ValueError, match="finger 3 is out of contact at pose 10"):
+        TrajectoryChecker(scene).check(rotations, bad, contact)
+
+
+def test_rollouts_are_the_same_alone_in_a_batch_and_on_any_number_of_threads():
+    scene, rotations, optimum, equal_k = paper_grips(0.1)
+    checker = TrajectoryChecker(scene)
+    grips = [(rotations[:8], optimum[:8], None), (rotations[:8], equal_k[:8], None)]
+    alone = [checker.check(*grip).as_dict() for grip in grips]
+    for threads in sorted({1, 2, available_cores()}):
+        assert [r.as_dict() for r in checker.check_batch(grips, threads=threads)] == alone
+
+
+def test_rollout_refuses_bad_input():
+    scene, rotations, optimum, _ = paper_grips(0.3)
+    checker = TrajectoryChecker(scene)
+    with pytest.raises(ValueError, match=r"shape \(31, 3, 3\)"):
+        checker.check(rotations, optimum[:30])
+    with pytest.raises(ValueError, match="in_contact must be a boolean array of shape"):
+        checker.check(rotations, optimum, np.ones((31, 2), bool))
+    with pytest.raises(ValueError, match="more than"):
+        TrajectoryChecker(scene, time_per_degree=1e4).check(rotations, optimum)
+    with pytest.raises(ValueError, match="orthonormal"):
+        checker.check(2 * rotations, optimum)
+
+
+def test_trajectory_study_cases_hit_their_margins_and_agree_with_mujoco():
+    # A tiny version of the study (its 200 scenes give about 600 trajectories): a three-finger
+    # scene on the paper's trajectory and a four-finger one on a random axis, each with the
+    # expert's grip and grips perturbed to cross the limit or stay inside by 0.05 and 0.1 deg.
+    cases = trajectory_cases(seed=0, scenes=2)
+    kinds = [c.kind for c in cases]
+    assert kinds[:6] == ["expert", "crossing", "inside"] * 2
+    assert kinds.count("expert") == 2 and kinds.count("equal-k") == 8
+    assert kinds[-1] == "coarse steps"
+    assert {c.scene.n_contacts for c in cases} == {3, 4}
+    reports = check_cases(cases)
+    for index in (1, 2, 4, 5):  # scene s perturbs by CROSSINGS_DEG[s], past or inside the edge
+        offset = CROSSINGS_DEG[index // 3]
+        expected = -offset if cases[index].kind == "crossing" else offset
+        assert reports[index].margin_deg == pytest.approx(expected, abs=1e-6)
+    for case, report in zip(cases, reports, strict=True):
+        assert report.agrees, (case.kind, report.as_dict())
+    summary = summarise_trajectories(reports)
+    assert summary.overall == 1.0 and summary.n_sets == len(cases)
+    assert summary.confusion.sum() == len(cases)
+    assert summary.confusion[0, 0] == sum(r.predicted_holds for r in reports)
+
+
 # ----------------------------------------------------------------------- grasp-env verify
 
 
@@ -278,6 +528,7 @@ def test_verify_equal_k_grip_slips_at_the_trajectory_ends(tmp_path, capsys):
     assert "agree at 31/31" in out
 
 
+@pytest.mark.slow  # about 13 s, most of it importing Stable-Baselines3 and building PPO
 def test_verify_runs_a_saved_model(tmp_path, capsys):
     import gymnasium as gym
     from stable_baselines3 import PPO

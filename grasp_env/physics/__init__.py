@@ -49,6 +49,16 @@ def _choose_gl_backend() -> None:
 _choose_gl_backend()
 
 from .render import GraspView  # noqa: E402
-from .stability import SETTINGS, PhysicsReport, StabilityChecker  # noqa: E402
+from .rollout import RolloutReport, TrajectoryChecker, check_trajectories  # noqa: E402
+from .stability import SETTINGS, PhysicsReport, StabilityChecker, check_poses  # noqa: E402
 
-__all__ = ["SETTINGS", "GraspView", "PhysicsReport", "StabilityChecker"]
+__all__ = [
+    "SETTINGS",
+    "GraspView",
+    "PhysicsReport",
+    "RolloutReport",
+    "StabilityChecker",
+    "TrajectoryChecker",
+    "check_poses",
+    "check_trajectories",
+]

@@ -1,11 +1,18 @@
-"""How far MuJoCo agrees with the analytic friction cone: a sweep of force sets.
+"""How far MuJoCo agrees with the analytic friction cone: force sets at poses, and trajectories.
 
-Force sets are generated at chosen maximum friction angles: from the minimax optimum k*, move
-k along a random direction and bisect on the distance travelled until max_i theta_i equals the
-target exactly (any crossing will do, so the bisection needs only a bracket). Targets cover 0
-to 40 deg, plus sets 0.01 to 1 deg either side of the friction limit, for mu = tan 10, 20 and
-30 deg, several poses and several contact layouts (3 and 4 fingers, centred and moved
-contacts, a moved centre of gravity).
+**Poses.** Force sets are generated at chosen maximum friction angles: from the minimax optimum
+k*, move k along a random direction and bisect on the distance travelled until max_i theta_i
+equals the target exactly (any crossing will do, so the bisection needs only a bracket).
+Targets cover 0 to 40 deg, plus sets 0.01 to 1 deg either side of the friction limit, for mu =
+tan 10, 20 and 30 deg, several poses and several contact layouts (3 and 4 fingers, centred and
+moved contacts, a moved centre of gravity); and four-finger optima that release a finger.
+
+**Trajectories.** Grips carried through whole trajectories in one continuous rollout each
+(:mod:`grasp_env.physics.rollout`): the expert's, grips perturbed mid-trajectory to cross the
+limit (or stay just inside it) by 0.05 to 2 deg, the paper's equal-k grip at several mu, and a
+grip on coarse steps that slips only between poses (:func:`trajectory_cases`); verdicts are
+compared for the whole trajectory, the edge distance being the analytic margin over every
+step of the run.
 """
 
 from __future__ import annotations
@@ -19,14 +26,21 @@ from grasp_env.mechanics import (
     FOUR_FINGER_FACES,
     PAPER_AXIS,
     PAPER_FACES,
+    PHI,
+    START_ROTATION,
     Grasp,
     Scene,
+    Trajectory,
+    axis_angle_matrix,
+    friction_angles,
     pose_rotation,
     scene_grasp,
     solve_minimax,
 )
 
-from .stability import PhysicsReport, StabilityChecker
+from .motion import plan_motion, released
+from .rollout import RolloutReport, check_trajectories
+from .stability import SETTINGS, PhysicsReport, check_poses
 
 #: Friction limits of the study, degrees (mu = tan of each).
 LIMITS_DEG = (10.0, 20.0, 30.0)
@@ -47,7 +61,7 @@ class ForceSet:
     alpha_deg: float
     rotation: np.ndarray
     forces: np.ndarray
-    max_angle_deg: float
+    max_angle_deg: float  #: the largest friction angle of a loaded finger (not released)
 
     @property
     def limit_deg(self) -> float:
@@ -55,7 +69,7 @@ class ForceSet:
 
     @property
     def predicted_holds(self) -> bool:
-        """The analytic verdict: every friction angle within the limit."""
+        """The analytic verdict: every loaded finger's friction angle within the limit."""
         return self.max_angle_deg <= self.limit_deg
 
     @property
@@ -146,22 +160,62 @@ def agreement_sets(seed: int = 0, directions: int = 2) -> list[ForceSet]:
     return sets
 
 
+def released_sets(seed: int = 0, scenes: int = 300) -> list[ForceSet]:
+    """Four-finger optima that release a finger (its force vanishes, DESIGN.md §2): random
+    scenes and poses, each at its minimax optimum with the scene's mu a random 0.3 to 10 deg
+    above it. They hold; a checker that counts the released finger as a lost hold says not."""
+    rng = np.random.default_rng(seed)
+    sets = []
+    for _ in range(scenes):
+        offsets, cg = rng.uniform(-0.5, 0.5, (4, 2)), rng.uniform(-0.1, 0.1, 3)
+        axis, alpha = rng.normal(size=3), np.radians(rng.uniform(-30, 30))
+        rotation = axis_angle_matrix(axis, alpha) @ START_ROTATION
+        scene = Scene.on_faces(FOUR_FINGER_FACES, offsets, cg_offset=cg)
+        grasp = scene_grasp(scene, rotation)
+        optimum = solve_minimax(grasp, 2 * scene.weight)
+        forces = grasp.forces(optimum.k)
+        loaded = ~released(forces, scene.weight, SETTINGS["released_force"])
+        if loaded.all() or optimum.max_angle > np.radians(60):
+            continue
+        angle = float(np.degrees(friction_angles(forces, grasp.normals)[loaded].max()))
+        limit = angle + rng.uniform(0.3, 10.0)
+        scene = Scene.on_faces(
+            FOUR_FINGER_FACES, offsets, cg_offset=cg, mu=float(np.tan(np.radians(limit)))
+        )
+        sets.append(ForceSet(scene, float(np.degrees(alpha)), rotation, forces, angle))
+    return sets
+
+
+#: Cases checked per parallel call of the studies (``progress`` advances by this many).
+CHUNK = 64
+
+
+def _checked_in_chunks(cases: Iterable, check: Callable[[list], list]) -> list:
+    """``check`` applied to successive chunks of :data:`CHUNK` cases, the reports concatenated."""
+    reports: list = []
+    chunk: list = []
+    for case in cases:
+        chunk.append(case)
+        if len(chunk) == CHUNK:
+            reports += check(chunk)
+            chunk = []
+    return reports + (check(chunk) if chunk else [])
+
+
 def check_sets(
     sets: list[ForceSet],
     progress: Callable[[Iterable[ForceSet]], Iterable[ForceSet]] = iter,
+    threads: int | None = None,
     **settings: float,
 ) -> list[PhysicsReport]:
-    """MuJoCo's report on each set; ``progress`` wraps the iteration (e.g. with tqdm)."""
-    checkers: dict[int, StabilityChecker] = {}
-    reports = []
-    for case in progress(sets):
-        key = id(case.scene)
-        if key not in checkers:
-            checkers[key] = StabilityChecker(case.scene, **settings)
-        reports.append(checkers[key].check(case.rotation, case.forces))
-    for checker in checkers.values():
-        checker.close()
-    return reports
+    """MuJoCo's report on each set, checked in parallel :data:`CHUNK` at a time; ``progress``
+    wraps the iteration over the sets (e.g. with tqdm)."""
+
+    def check(chunk: list[ForceSet]) -> list[PhysicsReport]:
+        cases = [(s.scene, s.rotation, s.forces, None) for s in chunk]
+        return check_poses(cases, threads, **settings)
+
+    return _checked_in_chunks(progress(sets), check)
 
 
 @dataclass(frozen=True)
@@ -174,18 +228,20 @@ class Agreement:
     n_sets: int
     n_far: int
 
-    def line(self) -> str:
+    def line(self, what: str = "sets") -> str:
         return (
-            f"agreement: {100 * self.overall:.2f}% overall ({self.n_sets} sets), "
+            f"agreement: {100 * self.overall:.2f}% overall ({self.n_sets} {what}), "
             f"{100 * self.far:.2f}% at >= {FAR_FROM_EDGE_DEG} deg from the edge "
-            f"({self.n_far} sets)"
+            f"({self.n_far} {what})"
         )
 
 
-def summarise(sets: list[ForceSet], mujoco_holds: np.ndarray) -> Agreement:
-    predicted = np.array([s.predicted_holds for s in sets], dtype=bool)
-    observed = np.asarray(mujoco_holds, dtype=bool)
-    far = np.array([s.edge_distance_deg >= FAR_FROM_EDGE_DEG for s in sets], dtype=bool)
+def agreement(predicted: np.ndarray, observed: np.ndarray, distance_deg: np.ndarray) -> Agreement:
+    """The agreement of analytic (``predicted``) and MuJoCo (``observed``) verdicts, overall and
+    where the analytic margin is at least :data:`FAR_FROM_EDGE_DEG` from the edge."""
+    predicted = np.asarray(predicted, dtype=bool)
+    observed = np.asarray(observed, dtype=bool)
+    far = np.asarray(distance_deg) >= FAR_FROM_EDGE_DEG
     confusion = np.array(
         [
             [np.sum(predicted & observed), np.sum(predicted & ~observed)],
@@ -195,8 +251,194 @@ def summarise(sets: list[ForceSet], mujoco_holds: np.ndarray) -> Agreement:
     agree = predicted == observed
     return Agreement(
         confusion=confusion,
-        overall=float(agree.mean()),
-        far=float(agree[far].mean()),
-        n_sets=len(sets),
+        overall=float(agree.mean()) if agree.size else 1.0,
+        far=float(agree[far].mean()) if far.any() else 1.0,
+        n_sets=int(agree.size),
         n_far=int(far.sum()),
+    )
+
+
+def summarise(sets: list[ForceSet], mujoco_holds: np.ndarray) -> Agreement:
+    """The pose study's agreement."""
+    return agreement(
+        np.array([s.predicted_holds for s in sets], dtype=bool),
+        mujoco_holds,
+        np.array([s.edge_distance_deg for s in sets]),
+    )
+
+
+# ------------------------------------------------------------------------ trajectories
+
+#: How far the perturbed grips' largest friction angle lies from the edge, degrees: above the
+#: limit (they cross it mid-trajectory) or below it (they stay just inside).
+CROSSINGS_DEG = (0.05, 0.1, 0.2, 0.5, 1.0, 2.0)
+
+
+@dataclass(frozen=True)
+class TrajectoryCase:
+    """One trajectory of the study: per-pose contact forces (world frame) along a trajectory.
+
+    ``kind`` says where the grip comes from: "expert" (the minimax optimum at every pose),
+    "crossing" and "inside" (the expert's grip perturbed by a bump mid-trajectory until its
+    largest friction angle lies a chosen distance above or below the limit), "equal-k" (the
+    paper's eq. 8 grip), "coarse steps" (an expert grip that holds at every pose and slips
+    between two) or "learned" (a trained policy's, added by ``grasp-env verify``); a finger-
+    phasing gait enters with its ``in_contact`` (T, n).
+    """
+
+    kind: str
+    scene: Scene
+    alphas_deg: np.ndarray
+    rotations: np.ndarray
+    forces: np.ndarray
+    in_contact: np.ndarray | None = None
+
+
+def _step_angles(scene: Scene, forces: np.ndarray, settle: int) -> float:
+    """The largest friction angle of a loaded finger (not released) over a run's steps
+    (``forces`` in units of w) after the settle."""
+    loaded = ~released(forces, 1.0, SETTINGS["released_force"])
+    angles = np.where(loaded, friction_angles(forces, scene.normals), 0.0)
+    return float(angles[settle:].max())
+
+
+def perturbed_k(
+    scene: Scene,
+    rotations: np.ndarray,
+    alphas_deg: np.ndarray,
+    k: np.ndarray,
+    target: float,
+    rng: np.random.Generator,
+    tries: int = 10,
+) -> np.ndarray | None:
+    """A grip k + c b(alpha) d (T, m): the pose grips ``k`` plus a random direction d (|d| = w)
+    times a bump b centred in the middle third of the trajectory, with c in [0, 4] bisected
+    so that the
+    largest friction angle over the continuous run's steps (the ones MuJoCo applies) equals
+    ``target`` radians. None if no direction reaches it."""
+    grasps = scene_grasp(scene, rotations)
+    base = plan_motion(scene, rotations, grasps.forces(k), None, SETTINGS)
+    if _step_angles(scene, base.forces, base.settle_steps) >= target:
+        return None
+    lo, hi = np.percentile(alphas_deg, [100 / 3, 200 / 3])
+    for _ in range(tries):
+        direction = rng.normal(size=k.shape[-1])
+        direction *= scene.weight / np.linalg.norm(direction)
+        centre, width = rng.uniform(lo, hi), rng.uniform(2.0, 6.0)
+        bump = np.exp(-(((alphas_deg - centre) / width) ** 2))[:, None] * direction
+        # The steps' forces are affine in c (the interpolation is linear in the pose forces).
+        moved = plan_motion(scene, rotations, grasps.forces(k + bump), None, SETTINGS)
+        change = moved.forces - base.forces
+
+        def largest(c: float, base=base, change=change) -> float:
+            forces = base.forces + c * change
+            return _step_angles(scene, forces, base.settle_steps)
+
+        high = 4.0  # at most 4 w added to a grip: far beyond it, the grip means nothing
+        if largest(high) < target:
+            continue
+        low = 0.0
+        for _ in range(60):
+            middle = (low + high) / 2
+            low, high = (middle, high) if largest(middle) < target else (low, middle)
+        if abs(largest(high) - target) <= 1e-9:  # not a jump (a finger becoming loaded)
+            return k + high * bump
+    return None
+
+
+def _random_trajectory(index: int, rng: np.random.Generator) -> Trajectory:
+    if index % 3 == 0:
+        return Trajectory()  # the paper's: about a, -15 to 15 deg by 1 deg
+    axis = tuple(rng.normal(size=3))
+    start, end = rng.uniform(-30.0, -10.0), rng.uniform(10.0, 30.0)
+    return Trajectory(axis, float(start), float(end), 2.0)
+
+
+def trajectory_cases(seed: int = 0, scenes: int = 200) -> list[TrajectoryCase]:
+    """The trajectory study's cases (deterministic for a seed): for each of ``scenes`` random
+    scenes (three and four fingers, face centres or moved contacts and centre of gravity, the
+    paper's trajectory or a random axis and range) with mu a random 0.2 to 8 deg above the
+    expert's largest friction angle, the expert's grip, a perturbed grip crossing the limit and
+    one staying just inside (:data:`CROSSINGS_DEG`); the paper's equal-k grip at several mu;
+    and an expert grip on coarse steps that holds at every pose but slips between two."""
+    rng = np.random.default_rng(seed)
+    cases = []
+    for index in range(scenes):
+        faces = PAPER_FACES if index % 2 == 0 else FOUR_FINGER_FACES
+        layout: dict = {"faces": faces}
+        if index % 5:
+            layout.update(
+                offsets=rng.uniform(-0.4, 0.4, (len(faces), 2)),
+                cg_offset=rng.uniform(-0.1, 0.1, 3),
+                weight=float(rng.uniform(1.0, 10.0)),
+            )
+        trajectory = _random_trajectory(index, rng)
+        rotations, alphas = trajectory.rotations(), trajectory.alphas_deg
+        scene = Scene.on_faces(**layout)
+        grasps = scene_grasp(scene, rotations)
+        k = solve_minimax(grasps, 2 * scene.weight).k
+        motion = plan_motion(scene, rotations, grasps.forces(k), None, SETTINGS)
+        expert = _step_angles(scene, motion.forces, motion.settle_steps)
+        if expert > np.radians(45.0):
+            continue
+        limit = expert + np.radians(rng.uniform(0.2, 8.0))
+        scene = Scene.on_faces(**layout, mu=float(np.tan(limit)))
+        cases.append(TrajectoryCase("expert", scene, alphas, rotations, grasps.forces(k)))
+        offset = np.radians(CROSSINGS_DEG[index % len(CROSSINGS_DEG)])
+        for kind, target in (("crossing", limit + offset), ("inside", limit - offset)):
+            perturbed = perturbed_k(scene, rotations, alphas, k, target, rng)
+            if perturbed is not None:
+                cases.append(
+                    TrajectoryCase(kind, scene, alphas, rotations, grasps.forces(perturbed))
+                )
+    trajectory = Trajectory()
+    rotations = trajectory.rotations()
+    for limit in (3.0, 4.0, 4.5, 5.0, 6.0, 8.0, 12.0, 18.0):
+        scene = Scene(mu=float(np.tan(np.radians(limit))))
+        k = scene.weight * np.tan(PHI) / (3 * np.sqrt(3)) * np.ones(3)
+        forces = scene_grasp(scene, rotations).forces(k)
+        cases.append(TrajectoryCase("equal-k", scene, trajectory.alphas_deg, rotations, forces))
+    cases.append(coarse_steps_case())
+    return cases
+
+
+def coarse_steps_case() -> TrajectoryCase:
+    """Four fingers turned 30 deg per step: the expert's grip holds at each of the three poses
+    (margins 8.2, 11.6 and 0.7 deg) but, interpolated between them, passes the limit by 2.1 deg
+    between the second and third (found by a search over random scenes)."""
+    trajectory = Trajectory((-0.47, 0.59, -0.66), -30.0, 30.0, 30.0)
+    scene = Scene.on_faces(
+        FOUR_FINGER_FACES,
+        [[0.08, -0.31], [0.03, 0.02], [-0.41, 0.48], [0.07, -0.49]],
+        cg_offset=(0.08, 0.14, 0.03),
+        mu=float(np.tan(np.radians(19.0))),
+    )
+    rotations = trajectory.rotations()
+    grasps = scene_grasp(scene, rotations)
+    forces = grasps.forces(solve_minimax(grasps, 2 * scene.weight).k)
+    return TrajectoryCase("coarse steps", scene, trajectory.alphas_deg, rotations, forces)
+
+
+def check_cases(
+    cases: list[TrajectoryCase],
+    progress: Callable[[Iterable[TrajectoryCase]], Iterable[TrajectoryCase]] = iter,
+    threads: int | None = None,
+    **settings: float,
+) -> list[RolloutReport]:
+    """The continuous rollout of every case, in parallel :data:`CHUNK` at a time; ``progress``
+    wraps the iteration over the cases (e.g. with tqdm)."""
+
+    def check(chunk: list[TrajectoryCase]) -> list[RolloutReport]:
+        grips = [(c.scene, c.rotations, c.forces, c.in_contact) for c in chunk]
+        return check_trajectories(grips, threads, **settings)
+
+    return _checked_in_chunks(progress(cases), check)
+
+
+def summarise_trajectories(reports: list[RolloutReport]) -> Agreement:
+    """The trajectory study's agreement (the edge distance is the analytic margin's size)."""
+    return agreement(
+        np.array([r.predicted_holds for r in reports], dtype=bool),
+        np.array([r.holds for r in reports], dtype=bool),
+        np.abs([r.margin_deg for r in reports]),
     )

@@ -40,7 +40,7 @@ TIP_RADIUS = 0.02
 TIP_MASS = 1e-3
 #: The fingertips start this deep inside the face, as a fraction of the tip radius: at zero
 #: distance MuJoCo makes no contact on the first step.
-TIP_PENETRATION = 5e-7
+TIP_PENETRATION = 1e-3
 #: A finger out of contact (released, or lifted in a gait) is parked this far off its face, in
 #: tip radii: out of reach of the box.
 PARK_DISTANCE = 3.0

@@ -7,10 +7,12 @@ A trajectory of T poses R_t with per-pose finger forces P_t (world frame) become
 
 1. a settle at pose 0 (``settle_time``; the simulation runs it at a high friction coefficient
    so that building up the contact forces cannot itself cause slip);
-2. one segment per pair of successive poses, lasting ``time_per_degree`` per degree turned (at
-   least ``min_segment_time``): the orientation turns along the geodesic from R_t to R_{t+1}
-   (for a trajectory about one axis, Rot(b, s da) R_t), so the load, fixed in the world, turns in
-   the object's frame; the finger forces follow the grip continuously;
+2. at each pose but the last, a dwell of ``pose_hold_time`` with the pose's grip (the policy acts
+   at the poses: a grip that slips only at a pose slips while it dwells there), then a segment
+   to the next pose lasting ``time_per_degree`` per degree turned (at least
+   ``min_segment_time``): the orientation turns along the geodesic from R_t to R_{t+1} (for a
+   trajectory about one axis, Rot(b, s da) R_t), so the load, fixed in the world, turns in the
+   object's frame, and the finger forces follow the grip continuously;
 3. a hold at the last pose (``hold_time``).
 
 **The grip between poses.** In the object's frame the contacts are fixed, so the grasp matrix G
@@ -28,11 +30,15 @@ all. A finger leaving contact between t and t + 1 ramps its force to zero over t
 is lifted at its end; a finger joining is placed at the segment's start and its force ramps up
 from zero; the others hold.
 
-**Released fingers.** A finger in contact whose force is at most ``released_force`` x w at a
-step carries no load worth the name (an optimum that releases a finger leaves it about 1e-11 w):
-neither verdict judges it there, and it is not a lost hold. Its force is still applied. (A
-fingertip pushing with a millionth of the weight is at the mercy of every tremor of the contact
-solver; what matters is that the object it no longer holds stays put.)
+**Released fingers.** A finger whose force at a step is at most ``released_force`` x w carries
+no load worth the name (an optimum that releases a finger leaves it about 1e-11 w). Its tip is
+lifted off the face, and its small force is applied to the object at its contact point as an
+ideal force, so the load stays balanced; neither verdict judges it there, and it is not a lost
+hold. (A fingertip pushing with a thousandth of the weight or less is at the mercy of every
+tremor of the contact solver, and slides too slowly to show whether it slips.) So the
+fingertips that touch are exactly those in contact and loaded: a finger leaving contact is
+lifted once its force has ramped below ``released_force`` x w, and one joining is placed once
+its force has ramped above it.
 """
 
 from __future__ import annotations
@@ -59,9 +65,9 @@ class Motion:
         forces: (N, n, 3) each finger's commanded force on the object, object frame, units of w.
         load: (N, 6) the load on the object about its centre of gravity, object frame: force in
             units of w, torque in units of w L.
-        contact: (N, n) whether each finger is in contact (placed) during the step.
-        loaded: (N, n) in contact and pushing with more than ``released_force`` x w: the
-            fingers both verdicts judge at the step.
+        contact: (N, n) whether each fingertip touches (is placed) during the step: in contact
+            and pushing with more than ``released_force`` x w. These are the fingers both
+            verdicts judge; the others' forces act on the object as ideal forces.
         pose: (N,) the pose coordinate of the step: t + s between poses t and t + 1.
         rotations: (N, 3, 3) the world orientation of the object the step stands for.
         settle_steps: the first ``settle_steps`` steps are the settle at pose 0.
@@ -70,7 +76,6 @@ class Motion:
     forces: np.ndarray
     load: np.ndarray
     contact: np.ndarray
-    loaded: np.ndarray
     pose: np.ndarray
     rotations: np.ndarray
     settle_steps: int
@@ -91,9 +96,9 @@ class Motion:
 
     def friction_angles(self, scene: Scene) -> np.ndarray:
         """(N, n) the analytic friction angle of each finger's force at each step, radians; 0 for
-        a finger not loaded (out of contact or released)."""
+        a finger that does not touch (out of contact or released)."""
         angles = friction_angles(self.forces, scene.normals)
-        return np.where(self.loaded, angles, 0.0)
+        return np.where(self.contact, angles, 0.0)
 
 
 def _load(scene: Scene, rotations: np.ndarray) -> np.ndarray:
@@ -131,8 +136,8 @@ def plan_motion(
 ) -> Motion:
     """The run that carries ``forces`` (T, n, 3, world frame, newtons) along ``rotations``
     (T, 3, 3) with fingers ``in_contact`` (T, n; None: every finger), under ``settings``
-    (``timestep``, ``settle_time``, ``hold_time``, ``time_per_degree``, ``min_segment_time``,
-    ``released_force``)."""
+    (``timestep``, ``settle_time``, ``hold_time``, ``pose_hold_time``, ``time_per_degree``,
+    ``min_segment_time``, ``released_force``)."""
     rotations = check_rotations(rotations)
     n_poses, n = len(rotations), scene.n_contacts
     forces = check_forces(forces, n, (n_poses,))
@@ -160,6 +165,7 @@ def plan_motion(
     pose_forces = np.einsum("tnc,tcd->tnd", forces, rotations) / scene.weight
     pose_forces[~contact] = 0.0
     pose_load = _load(scene, rotations)
+    carrying = ~released(pose_forces, 1.0, settings["released_force"])
     positions = model_contacts(scene) - model_cg(scene)
     pinvs: dict[tuple[bool, ...], np.ndarray] = {}
 
@@ -170,15 +176,23 @@ def plan_motion(
             pinvs[key] = np.linalg.pinv(grasp_matrix(positions[active]))
         return (-load @ pinvs[key].T).reshape(len(load), -1, 3)
 
-    parts = {
-        "forces": [np.repeat(pose_forces[:1], settle, 0)],
-        "load": [np.repeat(pose_load[:1], settle, 0)],
-        "contact": [np.repeat(contact[:1], settle, 0)],
-        "pose": [np.zeros(settle)],
-        "rotations": [np.repeat(rotations[:1], settle, 0)],
+    parts: dict[str, list[np.ndarray]] = {
+        name: [] for name in ("forces", "load", "contact", "pose", "rotations")
     }
-    total = settle + hold
+
+    def hold_at(t: int, count: int) -> None:
+        """``count`` steps holding pose t's grip."""
+        parts["forces"].append(np.repeat(pose_forces[t : t + 1], count, 0))
+        parts["load"].append(np.repeat(pose_load[t : t + 1], count, 0))
+        parts["contact"].append(np.repeat(contact[t : t + 1], count, 0))
+        parts["pose"].append(np.full(count, float(t)))
+        parts["rotations"].append(np.repeat(rotations[t : t + 1], count, 0))
+
+    hold_at(0, settle)
+    dwell = max(1, round(settings["pose_hold_time"] / dt))
+    total = settle + hold + (n_poses - 1) * dwell
     for t in range(n_poses - 1):
+        hold_at(t, dwell)
         _, angle = _geodesic(rotations[t], rotations[t + 1], np.zeros(1))
         duration = max(
             settings["min_segment_time"], np.degrees(angle) * settings["time_per_degree"]
@@ -188,30 +202,31 @@ def plan_motion(
         if total > MAX_STEPS:
             raise ValueError(
                 f"the run would take more than {MAX_STEPS} steps: lower time_per_degree,"
-                " min_segment_time or the number of poses"
+                " min_segment_time, pose_hold_time or the number of poses"
             )
         s = np.arange(1, steps + 1) / steps
         turned, _ = _geodesic(rotations[t], rotations[t + 1], s)
         load = _load(scene, turned)
-        active = contact[t] | contact[t + 1]
-        ends = equilibrating(active, pose_load[t : t + 2])
-        rest = pose_forces[t : t + 2][:, active] - ends  # (2, |A|, 3), null space of G_A
-        step_forces = np.zeros((steps, n, 3))
-        step_forces[:, active] = (
-            equilibrating(active, load)
-            + (1 - s)[:, None, None] * rest[0]
-            + s[:, None, None] * rest[1]
-        )
+        # The fingers that carry load at either end share the turning load; a finger released
+        # at both ends (or out of contact) keeps its own (tiny or zero) force, interpolated.
+        active = carrying[t] | carrying[t + 1]
+        step_forces = (1 - s)[:, None, None] * pose_forces[t] + s[:, None, None] * pose_forces[
+            t + 1
+        ]
+        if active.any():
+            ends = equilibrating(active, pose_load[t : t + 2])
+            rest = pose_forces[t : t + 2][:, active] - ends  # (2, |A|, 3), null space of G_A
+            step_forces[:, active] = (
+                equilibrating(active, load)
+                + (1 - s)[:, None, None] * rest[0]
+                + s[:, None, None] * rest[1]
+            )
         parts["forces"].append(step_forces)
         parts["load"].append(load)
-        parts["contact"].append(np.repeat(active[None], steps, 0))
+        parts["contact"].append(np.repeat((contact[t] | contact[t + 1])[None], steps, 0))
         parts["pose"].append(t + s)
         parts["rotations"].append(turned)
-    parts["forces"].append(np.repeat(pose_forces[-1:], hold, 0))
-    parts["load"].append(np.repeat(pose_load[-1:], hold, 0))
-    parts["contact"].append(np.repeat(contact[-1:], hold, 0))
-    parts["pose"].append(np.full(hold, n_poses - 1.0))
-    parts["rotations"].append(np.repeat(rotations[-1:], hold, 0))
+    hold_at(n_poses - 1, hold)
     steps = {name: np.concatenate(values) for name, values in parts.items()}
-    steps["loaded"] = steps["contact"] & ~released(steps["forces"], 1.0, settings["released_force"])
+    steps["contact"] &= ~released(steps["forces"], 1.0, settings["released_force"])
     return Motion(**steps, settle_steps=settle)

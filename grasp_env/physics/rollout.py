@@ -108,8 +108,10 @@ def rollout_report(
     pose, index = motion.pose[settle:], poses[settle:]
     threshold = settings["slip_threshold"]
     rotation_limit = np.radians(settings["rotation_threshold_deg"])
+    sliding = trace.speed[settle:] > settings["slip_speed"]
     failing = (
         (slip.max(axis=-1) > threshold)
+        | sliding.any(axis=-1)
         | (gap.max(axis=-1) > threshold)
         | (drift > settings["drift_threshold"])
         | (turn > rotation_limit)
@@ -128,6 +130,7 @@ def rollout_report(
         grew = slip[a:b].max(axis=0) - np.where(trace.measured[settle + before], slip[before], 0)
         pose_holds[t] = not (
             np.any(grew > threshold)
+            or np.any(sliding[a:b])
             or np.any(gap[a:b] > threshold)
             or drift[a:b].max() - drift[before] > settings["drift_threshold"]
             or turn[a:b].max() - turn[before] > rotation_limit
@@ -220,7 +223,7 @@ def check_trajectories(
     **settings: float,
 ) -> list[RolloutReport]:
     """Rollouts of (scene, rotations, contact_forces, in_contact) cases over many scenes, all in
-    parallel (runs of the same number of fingers share rollout calls)."""
+    parallel (runs of the same model structure share rollout calls)."""
     settings = check_settings(settings)
     physics: dict[int, PhysicsModel] = {}
     runs = []
@@ -228,11 +231,8 @@ def check_trajectories(
         if id(scene) not in physics:
             physics[id(scene)] = PhysicsModel(scene, settings["timestep"], settings["settle_mu"])
         runs.append((physics[id(scene)], plan_motion(scene, rotations, forces, contact, settings)))
-    reports: list[RolloutReport | None] = [None] * len(runs)
-    for n in sorted({p.n for p, _ in runs}):
-        which = [r for r, (p, _) in enumerate(runs) if p.n == n]
-        traces = simulate([runs[r] for r in which], threads)
-        for r, trace in zip(which, traces, strict=True):
-            model, motion = runs[r]
-            reports[r] = rollout_report(model.scene, motion, trace, settings)
-    return reports  # type: ignore[return-value]
+    traces = simulate(runs, threads)
+    return [
+        rollout_report(model.scene, motion, trace, settings)
+        for (model, motion), trace in zip(runs, traces, strict=True)
+    ]

@@ -4,7 +4,9 @@
 A batch of runs steps in lockstep through chunks of steps. Chunks end where the settle ends (the
 settle runs on a copy of the model with a high friction coefficient) and where a finger is
 placed or lifted in any run: between chunks those fingertips are moved (a placed one to its
-contact, just inside the face; a lifted one to its parking place off the face). Shorter runs
+contact, just inside the face; a lifted one to its parking place off the face). The forces of
+fingers that do not touch (released, see :mod:`~grasp_env.physics.motion`) act on the object
+directly, at their contact points. Shorter runs
 are padded by holding their last step, and measured over their own steps only.
 """
 
@@ -22,7 +24,6 @@ import numpy as np
 from grasp_env.mechanics import Scene, quaternion_matrix
 
 from .model import (
-    TIP_PENETRATION,
     build_mjcf,
     model_cg,
     model_contacts,
@@ -83,6 +84,14 @@ class PhysicsModel:
         self.cg = model_cg(scene)
         self.placed = tip_positions(scene, np.ones(n, dtype=bool))
         self.parked = tip_positions(scene, np.zeros(n, dtype=bool))
+        # Models share rollout calls (and MjData) only with models of the same structure:
+        # MuJoCo lays out its sparse matrices differently for a "simple" body (a centre of
+        # gravity at the box centre) than for another.
+        self.signature = (
+            n,
+            self.model.body_simple.tobytes(),
+            self.model.dof_simplenum.tobytes(),
+        )
         self._data: list[mujoco.MjData] = []
 
     def data(self, count: int) -> list[mujoco.MjData]:
@@ -112,18 +121,21 @@ class Trace:
 
     Attributes:
         qpos: (N, nq) the model's positions (the object's free joint, then the fingertips).
-        slip: (N, n) each fingertip's slide along its face since it last became loaded (the
-            end of the settle for the fingers loaded from the start); 0 while not loaded.
+        slip: (N, n) each fingertip's slide along its face since it was placed (the end of the
+            settle for the fingers placed at the start); 0 while it does not touch.
+        speed: (N, n) each fingertip's sliding speed along its face during the step, L/s (0
+            at the step it is placed and while it does not touch).
         gap: (N, n) how far each fingertip's surface is off its face (negative: pressed in);
-            0 while not loaded.
+            0 while it does not touch.
         drift: (N,) displacement of the object's centre of gravity since the settle.
         rotation: (N,) rotation of the object since the settle.
-        measured: (N, n) whether finger i was loaded (judged) at the step.
+        measured: (N, n) whether fingertip i touched (and was judged) at the step.
         diverged: MuJoCo stopped on a warning (an unstable simulation) before the end.
     """
 
     qpos: np.ndarray
     slip: np.ndarray
+    speed: np.ndarray
     gap: np.ndarray
     drift: np.ndarray
     rotation: np.ndarray
@@ -145,7 +157,9 @@ def _rotation_angle(relative: np.ndarray) -> np.ndarray:
     return np.arctan2(0.5 * np.linalg.norm(skew, axis=-1), 0.5 * (trace - 1.0))
 
 
-def _measure(physics: PhysicsModel, motion: Motion, qpos: np.ndarray, diverged: bool) -> Trace:
+def _measure(
+    physics: PhysicsModel, motion: Motion, place: np.ndarray, qpos: np.ndarray, diverged: bool
+) -> Trace:
     """The measurements of one run from its positions after every step."""
     scene, settle = physics.scene, motion.settle_steps
     position = qpos[:, :3]
@@ -155,27 +169,32 @@ def _measure(physics: PhysicsModel, motion: Motion, qpos: np.ndarray, diverged: 
     local = np.einsum("tnc,tcd->tnd", tips - position[:, None], rotation)
     normals = scene.normals
     gap = -np.sum((local - physics.contacts) * normals, -1) - physics.radius
-    measured = motion.loaded.copy()
+    measured = motion.contact.copy()
     measured[:settle] = False
-    # Each finger's slide is measured from where it was when it last became loaded: the end of
-    # the settle for the fingers loaded from the start.
+    # Each finger's slide is measured from where it was placed: for the fingers placed at the
+    # start, from where the settle left them.
     start = measured.copy()
     start[1:] &= ~measured[:-1]
-    steps = np.arange(len(qpos))[:, None]
-    since = np.maximum.accumulate(np.where(start, steps, 0), axis=0)
-    reference = np.maximum(since - 1, settle - 1)
-    anchor = np.take_along_axis(local, reference[..., None], axis=0)
+    since = np.maximum.accumulate(np.where(start, np.arange(len(qpos))[:, None], 0), axis=0)
+    placed = np.take_along_axis(place, since, axis=0)
+    anchor = np.where(placed[..., None], physics.placed, local[settle - 1])
     moved = local - anchor
     along = moved - np.sum(moved * normals, -1, keepdims=True) * normals
     slip = np.where(measured, np.linalg.norm(along, axis=-1), 0.0)
+    speed = np.zeros_like(slip)
+    speed[1:] = np.linalg.norm(np.diff(along, axis=0), axis=-1) / physics.model.opt.timestep
+    speed[1:] = np.where(measured[1:] & measured[:-1], speed[1:], 0.0)
     cg = position + rotation @ physics.cg
     drift = np.linalg.norm(cg - cg[settle - 1], axis=-1)
     turn = _rotation_angle(rotation @ rotation[settle - 1].T)
-    if not np.all(np.isfinite(slip)) or not np.all(np.isfinite(drift)):
+    if not (
+        np.all(np.isfinite(slip)) and np.all(np.isfinite(speed)) and np.all(np.isfinite(drift))
+    ):
         diverged = True
     return Trace(
         qpos=qpos,
         slip=slip,
+        speed=speed,
         gap=np.where(measured, gap, 0.0),
         drift=drift,
         rotation=turn,
@@ -185,13 +204,21 @@ def _measure(physics: PhysicsModel, motion: Motion, qpos: np.ndarray, diverged: 
 
 
 def _controls(physics: PhysicsModel, motion: Motion, length: int) -> np.ndarray:
-    """(length, ncontrol) rows of ctrl then xfrc_applied, padded by holding the last step."""
+    """(length, ncontrol) rows of ctrl then xfrc_applied, padded by holding the last step: the
+    touching fingertips' forces as motor forces; the load, and the forces of fingers that do
+    not touch (at their contact points), on the object."""
     steps = len(motion)
     controls = np.zeros((length, physics.ncontrol))
     nu = 3 * physics.n
-    controls[:steps, :nu] = motion.forces.reshape(steps, nu)
+    touching = motion.contact[..., None]
+    controls[:steps, :nu] = np.where(touching, motion.forces, 0.0).reshape(steps, nu)
+    ideal = np.where(touching, 0.0, motion.forces)
+    arms = physics.contacts - physics.cg  # about the centre of gravity, object at rest
+    wrench = motion.load + np.concatenate(
+        [ideal.sum(axis=1), np.cross(arms, ideal).sum(axis=1)], axis=-1
+    )
     start = nu + 6 * physics.object
-    controls[:steps, start : start + 6] = motion.load
+    controls[:steps, start : start + 6] = wrench
     controls[steps:] = controls[steps - 1]
     return controls
 
@@ -212,43 +239,59 @@ def _move_fingers(
         qvel[6 + 3 * i : 9 + 3 * i] = velocity + np.cross(spin, tip - position)
 
 
-def simulate(runs: list[tuple[PhysicsModel, Motion]], threads: int | None = None) -> list[Trace]:
+def _moves(motion: Motion) -> tuple[np.ndarray, np.ndarray]:
+    """Where fingertips are placed and lifted, (N, n) each."""
+    contact = motion.contact
+    place = np.zeros_like(contact)
+    place[1:] = contact[1:] & ~contact[:-1]
+    lift = np.zeros_like(contact)
+    lift[1:] = ~contact[1:] & contact[:-1]
+    return place, lift
+
+
+def simulate(
+    runs: list[tuple[PhysicsModel, Motion]],
+    threads: int | None = None,
+) -> list[Trace]:
     """Run each (model, motion) pair and measure it (see the module docstring).
 
-    ``threads`` (default: every available core) is the rollout thread pool's size. The runs
-    must share the number of fingers; the result does not depend on ``threads``.
+    ``threads`` (default: every available core) is the rollout thread pool's size. Runs share
+    rollout calls with runs of the same model structure (:attr:`PhysicsModel.signature`),
+    settle and steps where fingers move, and nothing else: so a run's result is the same alone
+    or in any batch, on any number of threads (a chunk boundary restarts MuJoCo's solver warm
+    start).
     """
-    if not runs:
-        return []
-    if len({physics.n for physics, _ in runs}) != 1:
-        raise ValueError("the runs of one simulate() call must share the number of fingers")
     threads = available_cores() if threads is None else int(threads)
     if threads < 1:
         raise ValueError(f"threads must be >= 1, got {threads}")
-    traces: list[Trace] = []
-    length = max(len(motion) for _, motion in runs)
-    per_batch = max(1, _ROWS_PER_BATCH // length)
-    for start in range(0, len(runs), per_batch):
-        traces.extend(_simulate_batch(runs[start : start + per_batch], threads))
-    return traces
+    traces: list[Trace | None] = [None] * len(runs)
+    groups: dict[tuple, list[int]] = {}
+    for r, (physics, motion) in enumerate(runs):
+        place, lift = _moves(motion)
+        moves = np.flatnonzero(np.any(place | lift, axis=-1)).tobytes()
+        groups.setdefault((physics.signature, motion.settle_steps, moves), []).append(r)
+    for which in groups.values():
+        length = max(len(runs[r][1]) for r in which)
+        per_batch = max(1, min(8 * threads, _ROWS_PER_BATCH // length))
+        for start in range(0, len(which), per_batch):
+            part = which[start : start + per_batch]
+            batch = _simulate_batch([runs[r] for r in part], threads)
+            for r, trace in zip(part, batch, strict=True):
+                traces[r] = trace
+    return traces  # type: ignore[return-value]
 
 
 def _simulate_batch(runs: list[tuple[PhysicsModel, Motion]], threads: int) -> list[Trace]:
+    """One batch of runs that share their model structure, settle and finger moves."""
     physics0 = runs[0][0]
     count = len(runs)
     length = max(len(motion) for _, motion in runs)
     settle = runs[0][1].settle_steps
     if any(motion.settle_steps != settle for _, motion in runs):
         raise ValueError("the runs of one batch must share the settle")
-    contact = np.zeros((count, length, physics0.n), dtype=bool)
-    for b, (_, motion) in enumerate(runs):
-        contact[b, : len(motion)] = motion.contact
-        contact[b, len(motion) :] = motion.contact[-1]
-    place = np.zeros_like(contact)
-    place[:, 1:] = contact[:, 1:] & ~contact[:, :-1]
-    lift = np.zeros_like(contact)
-    lift[:, 1:] = ~contact[:, 1:] & contact[:, :-1]
-    events = np.flatnonzero(np.any(place | lift, axis=(0, 2)))
+    moves = [_moves(motion) for _, motion in runs]
+    place, lift = moves[0]  # fingers move at the same steps in every run of the batch
+    events = np.flatnonzero(np.any(place | lift, axis=-1))
     bounds = sorted({0, settle, length, *events.tolist()})
     controls = np.stack([_controls(physics, motion, length) for physics, motion in runs])
     state = np.stack([physics.initial_state(motion.contact[0]) for physics, motion in runs])
@@ -258,8 +301,9 @@ def _simulate_batch(runs: list[tuple[PhysicsModel, Motion]], threads: int) -> li
     qpos = np.empty((count, length, physics0.nq))
     times = np.empty((count, length))
     for a, b in itertools.pairwise(bounds):
-        for r in np.flatnonzero(np.any(place[:, a] | lift[:, a], axis=-1)):
-            _move_fingers(runs[r][0], state[r], place[r, a], lift[r, a])
+        if a in events:
+            for r, (physics, _) in enumerate(runs):
+                _move_fingers(physics, state[r], moves[r][0][a], moves[r][1][a])
         models = [physics.settle_model if a < settle else physics.model for physics, _ in runs]
         states, _ = pool.rollout(
             models,
@@ -278,8 +322,8 @@ def _simulate_batch(runs: list[tuple[PhysicsModel, Motion]], threads: int) -> li
         steps = len(motion)
         # MuJoCo's rollout stops stepping (the clock stands still) on a warning.
         diverged = not np.allclose(times[r, :steps], expected[:steps], rtol=0, atol=dt / 4)
-        traces.append(_measure(physics, motion, qpos[r, :steps], diverged))
+        traces.append(_measure(physics, motion, moves[r][0], qpos[r, :steps], diverged))
     return traces
 
 
-__all__ = ["TIP_PENETRATION", "PhysicsModel", "Trace", "available_cores", "simulate"]
+__all__ = ["PhysicsModel", "Trace", "available_cores", "simulate"]

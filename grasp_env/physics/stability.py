@@ -10,8 +10,8 @@ leaves its face by more than that, and the object stays put: its centre of gravi
 the load carry it away, fingers and all).
 
 A finger whose commanded force is at most ``released_force`` x w (an optimum that releases it)
-carries no load: it is reported as released and not judged (its force is still applied), so it
-is not a lost hold; a finger declared out of contact (``in_contact``) is parked off its face.
+carries no load: its tip is lifted off the face (its small force acts on the object directly),
+it is reported as released and not judged, so it is not a lost hold.
 
 Checks of many poses run in parallel (``check_batch``): ``mujoco.rollout`` steps them on a
 thread pool, and the verdicts do not depend on the number of threads.
@@ -19,6 +19,7 @@ thread pool, and the verdicts do not depend on the number of threads.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -38,10 +39,12 @@ SETTINGS: dict[str, float] = {
     "settle_time": 0.05,  #: seconds at ``settle_mu`` before the real mu applies
     "settle_mu": 10.0,  #: friction coefficient while the contact forces build up
     "hold_time": 0.2,  #: seconds held at the (last) pose at the scene's mu
-    "slip_threshold": 1e-4,  #: slide along a face (or lift off it) that counts as slipping, L
+    "slip_threshold": 1e-5,  #: slide along a face (or lift off it) that counts as slipping, L
+    "slip_speed": 1e-5,  #: sliding speed along a face that counts as slipping, L/s
     "drift_threshold": 1e-3,  #: distance the centre of gravity may move, L
     "rotation_threshold_deg": 0.1,  #: angle the object may turn, degrees
-    "released_force": 1e-4,  #: a finger pushing at most this, in units of w, is released
+    "released_force": 1e-3,  #: a finger pushing at most this, in units of w, is released
+    "pose_hold_time": 0.1,  #: rollout: seconds the grip dwells at each pose but the last
     "time_per_degree": 0.05,  #: rollout: seconds per degree the object turns between poses
     "min_segment_time": 0.05,  #: rollout: least seconds between two poses
 }
@@ -117,13 +120,15 @@ def pose_report(
     length = float(np.max(scene.size))
     hold = slice(motion.settle_steps, None)
     slip = trace.slip[hold].max(axis=0)
+    sliding = trace.speed[hold].max(axis=0) > settings["slip_speed"]
     lost = trace.gap[hold].max(axis=0) > settings["slip_threshold"]
-    released = ~motion.loaded[-1]
+    released = ~motion.contact[-1]
     drift = float(trace.drift[hold].max())
     rotation = float(np.degrees(trace.rotation[hold].max()))
     holds = (
         not trace.diverged
         and np.all(slip <= settings["slip_threshold"])
+        and not np.any(sliding)
         and not np.any(lost)
         and drift <= settings["drift_threshold"]
         and rotation <= settings["rotation_threshold_deg"]
@@ -210,3 +215,26 @@ class StabilityChecker:
             pose_report(self.scene, m, t, self.settings)
             for m, t in zip(motions, traces, strict=True)
         ]
+
+
+def check_poses(
+    cases: Sequence[tuple[Scene, ArrayLike, ArrayLike, ArrayLike | None]],
+    threads: int | None = None,
+    **settings: float,
+) -> list[PhysicsReport]:
+    """Checks of (scene, rotation, contact_forces, in_contact) cases over many scenes, all in
+    parallel (runs of the same model structure share rollout calls)."""
+    settings = check_settings(settings)
+    physics: dict[int, PhysicsModel] = {}
+    runs = []
+    for scene, rotation, forces, contact in cases:
+        if id(scene) not in physics:
+            physics[id(scene)] = PhysicsModel(scene, settings["timestep"], settings["settle_mu"])
+        contact = None if contact is None else np.asarray(contact)[None]
+        rotations = np.asarray(rotation, dtype=float)[None]
+        motion = plan_motion(scene, rotations, np.asarray(forces)[None], contact, settings)
+        runs.append((physics[id(scene)], motion))
+    return [
+        pose_report(model.scene, motion, trace, settings)
+        for (model, motion), trace in zip(runs, simulate(runs, threads), strict=True)
+    ]
