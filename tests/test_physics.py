@@ -112,9 +112,9 @@ def test_verdict_flips_at_the_cone_edge(name):
 
 
 def test_paper_optimal_forces_hold_along_the_trajectory():
-    # With mu = 0.05 (2.9 deg) the paper's optimum (zero friction angle at every pose, DESIGN.md
-    # §1) still holds everywhere, while its equal-k grip (eq. 8) slips at the trajectory's ends:
-    # the check tells the two apart.
+    # With mu = 0.05 (2.9 deg) the paper's optimum (zero friction angle at every pose,
+    # docs/design.md §1) still holds everywhere, while its equal-k grip (eq. 8) slips at the
+    # trajectory's ends: the check tells the two apart.
     scene = Scene(mu=0.05)
     trajectory = Trajectory()
     rotations = trajectory.rotations()

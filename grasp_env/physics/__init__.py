@@ -1,4 +1,4 @@
-"""MuJoCo physics: the stability check of contact forces, and rendering (DESIGN.md §2).
+"""MuJoCo physics: pose checks, continuous rollouts and rendering (docs/design.md §2).
 
 Depends on ``grasp_env.mechanics`` only.
 

@@ -161,7 +161,7 @@ def agreement_sets(seed: int = 0, directions: int = 2) -> list[ForceSet]:
 
 
 def released_sets(seed: int = 0, scenes: int = 300) -> list[ForceSet]:
-    """Four-finger optima that release a finger (its force vanishes, DESIGN.md §2): random
+    """Four-finger optima that release a finger (its force vanishes, docs/design.md §1): random
     scenes and poses, each at its minimax optimum with the scene's mu a random 0.3 to 10 deg
     above it. They hold; a checker that counts the released finger as a lost hold says not."""
     rng = np.random.default_rng(seed)

@@ -1,11 +1,12 @@
 """The MuJoCo model of a scene: the box on a free joint and one force-driven fingertip per contact.
 
 **Units.** The statics are scale-free (forces in units of the weight w, lengths in units of the
-box's largest edge L; DESIGN.md §1), so the model is the scene scaled to a 1 N box of largest edge
-1: the object's mass is 1 / G, every force is divided by w and every length by L. Any accepted
-weight or size then gives the same well-conditioned model (a 1e-9 N weight would otherwise give
-MuJoCo masses below its mjMINVAL). For L = 1 m the dynamics are the real ones; for another L they
-are the real ones with time scaled by sqrt(L), which leaves the quasi-static verdict unchanged.
+box's largest edge L; docs/design.md §1), so the model is the scene scaled to a 1 N box of
+largest edge 1: the object's mass is 1 / G, every force is divided by w and every length by L.
+Any accepted weight or size then gives the same well-conditioned model (a 1e-9 N weight would
+otherwise give MuJoCo masses below its mjMINVAL). For L = 1 m the dynamics are the real ones; for
+another L they are the real ones with time scaled by sqrt(L), which leaves the quasi-static
+verdict unchanged.
 
 **Frame.** The model's world is the *hand's* frame, which turns with the object along a
 trajectory (docs/physics.md): the object rests at the identity orientation with its centre of
@@ -14,7 +15,7 @@ frame) is an applied force at its centre of gravity (``xfrc_applied``), not MuJo
 Gravity is zero, so the fingertips need no gravity compensation.
 
 **Contacts.** The settings are those that make MuJoCo's verdict agree with the analytic friction
-cone (DESIGN.md §2): elliptic cones, a high impratio and stiff contacts so that a grasp inside
+cone (docs/physics.md): elliptic cones, a high impratio and stiff contacts so that a grasp inside
 the cone does not creep, noslip iterations to enforce the cone exactly, and the dense Jacobian
 (MuJoCo 4.0.0's sparse factorisation has a bug, fixed in 4.0.1). Each fingertip is a small sphere
 on a body with three slide joints, driven by three force motors, so ``ctrl`` is exactly the
@@ -45,7 +46,7 @@ TIP_PENETRATION = 1e-3
 #: tip radii: out of reach of the box.
 PARK_DISTANCE = 3.0
 #: The object's rotational inertia is this many times a uniform box's. Statics do not depend on
-#: it, and a large one slows the rotational instability of pure force control (DESIGN.md §2):
+#: it, and a large one slows the rotational instability of pure force control (docs/physics.md):
 #: with fixed forces, a small rotation of the object changes the torque of every contact force,
 #: which rotates it further.
 INERTIA_SCALE = 1e4

@@ -1,6 +1,6 @@
 """Grasp stability checked in MuJoCo physics: do a set of contact forces hold the box at a pose?
 
-One check (DESIGN.md §2, docs/physics.md): the box at rest with its centre of gravity at the
+One check (docs/physics.md): the box at rest with its centre of gravity at the
 origin, the fingertips just inside its faces, the commanded forces and the load applied; a
 settle with a high friction coefficient (so that building up the contact forces cannot itself
 cause slip); then a hold at the scene's mu, measuring how far each fingertip slides along its
