@@ -637,6 +637,42 @@ def test_rgb_array_render():
     env.close()  # closing twice is harmless
 
 
+@pytest.mark.parametrize("env_id", ALL_IDS)
+def test_check_env_with_its_render_check(env_id):
+    """Gymnasium's check_env with its render check: rgb_array frames, and every declared mode
+    made from the spec (headless, "human" warns that it draws nothing; nothing else may)."""
+    env = gym.make(env_id, render_mode="rgb_array")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        warnings.filterwarnings("ignore", "render_mode='human' needs a display", RuntimeWarning)
+        check_env(env.unwrapped)
+    env.close()
+
+
+def test_record_video(tmp_path):
+    """Gymnasium's RecordVideo writes an episode that decodes frame by frame (the video extra)."""
+    import imageio
+    from gymnasium.wrappers import RecordVideo
+
+    env = gym.make("grasp_env/CubeGrasp-v0", render_mode="rgb_array", terminate_on_slip=False)
+    env = RecordVideo(env, str(tmp_path), episode_trigger=lambda _: True, disable_logger=True)
+    env.reset(seed=0)
+    steps = 0
+    while True:
+        _, _, terminated, truncated, _ = env.step(np.zeros(3, np.float32))
+        steps += 1
+        if terminated or truncated:
+            break
+    env.close()
+    (video,) = tmp_path.glob("*.mp4")
+    with imageio.get_reader(str(video), "ffmpeg") as reader:
+        frames = list(reader.iter_data())  # len(reader) is inf: list(reader) tries to allocate it
+        fps = reader.get_meta_data()["fps"]
+    assert len(frames) == steps + 1 and fps == 10  # the reset's frame, then one per step
+    assert frames[0].ndim == 3 and frames[0].std() > 1.0  # a picture, not a blank frame
+    assert not np.array_equal(frames[0], frames[-1])  # the cube has turned
+
+
 def test_sampled_episodes_equal_fresh_builds():
     """The sampler reuses its screening solves: the episodes must equal ones built afresh."""
     from grasp_env.envs.episodes import build_episodes, sample_episodes
