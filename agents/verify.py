@@ -1,23 +1,43 @@
 """``grasp-env verify``: check grip forces in MuJoCo physics.
 
-Along a trajectory (the default): a policy chooses the grip at every pose of the paper's
-trajectory, MuJoCo simulates it, and the table compares the analytic verdict (max friction
-angle within atan(mu)) with MuJoCo's (no finger slides more than 0.1 mm in a 0.5 s hold).
-Policies: ``expert`` (the minimax optimum over |k_ij| <= 2 w, the default), ``equal-k`` (the
-paper's symmetric grip k_ij = w tan(phi) / (3 sqrt 3) for every pair, eq. 8) or the path of a
-saved Stable-Baselines3 PPO model, driven through a Gymnasium environment. Writes
-``verify.png``.
+A policy chooses the grip at every pose of the paper's trajectory: ``expert`` (the minimax
+optimum over |k_ij| <= 2 w, the default), ``equal-k`` (the paper's symmetric grip
+k_ij = w tan(phi) / (3 sqrt 3) for every pair, eq. 8) or a saved Stable-Baselines3 model (its
+.zip, or a ``grasp-env train`` run directory; read by ``grasp_env_agents.models.load_agent``,
+which runs no code from the file), driven through a Gymnasium environment.
 
-With ``--agreement``: the agreement study of ``grasp_env.physics.agreement`` (force sets from 0
-to 40 deg max friction angle and within 0.01 to 1 deg of the cone's edge, mu = tan 10, 20 and
-30 deg, several poses and contact layouts): the confusion matrix, the runtime, and a last line
-with the overall agreement and the agreement at >= 0.05 deg from the edge. Writes
-``agreement.png``. Exits with 1 if any set at >= 0.05 deg from the edge disagrees.
+Each pose on its own (the default): every pose is a separate MuJoCo check (a 0.05 s settle at
+mu = 10, then a 0.2 s hold at the scene's mu), and the table compares the analytic verdict (max
+friction angle within atan(mu)) with MuJoCo's: the grasp holds when no loaded fingertip slides
+or lifts off its face by more than 1e-5 L (L the box's largest edge: 10 um for the 1 m cube)
+nor slides faster than 1e-5 L/s, and the object's centre of gravity moves at most 0.001 L and it
+turns at most 0.1 deg. A finger pushing at most 0.001 w is released (lifted off, not judged).
+Writes ``verify.png``.
+
+With ``--trajectory``: the grip is carried through the whole trajectory in one continuous
+MuJoCo rollout (``grasp_env.physics.check_trajectories``): the settle at the first pose, a
+0.1 s dwell at each pose, the load turning at 0.05 s per degree between poses while the forces
+follow the grip, and the 0.2 s hold at the last pose; slip, drift and rotation accumulate over
+the whole run. The table gives each pose's verdicts (analytic and MuJoCo, over the steps nearer
+to that pose than to its neighbours), the slip and drift so far; the last lines the verdict on
+the trajectory, its margin and where each verdict first failed. Writes ``rollout.png`` and
+``rollout.json``.
+
+With ``--agreement``: the pose agreement study of ``grasp_env.physics.agreement`` (force sets
+from 0 to 40 deg max friction angle and within 0.01 to 1 deg of the cone's edge, mu = tan 10,
+20 and 30 deg, several poses and contact layouts; writes ``agreement.png``); with
+``--agreement --trajectory`` the trajectory study (``--scenes`` random scenes, each with the
+expert's grip and grips perturbed to cross the limit mid-trajectory or stay inside it by 0.05
+to 2 deg, plus the equal-k grip at eight mu and a grip that slips only between coarse steps;
+writes ``trajectory_agreement.png``). Both print the confusion matrix, the runtime and a last
+line with the overall agreement and the agreement at >= 0.05 deg from the edge, and exit with 1
+if any case at >= 0.05 deg from the edge disagrees.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import time
 from pathlib import Path
 
@@ -35,18 +55,30 @@ from grasp_env.mechanics import (
     scene_grasp,
     solve_minimax,
 )
-from grasp_env.physics import SETTINGS, PhysicsReport, StabilityChecker
+from grasp_env.physics import (
+    SETTINGS,
+    PhysicsReport,
+    RolloutReport,
+    StabilityChecker,
+    check_trajectories,
+)
 from grasp_env.physics.agreement import (
-    EDGE_OFFSETS_DEG,
     FAR_FROM_EDGE_DEG,
     agreement_sets,
+    check_cases,
     check_sets,
     summarise,
+    summarise_trajectories,
+    trajectory_cases,
 )
 
+from .progress import status
 from .scene_args import add_scene_arguments, scene_from_arguments
 
 HELP = "check grip forces in MuJoCo physics along a trajectory (or --agreement)"
+#: Scenes of the trajectory study by default: about 70 trajectories, well under a minute here
+#: (200 give the 572 of docs/physics.md).
+DEFAULT_SCENES = 20
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -55,7 +87,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default="expert",
         metavar="expert|equal-k|PATH",
         help="the grip: the minimax expert (default), the paper's equal-k grip, or a saved"
-        " SB3 PPO model (a .zip, or a `grasp-env train` run directory)",
+        " SB3 model (a .zip, or a `grasp-env train` run directory)",
+    )
+    parser.add_argument(
+        "--algo", default="ppo", help="the algorithm that wrote a saved model (default ppo)"
     )
     parser.add_argument(
         "--env",
@@ -64,25 +99,52 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     add_scene_arguments(parser)
     parser.add_argument(
+        "--trajectory",
+        action="store_true",
+        help="carry the grip through the whole trajectory in one continuous MuJoCo rollout"
+        " (default: each pose checked on its own); with --agreement, the trajectory study",
+    )
+    parser.add_argument(
         "--agreement", action="store_true", help="run the analytic-vs-MuJoCo agreement study"
     )
-    parser.add_argument("--seed", type=int, default=0, help="seed of the agreement study")
+    parser.add_argument(
+        "--scenes",
+        type=int,
+        default=None,
+        metavar="N",
+        help=f"random scenes of the trajectory study (default {DEFAULT_SCENES}, about 3"
+        " trajectories each; 200 give the 572 of docs/physics.md)",
+    )
+    parser.add_argument("--seed", type=int, default=0, help="seed of the agreement studies")
     parser.add_argument("--out", type=Path, default=Path("results/verify"), help="output dir")
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.scenes is not None and not (args.agreement and args.trajectory):
+        raise ValueError(
+            "--scenes is for the trajectory study: use it with --agreement --trajectory"
+        )
+    scenes = DEFAULT_SCENES if args.scenes is None else args.scenes
+    if scenes < 1:
+        raise ValueError(f"--scenes must be >= 1, got {scenes}")
     args.out.mkdir(parents=True, exist_ok=True)
     if args.agreement:
+        if args.trajectory:
+            return run_trajectory_agreement(args.seed, scenes, args.out)
         return run_agreement(args.seed, args.out)
     scene = scene_from_arguments(args)
     trajectory = Trajectory()
     if args.policy == "expert":
-        forces = expert_forces(scene, trajectory)
+        forces, label = expert_forces(scene, trajectory), "expert"
     elif args.policy == "equal-k":
-        forces = equal_k_forces(scene, trajectory)
+        forces, label = equal_k_forces(scene, trajectory), "equal-k"
     else:
-        scene, forces = model_forces(Path(args.policy), args.env, scene, trajectory)
-    return run_trajectory(scene, trajectory, forces, args.policy, args.out)
+        path = Path(args.policy)
+        scene, forces = model_forces(path, args.algo, args.env, scene, trajectory)
+        label = f"learned ({model_name(path)})"
+    if args.trajectory:
+        return run_rollout(scene, trajectory, forces, label, args.out)
+    return run_poses(scene, trajectory, forces, label, args.out)
 
 
 # ------------------------------------------------------------------------------ the policies
@@ -101,31 +163,38 @@ def equal_k_forces(scene: Scene, trajectory: Trajectory) -> np.ndarray:
     return grasp.forces(k)
 
 
-def model_forces(
-    path: Path, env_id: str, scene: Scene, trajectory: Trajectory
-) -> tuple[Scene, np.ndarray]:
-    """A saved PPO model's grip, stepping ``env_id`` pinned to ``scene`` and ``trajectory``.
-
-    ``path`` is the model's .zip or a training run's directory (holding ``model.zip``).
-    Observations are normalised with ``vecnormalize.pkl`` from the model's folder when it
-    exists (SB3's VecNormalize statistics). Returns the environment's scene and the contact
-    forces it applied, (T, n, 3).
-    """
+def model_name(path: Path) -> str:
+    """A short name for a saved model in titles: its run directory's name, or the file's."""
+    path = path.resolve()
     if path.is_dir():
-        path = path / "model.zip"
-    if not path.is_file():
+        return path.name
+    return path.parent.name if path.name == "model.zip" else path.stem
+
+
+def model_forces(
+    path: Path, algo: str, env_id: str, scene: Scene, trajectory: Trajectory
+) -> tuple[Scene, np.ndarray]:
+    """A saved model's grip, stepping ``env_id`` pinned to ``scene`` and ``trajectory``.
+
+    ``path`` is the model's .zip or a training run's directory (holding ``model.zip``), read by
+    :func:`grasp_env_agents.models.load_agent` (no code from the file runs; the
+    ``vecnormalize.pkl`` beside it, if any, normalises the observations). Returns the
+    environment's scene and the contact forces it applied, (T, n, 3).
+    """
+    model_file = path / "model.zip" if path.is_dir() else path
+    if not model_file.is_file():
         raise ValueError(
-            f"--policy must be 'expert', 'equal-k' or the path of a saved model; {path} is"
-            " not a file"
+            f"--policy must be 'expert', 'equal-k' or the path of a saved model; {model_file}"
+            " is not a file"
         )
     import gymnasium as gym  # the RL stack only when a model is verified
-    from stable_baselines3 import PPO
 
     import grasp_env  # noqa: F401  (registers the environments)
 
+    from .models import load_agent
+
+    agent = load_agent(path, algo)
     env = gym.make(env_id, terminate_on_slip=False)
-    model = PPO.load(path, device="cpu")
-    normalise = _obs_normaliser(path.parent / "vecnormalize.pkl", env)
     options: dict = {
         "weight": scene.weight,
         "mu": scene.mu,
@@ -143,7 +212,7 @@ def model_forces(
     env_scene = env.unwrapped.scene
     forces, done = [], False
     while not done:
-        action, _ = model.predict(normalise(obs), deterministic=True)
+        action, _ = agent.predict(obs, deterministic=True)
         obs, _, terminated, truncated, info = env.step(action)
         forces.append(info["contact_forces"])
         done = terminated or truncated
@@ -163,23 +232,32 @@ def _balanced(scene: Scene, trajectory: Trajectory, forces: np.ndarray) -> bool:
     return bool(np.allclose(residual[..., 0], -wrench, atol=1e-6 * scene.weight))
 
 
-def _obs_normaliser(stats: Path, env):
-    if not stats.is_file():
-        return lambda obs: obs
-    from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+def _matplotlib():
+    import matplotlib
 
-    vec = VecNormalize.load(str(stats), DummyVecEnv([lambda: env]))
-    vec.training = False
-    return vec.normalize_obs
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
 
-
-# ------------------------------------------------------------------------------ the trajectory
+    return plt
 
 
-def run_trajectory(
-    scene: Scene, trajectory: Trajectory, forces: np.ndarray, policy: str, out: Path
+VERDICT = {True: "[green]holds[/]", False: "[red]slips[/]"}
+
+
+def micro(metres: float) -> str:
+    """A length in micrometres for the tables: 3 decimals, or 3 digits past a millimetre (a
+    finger that slipped flies off)."""
+    um = 1e6 * float(metres)
+    return f"{um:.3f}" if abs(um) < 1e3 else f"{um:.3g}"
+
+
+# ------------------------------------------------------------------------------ pose by pose
+
+
+def run_poses(
+    scene: Scene, trajectory: Trajectory, forces: np.ndarray, label: str, out: Path
 ) -> int:
-    """Check every pose in MuJoCo; print the table; save the plot."""
+    """Check every pose on its own in MuJoCo; print the table; save the plot."""
     from rich.console import Console
     from rich.table import Table
 
@@ -189,29 +267,29 @@ def run_trajectory(
     limit = float(np.degrees(scene.friction_limit))
     checker = StabilityChecker(scene)
     start = time.perf_counter()
-    reports = [checker.check(r, f) for r, f in zip(rotations, forces, strict=True)]
+    reports = checker.check_batch(rotations, forces)
     elapsed = time.perf_counter() - start
     checker.close()
 
-    table = Table(title=f"MuJoCo check of the {policy} grip (limit atan(mu) = {limit:.2f} deg)")
+    table = Table(title=f"MuJoCo check of the {label} grip (limit atan(mu) = {limit:.2f} deg)")
     for column in ("alpha deg", "max theta deg", "predicted", "MuJoCo", "slip um", "drift um"):
         table.add_column(column, justify="right")
-    verdict = {True: "[green]holds[/]", False: "[red]slips[/]"}
     for alpha, angle, report in zip(trajectory.alphas_deg, angles, reports, strict=True):
         table.add_row(
             f"{alpha:+.1f}",
             f"{angle:.3f}",
-            verdict[bool(angle <= limit)],
-            verdict[report.holds],
-            f"{1e6 * report.slip.max():.3f}",
-            f"{1e6 * report.drift:.3f}",
+            VERDICT[bool(angle <= limit)],
+            VERDICT[report.holds],
+            micro(report.slip.max()),
+            micro(report.drift),
         )
     console = Console()
     console.print(table)
     held = sum(r.holds for r in reports)
     agree = sum(r.holds == (a <= limit) for r, a in zip(reports, angles, strict=True))
     path = out / "verify.png"
-    _plot_trajectory(trajectory.alphas_deg, angles, limit, reports, policy, path)
+    title = f"{label} grip, each pose checked on its own: MuJoCo holds at {held}/{len(reports)}"
+    _plot_poses(scene, trajectory.alphas_deg, angles, limit, reports, title, path)
     console.print(
         f"MuJoCo: holds at {held}/{len(reports)} poses; analytic and MuJoCo agree at"
         f" {agree}/{len(reports)}; {1e3 * elapsed / len(reports):.1f} ms per check; plot {path}"
@@ -219,28 +297,150 @@ def run_trajectory(
     return 0
 
 
-def _plot_trajectory(alphas, angles, limit, reports: list[PhysicsReport], policy, path) -> None:
-    import matplotlib
+def _angle_axis(ax, values: np.ndarray, limit: float) -> None:
+    """Scale ``ax``'s y axis to the friction angles ``values`` (deg) and draw the friction
+    limit if it lies in that range or near it; otherwise say where it is."""
+    top = float(np.max(values))
+    if limit <= 1.5 * top:
+        ax.axhline(limit, color="k", ls="--", lw=1, label=f"atan(mu) = {limit:.2f} deg")
+        top = max(top, limit)
+    else:
+        ax.text(
+            0.99, 0.96, f"atan(mu) = {limit:.2f} deg, far above", transform=ax.transAxes,
+            ha="right", va="top", fontsize=8,
+        )  # fmt: skip
+    ax.set_ylim(0.0, 1.12 * top if top > 0 else 1.0)
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
+def _plot_poses(scene, alphas, angles, limit, reports: list[PhysicsReport], title, path) -> None:
+    plt = _matplotlib()
+    length = float(np.max(scene.size))
     holds = np.array([r.holds for r in reports])
-    slip = np.array([max(r.slip.max(), 1e-12) for r in reports])
+    slip = np.array([r.slip.max() for r in reports])
     fig, (top, bottom) = plt.subplots(2, 1, figsize=(7, 6), sharex=True)
     top.plot(alphas, angles, "-", color="0.5", label="max friction angle (analytic)")
-    top.axhline(limit, color="k", ls="--", lw=1, label="atan(mu)")
     top.scatter(alphas[holds], angles[holds], c="tab:green", zorder=3, label="MuJoCo: holds")
     top.scatter(alphas[~holds], angles[~holds], c="tab:red", marker="x", zorder=3,
                 label="MuJoCo: slips")  # fmt: skip
-    top.set_ylabel("max theta_i, deg")
-    top.set_title(f"{policy} grip along the trajectory")
-    top.legend(fontsize=8)
-    bottom.semilogy(alphas, 1e3 * slip, "o-", ms=3)
-    bottom.axhline(1e3 * SETTINGS["slip_threshold"], color="k", ls="--", lw=1, label="threshold")
+    _angle_axis(top, angles, limit)
+    top.set_ylabel("max friction angle, deg")
+    top.set_title(title, fontsize=10)
+    top.legend(fontsize=8, loc="lower left")
+    floor = 1e-6  # um: smaller slides are drawn here
+    bottom.semilogy(alphas, np.maximum(1e6 * slip, floor), "o-", ms=3, label="largest slide")
+    bottom.axhline(1e6 * SETTINGS["slip_threshold"] * length, color="k", ls="--", lw=1,
+                   label="slip threshold")  # fmt: skip
     bottom.legend(fontsize=8)
     bottom.set_xlabel("alpha, deg")
-    bottom.set_ylabel("max slip in MuJoCo, mm")
+    bottom.set_ylabel(f"slide in the hold, um (floor {floor:g})")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+# ------------------------------------------------------------------------------ the rollout
+
+
+def pose_alpha(alphas: np.ndarray, coordinate: float | np.ndarray) -> float | np.ndarray:
+    """The alpha (deg) of a pose coordinate t + s (between poses t and t + 1)."""
+    return np.interp(coordinate, np.arange(len(alphas)), alphas)
+
+
+def run_rollout(
+    scene: Scene, trajectory: Trajectory, forces: np.ndarray, label: str, out: Path
+) -> int:
+    """Carry the grip through the trajectory in one MuJoCo rollout; print the per-pose table
+    and the verdict; save the plot and the report."""
+    from rich.console import Console
+    from rich.table import Table
+
+    alphas = trajectory.alphas_deg
+    limit = float(np.degrees(scene.friction_limit))
+    start = time.perf_counter()
+    report = check_trajectories([(scene, trajectory.rotations(), forces, None)])[0]
+    elapsed = time.perf_counter() - start
+
+    table = Table(
+        title=f"one MuJoCo rollout of the {label} grip (limit atan(mu) = {limit:.2f} deg)"
+    )
+    columns = ("alpha deg", "max theta deg", "predicted", "MuJoCo", "slip um", "drift um")
+    for column in columns:
+        table.add_column(column, justify="right")
+    for t, alpha in enumerate(alphas):
+        table.add_row(
+            f"{alpha:+.1f}",
+            f"{report.max_angle_deg[t]:.3f}",
+            VERDICT[bool(report.pose_predicted[t])],
+            VERDICT[bool(report.pose_holds[t])],
+            micro(report.slip[t].max()),
+            micro(report.drift[t]),
+        )
+    console = Console()
+    console.print(table)
+
+    def where(coordinate: float | None) -> str:
+        return (
+            "none" if coordinate is None else f"alpha = {pose_alpha(alphas, coordinate):+.2f} deg"
+        )
+
+    word = {True: "holds", False: "slips"}
+    console.print(
+        f"{len(report.motion)} steps, {report.time:.2f} s simulated after the settle, in"
+        f" {elapsed:.2f} s; MuJoCo holds at {int(report.pose_holds.sum())}/{len(alphas)} poses"
+        f" (after a failure the motion under way carries on); first failure, analytic:"
+        f" {where(report.predicted_first_failure)}, MuJoCo: {where(report.first_failure)}"
+    )
+    path, data = out / "rollout.png", out / "rollout.json"
+    plot_rollouts(scene, alphas, [(label, report)], f"{label} grip in one MuJoCo rollout", path)
+    data.write_text(
+        json.dumps({"policy": label, "alphas_deg": alphas.tolist(), **report.as_dict()}, indent=1)
+    )
+    console.print(f"plot {path}, report {data}")
+    print(
+        f"trajectory: analytic {word[report.predicted_holds]}, MuJoCo {word[report.holds]}"
+        f" ({'agree' if report.agrees else 'DISAGREE'}); margin {report.margin_deg:+.3f} deg,"
+        f" largest slide {micro(report.slip.max())} um, drift {micro(report.drift.max())} um,"
+        f" rotation {report.rotation_deg.max():.4f} deg"
+    )
+    return 0
+
+
+def plot_rollouts(
+    scene: Scene, alphas: np.ndarray, runs: list[tuple[str, RolloutReport]], title: str, path
+) -> None:
+    """Along the run (after the settle): each grip's largest friction angle of a finger in
+    contact, the friction limit, and its largest slide since placed against the threshold."""
+    plt = _matplotlib()
+    length = float(np.max(scene.size))
+    limit = float(np.degrees(scene.friction_limit))
+    fig, (top, bottom) = plt.subplots(2, 1, figsize=(7, 6), sharex=True)
+    floor = 1e-6  # um: smaller slides are drawn here
+    largest = []
+    for (label, report), colour in zip(
+        runs, ("tab:blue", "tab:orange", "tab:purple"), strict=False
+    ):
+        motion, trace = report.motion, report.trace
+        steps = slice(motion.settle_steps, None)
+        alpha = pose_alpha(alphas, motion.pose[steps])
+        angles = np.degrees(motion.friction_angles(scene)[steps].max(axis=-1))
+        largest.append(angles)
+        slide = np.maximum.accumulate(trace.slip[steps].max(axis=-1)) * length * 1e6
+        slide = np.minimum(slide, 1e6 * length)  # past L the finger has left its face
+        top.plot(alpha, angles, color=colour, lw=1.2, label=label)
+        bottom.semilogy(alpha, np.maximum(slide, floor), color=colour, lw=1.2, label=label)
+        if report.first_failure is not None:
+            x = pose_alpha(alphas, report.first_failure)
+            top.axvline(x, color=colour, ls=":", lw=1)
+            bottom.axvline(x, color=colour, ls=":", lw=1)
+    _angle_axis(top, np.concatenate(largest), limit)
+    top.set_ylabel("largest friction angle, deg")
+    top.set_title(title, fontsize=10)
+    top.legend(fontsize=8, loc="lower left")
+    bottom.axhline(1e6 * SETTINGS["slip_threshold"] * length, color="k", ls="--", lw=1,
+                   label="slip threshold")  # fmt: skip
+    bottom.set_xlabel("alpha, deg (dotted: where MuJoCo first failed)")
+    bottom.set_ylabel(f"slide since placed, um (floor {floor:g}, top L)")
+    bottom.legend(fontsize=8, loc="upper left")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
@@ -249,10 +449,37 @@ def _plot_trajectory(alphas, angles, limit, reports: list[PhysicsReport], policy
 # ------------------------------------------------------------------------------ the agreement
 
 
-def run_agreement(seed: int, out: Path) -> int:
-    """The agreement study: confusion matrix, runtime and the one-line summary."""
-    from rich.console import Console
+def _confusion_table(title: str, confusion: np.ndarray):
     from rich.table import Table
+
+    table = Table(title=title)
+    table.add_column("")
+    table.add_column("MuJoCo holds", justify="right")
+    table.add_column("MuJoCo slips", justify="right")
+    for label, row in zip(("analytic holds", "analytic slips"), confusion, strict=True):
+        table.add_row(label, *(str(int(v)) for v in row))
+    return table
+
+
+def _bands_table(distance: np.ndarray, agree: np.ndarray, what: str):
+    from rich.table import Table
+
+    bands = Table(title="agreement by distance from the cone's edge")
+    for column in ("distance, deg", what, "agree"):
+        bands.add_column(column, justify="right")
+    bands_deg = {
+        f"under {FAR_FROM_EDGE_DEG}": distance < FAR_FROM_EDGE_DEG,
+        f"{FAR_FROM_EDGE_DEG} to 1": (distance >= FAR_FROM_EDGE_DEG) & (distance <= 1.0 + 1e-9),
+        "over 1": distance > 1.0 + 1e-9,
+    }
+    for label, band in bands_deg.items():
+        bands.add_row(label, str(int(band.sum())), str(int(agree[band].sum())))
+    return bands
+
+
+def run_agreement(seed: int, out: Path) -> int:
+    """The pose study: confusion matrix, runtime and the one-line summary."""
+    from rich.console import Console
     from tqdm import tqdm
 
     console = Console()
@@ -261,30 +488,12 @@ def run_agreement(seed: int, out: Path) -> int:
     generated = time.perf_counter()
     reports = check_sets(sets, progress=lambda s: tqdm(s, desc="MuJoCo checks", unit="set"))
     checked = time.perf_counter()
-    result = summarise(sets, np.array([r.holds for r in reports]))
-
-    table = Table(title="analytic (rows) vs MuJoCo (columns)")
-    table.add_column("")
-    table.add_column("MuJoCo holds", justify="right")
-    table.add_column("MuJoCo slips", justify="right")
-    for label, row in zip(("analytic holds", "analytic slips"), result.confusion, strict=True):
-        table.add_row(label, *(str(int(v)) for v in row))
-    console.print(table)
+    observed = np.array([r.holds for r in reports])
+    result = summarise(sets, observed)
+    console.print(_confusion_table("analytic (rows) vs MuJoCo (columns)", result.confusion))
     distance = np.array([s.edge_distance_deg for s in sets])
     predicted = np.array([s.predicted_holds for s in sets])
-    observed = np.array([r.holds for r in reports])
-    bands = Table(title="agreement by distance from the cone's edge")
-    for column in ("distance, deg", "sets", "agree"):
-        bands.add_column(column, justify="right")
-    bands_deg = {
-        f"{min(EDGE_OFFSETS_DEG)} to {FAR_FROM_EDGE_DEG}": distance < FAR_FROM_EDGE_DEG,
-        f"{FAR_FROM_EDGE_DEG} to 1": (distance >= FAR_FROM_EDGE_DEG) & (distance <= 1.0 + 1e-9),
-        "over 1": distance > 1.0 + 1e-9,
-    }
-    for label, band in bands_deg.items():
-        agree = int(np.sum(predicted[band] == observed[band]))
-        bands.add_row(label, str(int(band.sum())), str(agree))
-    console.print(bands)
+    console.print(_bands_table(distance, predicted == observed, "sets"))
     path = out / "agreement.png"
     _plot_agreement(sets, reports, path)
     console.print(
@@ -296,12 +505,13 @@ def run_agreement(seed: int, out: Path) -> int:
     return 0 if result.far == 1.0 else 1
 
 
+def _margin_ticks(ax, ticks: tuple[float, ...]) -> None:
+    """Plain tick labels on a symlog axis (its own crowd together around 0)."""
+    ax.set_xticks(ticks, [f"{t:g}" for t in ticks])
+
+
 def _plot_agreement(sets, reports: list[PhysicsReport], path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = _matplotlib()
     excess = np.array([s.max_angle_deg - s.limit_deg for s in sets])
     slip = np.array([max(r.slip.max(), 1e-12) for r in reports])
     holds = np.array([r.holds for r in reports])
@@ -309,11 +519,92 @@ def _plot_agreement(sets, reports: list[PhysicsReport], path: Path) -> None:
     ax.scatter(excess[holds], 1e3 * slip[holds], s=6, c="tab:green", label="MuJoCo: holds")
     ax.scatter(excess[~holds], 1e3 * slip[~holds], s=6, c="tab:red", label="MuJoCo: slips")
     ax.set_xscale("symlog", linthresh=0.01)
+    _margin_ticks(ax, (-10, -1, -0.1, -0.01, 0, 0.01, 0.1, 1, 10))
     ax.set_yscale("log")
     ax.axvline(0.0, color="k", lw=1)
     ax.set_xlabel("max friction angle - atan(mu), deg")
     ax.set_ylabel("max slip, mm")
     ax.set_title("analytic friction cone vs MuJoCo")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def run_trajectory_agreement(seed: int, scenes: int, out: Path) -> int:
+    """The trajectory study: confusion matrix, agreement by kind of grip and by distance from
+    the edge, the disagreements, runtime and the one-line summary."""
+    from rich.console import Console
+    from rich.table import Table
+    from tqdm import tqdm
+
+    console = Console()
+    start = time.perf_counter()
+    with status(f"generating the trajectories of {scenes} scenes"):
+        cases = trajectory_cases(seed, scenes)
+    generated = time.perf_counter()
+    reports = check_cases(
+        cases, progress=lambda c: tqdm(c, desc="MuJoCo rollouts", unit="trajectory")
+    )
+    checked = time.perf_counter()
+    result = summarise_trajectories(reports)
+    console.print(_confusion_table("analytic (rows) vs MuJoCo (columns), whole trajectories",
+                                   result.confusion))  # fmt: skip
+    agree = np.array([r.agrees for r in reports])
+    kinds = Table(title="agreement by grip")
+    for column in ("grip", "trajectories", "agree", "MuJoCo holds"):
+        kinds.add_column(column, justify="right")
+    names = [c.kind for c in cases]
+    for kind in dict.fromkeys(names):
+        mine = np.array([n == kind for n in names])
+        held = sum(r.holds for r, m in zip(reports, mine, strict=True) if m)
+        kinds.add_row(kind, str(int(mine.sum())), str(int(agree[mine].sum())), str(held))
+    console.print(kinds)
+    distance = np.abs([r.margin_deg for r in reports])
+    console.print(_bands_table(distance, agree, "trajectories"))
+    for case, report in zip(cases, reports, strict=True):
+        if not report.agrees:
+            console.print(
+                f"disagrees: {case.kind}, {case.scene.n_contacts} fingers, margin"
+                f" {report.margin_deg:+.3f} deg, analytic"
+                f" {'holds' if report.predicted_holds else 'slips'}, MuJoCo"
+                f" {'holds' if report.holds else 'slips'} (largest slide"
+                f" {1e6 * report.slip.max():.2f} um)"
+            )
+    path = out / "trajectory_agreement.png"
+    _plot_trajectory_agreement(cases, reports, path)
+    seconds = checked - generated
+    console.print(
+        f"runtime: {checked - start:.1f} s ({generated - start:.1f} s generating {len(cases)}"
+        f" trajectories, {seconds:.1f} s in MuJoCo, {1e3 * seconds / len(cases):.0f} ms per"
+        f" rollout); plot {path}"
+    )
+    print(result.line("trajectories"))
+    return 0 if result.far == 1.0 else 1
+
+
+def _plot_trajectory_agreement(cases, reports: list[RolloutReport], path: Path) -> None:
+    plt = _matplotlib()
+    margin = np.array([r.margin_deg for r in reports])
+    floor = 1e-12
+    slide = np.array(
+        [
+            max(r.slip.max() / np.max(c.scene.size), floor)
+            for c, r in zip(cases, reports, strict=True)
+        ]
+    )
+    holds = np.array([r.holds for r in reports])
+    fig, ax = plt.subplots(figsize=(7, 4))
+    ax.scatter(margin[holds], slide[holds], s=8, c="tab:green", label="MuJoCo: holds")
+    ax.scatter(margin[~holds], slide[~holds], s=8, c="tab:red", marker="x", label="MuJoCo: slips")
+    ax.set_xscale("symlog", linthresh=0.05)
+    _margin_ticks(ax, (-10, -1, -0.1, 0, 0.1, 1, 10))
+    ax.set_yscale("log")
+    ax.axvline(0.0, color="k", lw=1)
+    ax.axhline(SETTINGS["slip_threshold"], color="k", ls="--", lw=1, label="slip threshold")
+    ax.set_xlabel("analytic margin over the run: atan(mu) - largest friction angle, deg")
+    ax.set_ylabel(f"largest slide, units of L (floor {floor:g})")
+    ax.set_title(f"{len(reports)} trajectories, each one continuous MuJoCo rollout")
     ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=120)

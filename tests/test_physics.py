@@ -528,6 +528,74 @@ def test_verify_equal_k_grip_slips_at_the_trajectory_ends(tmp_path, capsys):
     assert "agree at 31/31" in out
 
 
+def test_verify_trajectory_carries_the_expert_grip_in_one_rollout(tmp_path, capsys):
+    status = main(["verify", "--trajectory", "--out", str(tmp_path)])
+    out = capsys.readouterr().out
+    assert status == 0
+    rows = [line for line in out.splitlines() if line.startswith("│")]
+    assert len(rows) == 31 and all(row.count("holds") == 2 for row in rows)
+    verdict = out.strip().splitlines()[-1]
+    assert verdict.startswith("trajectory: analytic holds, MuJoCo holds (agree); margin +26.5")
+    assert (tmp_path / "rollout.png").stat().st_size > 10_000
+    report = json.loads((tmp_path / "rollout.json").read_text())
+    assert report["policy"] == "expert" and len(report["alphas_deg"]) == 31
+    assert report["holds"] and all(report["pose_holds"]) and report["first_failure"] is None
+
+
+def test_verify_trajectory_reports_where_the_equal_k_grip_first_slips(tmp_path, capsys):
+    # mu = 0.1 (5.71 deg): the equal-k grip is past the limit from the start (9.3 deg at -15).
+    argv = ["verify", "--trajectory", "--policy", "equal-k", "--mu", "0.1", "--out", str(tmp_path)]
+    assert main(argv) == 0
+    out = capsys.readouterr().out
+    assert "trajectory: analytic slips, MuJoCo slips (agree); margin -3.6" in out
+    assert "first failure, analytic: alpha = -15.00 deg, MuJoCo: alpha = -15.00 deg" in " ".join(
+        out.split()
+    )
+    report = json.loads((tmp_path / "rollout.json").read_text())
+    assert report["predicted_first_failure"] == 0.0 and not report["holds"]
+    assert not report["pose_predicted"][0] and report["pose_predicted"][15]
+
+
+def test_verify_trajectory_agreement_on_one_scene(tmp_path, capsys):
+    argv = ["verify", "--agreement", "--trajectory", "--scenes", "1", "--out", str(tmp_path)]
+    status = main(argv)
+    out = capsys.readouterr().out
+    # One scene gives the expert's grip and two perturbed ones, plus 8 equal-k and coarse steps.
+    assert out.strip().splitlines()[-1].startswith("agreement: 100.00% overall (12 trajectories)")
+    assert status == 0
+    assert "coarse steps" in out and "MuJoCo slips" in out
+    assert (tmp_path / "trajectory_agreement.png").stat().st_size > 10_000
+
+
+def test_verify_refuses_scenes_outside_the_trajectory_study(tmp_path, capsys):
+    assert main(["verify", "--scenes", "3", "--out", str(tmp_path)]) == 2
+    assert "--agreement --trajectory" in capsys.readouterr().err
+    argv = ["verify", "--agreement", "--trajectory", "--scenes", "0", "--out", str(tmp_path)]
+    assert main(argv) == 2
+    assert "--scenes must be >= 1" in capsys.readouterr().err
+
+
+def test_verify_states_the_current_settings():
+    from grasp_env_agents import verify
+
+    def num(value: float) -> str:
+        return f"{value:g}".replace("e-0", "e-")
+
+    doc = " ".join(verify.__doc__.split())
+    for phrase in (
+        f"{num(SETTINGS['settle_time'])} s settle at mu = {num(SETTINGS['settle_mu'])}",
+        f"{num(SETTINGS['hold_time'])} s hold",
+        f"more than {num(SETTINGS['slip_threshold'])} L",
+        f"faster than {num(SETTINGS['slip_speed'])} L/s",
+        f"at most {num(SETTINGS['drift_threshold'])} L",
+        f"at most {num(SETTINGS['rotation_threshold_deg'])} deg",
+        f"at most {num(SETTINGS['released_force'])} w is released",
+        f"{num(SETTINGS['pose_hold_time'])} s dwell",
+        f"{num(SETTINGS['time_per_degree'])} s per degree",
+    ):
+        assert phrase in doc, phrase
+
+
 @pytest.mark.slow  # about 13 s, most of it importing Stable-Baselines3 and building PPO
 def test_verify_runs_a_saved_model(tmp_path, capsys):
     import gymnasium as gym
@@ -542,6 +610,10 @@ def test_verify_runs_a_saved_model(tmp_path, capsys):
     assert status == 0
     assert "MuJoCo: holds at" in out
     assert len([line for line in out.splitlines() if line.startswith("│")]) == 31
+    argv = ["verify", "--trajectory", "--policy", str(path), "--out", str(tmp_path)]
+    assert main(argv) == 0
+    assert "trajectory: analytic" in capsys.readouterr().out
+    assert json.loads((tmp_path / "rollout.json").read_text())["policy"].startswith("learned (")
 
 
 def test_verify_rejects_a_missing_model(tmp_path, capsys):
