@@ -6,6 +6,9 @@ no display is set; CI installs libosmesa6 for it.
 
 from __future__ import annotations
 
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
@@ -99,3 +102,26 @@ def test_closed_view_refuses_to_render():
     view.close()
     with pytest.raises(ValueError, match="closed"):
         view.render(rotation, forces)
+
+
+# No view is freed before exit: freeing one first would load the PyOpenGL handler that
+# OSMesa's free needs, and hide the failure at shutdown.
+UNCLOSED = """
+import numpy as np
+from grasp_env.mechanics import START_ROTATION, Scene
+from grasp_env.physics import GraspView
+
+view = GraspView(Scene(), width=32, height=32)  # never closed: freed at exit
+print(view.render(START_ROTATION, np.zeros((3, 3))).shape)
+"""
+
+
+def test_a_view_never_closed_exits_cleanly():
+    # Without the view freeing its renderer before interpreter shutdown, OSMesa's free fails
+    # there and prints "Exception ignored in: <function Renderer.__del__ ...>" on stderr.
+    result = subprocess.run(
+        [sys.executable, "-c", UNCLOSED], capture_output=True, text=True, timeout=120
+    )
+    assert result.returncode == 0, result.stderr
+    assert result.stdout == "(32, 32, 3)\n"
+    assert result.stderr == ""

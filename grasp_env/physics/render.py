@@ -19,6 +19,7 @@ from __future__ import annotations
 import os
 import sys
 import warnings
+import weakref
 from collections.abc import Sequence
 
 import mujoco
@@ -137,6 +138,10 @@ class GraspView:
                     " a display set MUJOCO_GL=egl, or MUJOCO_GL=osmesa after installing"
                     f" libosmesa6, before importing mujoco ({error})"
                 ) from error
+            # Free the GL context when the view goes, or at exit if it is never closed: left to
+            # the renderer's __del__ at interpreter shutdown, OSMesa's free fails noisily
+            # ("Exception ignored in Renderer.__del__"), its PyOpenGL half torn down already.
+            self._free = weakref.finalize(self, self._renderer.close)
         elif not display_available():
             self._headless = True
             warnings.warn(
@@ -282,7 +287,7 @@ class GraspView:
     def close(self) -> None:
         """Free the renderer's OpenGL context or close the window."""
         if self._renderer is not None:
-            self._renderer.close()
+            self._free()
             self._renderer = None
         if self._viewer is not None:
             self._viewer.close()
