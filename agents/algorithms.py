@@ -51,15 +51,20 @@ ATANH_EDGE = 1.0 - 1e-4
 
 class WarmCriticPPO(PPO):
     """SB3's PPO whose actor (network, head and log std) stays fixed for the first
-    ``critic_warmup`` rollouts while the critic fits the value of the current policy."""
+    ``critic_warmup`` rollouts while the critic fits the value of the current policy.
+
+    The warm-up is counted in PPO's own steps (``num_timesteps``), which a checkpoint keeps: a
+    resumed run does not warm up again.
+    """
 
     def __init__(self, *args: Any, critic_warmup: int = 0, **kwargs: Any) -> None:
         self.critic_warmup = critic_warmup
-        self.rollouts_trained = 0
         super().__init__(*args, **kwargs)
 
     def train(self) -> None:
-        actor = self.actor_parameters() if self.rollouts_trained < self.critic_warmup else []
+        # train() follows the collection of a rollout: num_timesteps counts it already
+        warming = self.num_timesteps <= self.critic_warmup * self.n_steps * self.n_envs
+        actor = self.actor_parameters() if warming else []
         for parameter in actor:
             parameter.requires_grad_(False)  # Adam skips parameters without a gradient
         try:
@@ -67,7 +72,6 @@ class WarmCriticPPO(PPO):
         finally:
             for parameter in actor:
                 parameter.requires_grad_(True)
-        self.rollouts_trained += 1
 
     def actor_parameters(self) -> list[torch.nn.Parameter]:
         """What the critic's warm-up keeps fixed (the features extractor has no parameters)."""
@@ -236,9 +240,8 @@ def new_model(config: TrainConfig, env: VecEnv) -> BaseAlgorithm:
             device="cpu",
             verbose=0,
         )
-    from .config import OffPolicyConfig
-
-    off = config.offpolicy or OffPolicyConfig()
+    off = config.offpolicy
+    assert off is not None  # an off-policy config always has the section (config.py)
     policy_kwargs: dict[str, Any] = {"net_arch": list(policy.net_arch), "activation_fn": activation}
     if directions:
         policy_kwargs["k_max_ratio"] = config.k_max_ratio
@@ -270,6 +273,6 @@ def new_model(config: TrainConfig, env: VecEnv) -> BaseAlgorithm:
         ForceDirectionSACPolicy if directions else "MlpPolicy",
         env,
         ent_coef=off.ent_coef,
-        policy_kwargs={**policy_kwargs, "log_std_init": policy.log_std_init},
+        policy_kwargs=policy_kwargs,  # SAC's std is a function of the state, not log_std_init
         **common,
     )

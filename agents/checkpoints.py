@@ -5,14 +5,17 @@ A run directory's ``checkpoints/`` holds, as the run goes:
 - ``imitation_round_<r>.zip`` after each imitation round r (the policy after its fit), with
   ``imitation_round_<r>.npz`` (the states the round labelled: a resumed run refits on all
   rounds' data) until the imitation phase ends;
-- ``ppo_<N>_steps.zip`` every ``checkpoint_freq`` PPO steps, after the imitation phase
-  (``ppo_0_steps.zip``), on Ctrl-C and at the end, with ``ppo_vecnormalize_<N>_steps.pkl``
-  when observations are normalised (SB3's CheckpointCallback names).
+- ``<algo>_<N>_steps.zip`` (``ppo``, ``td3``, ``sac``) every ``checkpoint_freq`` steps of the
+  algorithm, after the imitation phase (``ppo_0_steps.zip``), on Ctrl-C and at the end, with
+  ``<algo>_vecnormalize_<N>_steps.pkl`` when observations are normalised and, for TD3 and SAC,
+  ``<algo>_replay_buffer_<N>_steps.pkl`` (SB3's CheckpointCallback names). The replay buffer
+  is large (every transition it keeps), so only the newest checkpoint's is kept: an off-policy
+  run resumes from its newest checkpoint, whose buffer holds what the run had learnt from.
 
 Every file is written to a temporary name and renamed, so a killed run leaves no half-written
 file under a checkpoint's name. A damaged one (from an older run, a full disk, a copy) is
 skipped on resume with a message naming it: :func:`find_start` continues from the newest intact
-checkpoint, PPO's first, then the imitation rounds'.
+checkpoint, the algorithm's first, then the imitation rounds'.
 
 TensorBoard (``tb/imitation`` and ``tb/ppo``) logs at the run's environment steps, the learning
 curve's x (imitation's labelled states, then PPO's steps after them). A resumed run first drops
@@ -26,33 +29,37 @@ import io
 import os
 import re
 from dataclasses import dataclass
+from operator import attrgetter
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import torch
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.logger import Logger, TensorBoardOutputFormat
 from torch.utils.tensorboard import SummaryWriter
 
-from .models import check_tensors, load_vecnormalize, read_archive
+from .models import ALGORITHMS, check_tensors, load_replay_buffer, load_vecnormalize, read_archive
 from .progress import say
 
-PPO_PREFIX = "ppo"
 IMITATION_PREFIX = "imitation_round"
+#: A checkpoint of an algorithm's model: ``<algo>_<N>_steps.zip``.
+CHECKPOINT_NAME = re.compile(rf"({'|'.join(ALGORITHMS)})_(\d+)_steps\.zip")
 
 
 @dataclass(frozen=True)
 class Start:
     """Where a run (re)starts: ``checkpoint`` None is the beginning.
 
-    ``round`` is the last imitation round the checkpoint completed (-1: none), ``ppo_steps``
-    PPO's steps, ``env_steps`` the run's environment steps at that point, ``data`` the files of
-    the imitation rounds' states (empty once the imitation phase is over).
+    ``round`` is the last imitation round the checkpoint completed (-1: none),
+    ``model_steps`` the algorithm's steps (the model's ``num_timesteps``), ``env_steps`` the
+    run's environment steps at that point, ``data`` the files of the imitation rounds' states
+    (empty once the imitation phase is over).
     """
 
     checkpoint: Path | None = None
     round: int = -1
-    ppo_steps: int = 0
+    model_steps: int = 0
     env_steps: int = 0
     data: tuple[Path, ...] = ()
 
@@ -60,32 +67,54 @@ class Start:
     def vecnormalize(self) -> Path | None:
         return None if self.checkpoint is None else statistics_path(self.checkpoint)
 
+    @property
+    def replay_buffer(self) -> Path | None:
+        """The checkpoint's replay buffer (TD3's and SAC's), None for PPO and imitation."""
+        if self.checkpoint is None or not has_replay_buffer(self.checkpoint):
+            return None
+        return replay_buffer_path(self.checkpoint)
+
 
 # --- names and writing -----------------------------------------------------------------------
 
 
-def ppo_checkpoint(run_dir: Path, steps: int) -> Path:
-    return run_dir / "checkpoints" / f"{PPO_PREFIX}_{steps}_steps.zip"
+def model_checkpoint(run_dir: Path, algo: str, steps: int) -> Path:
+    return run_dir / "checkpoints" / f"{algo}_{steps}_steps.zip"
 
 
 def imitation_checkpoint(run_dir: Path, round_: int) -> Path:
     return run_dir / "checkpoints" / f"{IMITATION_PREFIX}_{round_}.zip"
 
 
-def checkpoint_steps(path: Path) -> int:
-    """PPO steps of a checkpoint named ``ppo_<N>_steps.zip``."""
-    match = re.fullmatch(rf"{PPO_PREFIX}_(\d+)_steps\.zip", path.name)
+def _name(path: Path) -> tuple[str, int]:
+    match = CHECKPOINT_NAME.fullmatch(path.name)
     if match is None:
-        raise ValueError(f"{path} is not a PPO checkpoint name")
-    return int(match.group(1))
+        raise ValueError(f"{path} is not a checkpoint name (<algo>_<N>_steps.zip)")
+    return match.group(1), int(match.group(2))
+
+
+def checkpoint_steps(path: Path) -> int:
+    """The algorithm's steps of a checkpoint named ``<algo>_<N>_steps.zip``."""
+    return _name(path)[1]
 
 
 def statistics_path(checkpoint: Path) -> Path:
     """The normalisation statistics saved beside a checkpoint (CheckpointCallback's naming)."""
     if checkpoint.name.startswith(IMITATION_PREFIX):
         return checkpoint.with_suffix(".vecnormalize.pkl")
-    steps = checkpoint_steps(checkpoint)
-    return checkpoint.with_name(f"{PPO_PREFIX}_vecnormalize_{steps}_steps.pkl")
+    algo, steps = _name(checkpoint)
+    return checkpoint.with_name(f"{algo}_vecnormalize_{steps}_steps.pkl")
+
+
+def has_replay_buffer(checkpoint: Path) -> bool:
+    """Whether the checkpoint is an off-policy algorithm's (TD3, SAC): saved with its buffer."""
+    return not checkpoint.name.startswith(IMITATION_PREFIX) and _name(checkpoint)[0] != "ppo"
+
+
+def replay_buffer_path(checkpoint: Path) -> Path:
+    """The replay buffer saved beside an off-policy checkpoint (CheckpointCallback's naming)."""
+    algo, steps = _name(checkpoint)
+    return checkpoint.with_name(f"{algo}_replay_buffer_{steps}_steps.pkl")
 
 
 def write_atomically(path: Path, content: bytes) -> None:
@@ -107,12 +136,23 @@ def save_model(model: BaseAlgorithm, path: Path) -> None:
     write_atomically(path, buffer.getvalue())
 
 
-def _pickled(normalizer: Any) -> bytes:
+def save_checkpoint(model: BaseAlgorithm, path: Path) -> None:
+    """A checkpoint of the model (:func:`save_model`) and, for TD3 and SAC, its replay buffer
+    (written first; the earlier checkpoints' buffers are deleted after)."""
+    buffer = getattr(model, "replay_buffer", None)
+    if buffer is not None:
+        kept = replay_buffer_path(path)
+        write_atomically(kept, _pickled(buffer))
+        for older in path.parent.glob("*_replay_buffer_*_steps.pkl"):
+            if older != kept:
+                older.unlink()
+    save_model(model, path)
+
+
+def _pickled(item: Any) -> bytes:
     import pickle
 
-    return pickle.dumps(
-        normalizer, protocol=pickle.HIGHEST_PROTOCOL
-    )  # what VecNormalize.save writes
+    return pickle.dumps(item, protocol=pickle.HIGHEST_PROTOCOL)  # as VecNormalize.save writes
 
 
 def save_round_data(
@@ -136,7 +176,8 @@ def load_round_data(path: Path) -> tuple[np.ndarray, np.ndarray, int]:
 
 
 def check_checkpoint(path: Path, normalize: bool) -> None:
-    """Raise ValueError (naming what is wrong) unless ``path`` and its statistics are intact."""
+    """Raise ValueError (naming what is wrong) unless ``path`` and its statistics (and, for
+    TD3 and SAC, its replay buffer) are intact."""
     _, archive = read_archive(path)
     check_tensors(path, archive)
     if normalize:
@@ -144,13 +185,18 @@ def check_checkpoint(path: Path, normalize: bool) -> None:
         if not statistics.is_file():
             raise ValueError(f"{statistics} is missing (the normalisation statistics)")
         load_vecnormalize(statistics)
+    if has_replay_buffer(path):
+        buffer = replay_buffer_path(path)
+        if not buffer.is_file():
+            raise ValueError(f"{buffer.name} is missing (only the newest checkpoint keeps one)")
+        load_replay_buffer(buffer)
 
 
-def find_start(run_dir: Path, normalize: bool, imitation_steps: int) -> Start:
+def find_start(run_dir: Path, normalize: bool, imitation_steps: int, algo: str = "ppo") -> Start:
     """The newest intact checkpoint of the run, printing each damaged one it skips.
 
     ``imitation_steps`` is the environment steps of the run's imitation phase (from its
-    learning curve), which PPO's steps follow.
+    learning curve), which the algorithm's steps follow; ``algo`` the run's algorithm.
     """
     folder = run_dir / "checkpoints"
 
@@ -164,11 +210,11 @@ def find_start(run_dir: Path, normalize: bool, imitation_steps: int) -> Start:
             return False
         return True
 
-    ppo = sorted(folder.glob(f"{PPO_PREFIX}_*_steps.zip"), key=checkpoint_steps, reverse=True)
-    for path in ppo:
+    models = sorted(folder.glob(f"{algo}_*_steps.zip"), key=checkpoint_steps, reverse=True)
+    for path in models:
         if intact(path):
             steps = checkpoint_steps(path)
-            return Start(path, round=-1, ppo_steps=steps, env_steps=imitation_steps + steps)
+            return Start(path, round=-1, model_steps=steps, env_steps=imitation_steps + steps)
     rounds = sorted(
         (int(p.stem.rsplit("_", 1)[1]) for p in folder.glob(f"{IMITATION_PREFIX}_*.zip")),
         reverse=True,
@@ -180,6 +226,27 @@ def find_start(run_dir: Path, normalize: bool, imitation_steps: int) -> Start:
             steps = load_round_data(data[-1])[2]
             return Start(path, round=round_, env_steps=steps, data=tuple(data))
     return Start()
+
+
+def restore(model: BaseAlgorithm, start: Start) -> None:
+    """Put ``start``'s checkpoint into a fresh ``model``: weights and optimiser states, the
+    tensors beside them (SAC's entropy coefficient), the step count and the replay buffer."""
+    assert start.checkpoint is not None
+    model.set_parameters(str(start.checkpoint), device="cpu")
+    names = model._get_torch_save_params()[1]
+    if names:
+        _, archive = read_archive(start.checkpoint)
+        saved = torch.load(
+            io.BytesIO(archive.read("pytorch_variables.pth")), map_location="cpu", weights_only=True
+        )
+        with torch.no_grad():  # in place, as SB3's load: the optimisers hold these tensors
+            for name in names:
+                attrgetter(name)(model).copy_(saved[name])
+    model.num_timesteps = start.model_steps
+    if start.replay_buffer is not None:
+        buffer = load_replay_buffer(start.replay_buffer)
+        buffer.device = model.device
+        model.replay_buffer = buffer
 
 
 # --- TensorBoard -----------------------------------------------------------------------------

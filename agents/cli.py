@@ -17,10 +17,12 @@ from .progress import status, watch_numba
 
 SUMMARIES = {
     "reproduce": "the paper's quasi-static sweep: optimal k_ij and friction angles, plots",
-    "train": "train a PPO agent from a YAML config (default: a few minutes here)",
+    "train": "train an agent (PPO, TD3 or SAC) from a YAML config",
     "evaluate": "compare a trained agent with the minimax expert and baselines",
     "verify": "check grip forces in MuJoCo physics along a trajectory",
     "bench": "run the speed benchmarks in benchmarks/",
+    "sweep": "a sweep on Ray Tune (grid, random or Optuna) over config keys and seeds",
+    "results": "results across runs: IQM and 95%% bootstrap intervals over seeds, the README table",
     "gait": "when to phase fingers out and in: the certified optimal gait along a long rotation",
 }
 

@@ -101,8 +101,9 @@ class PolicyConfig(_Section):
     Args:
         net_arch: hidden layer widths, shared by the separate actor and critic networks.
         activation: hidden activation function.
-        log_std_init: initial log standard deviation of the Gaussian exploration noise, in
-            action units (-1 gives std 0.37; a low value keeps a pretrained policy precise).
+        log_std_init: initial log standard deviation of PPO's Gaussian exploration noise, in
+            action units (-1 gives std 0.37; a low value keeps a pretrained policy precise);
+            TD3's noise is ``offpolicy.action_noise``, SAC's std is learnt per state.
         features: the network's input: the raw ``observation``, or the ``grasp`` in the
             object's frame computed from it (:class:`grasp_env_agents.features.GraspFeatures`: the
             equilibrating forces, pair directions and normals, which is all k* depends on).
@@ -137,6 +138,11 @@ class PPOConfig(_Section):
         vf_coef: value loss weight.
         max_grad_norm: gradient clipping norm.
         target_kl: stop an update's epochs early past this KL divergence (None: never).
+        critic_warmup: rollouts during which only the critic learns (the actor, its head and
+            log std fixed), so that the first actor updates follow the advantages of a fitted
+            critic (:class:`grasp_env_agents.algorithms.WarmCriticPPO`).
+        use_sde: generalised state-dependent exploration (gSDE) instead of a fixed Gaussian.
+        sde_sample_freq: with gSDE, steps between new noise matrices (-1: once per rollout).
     """
 
     learning_rate: _range(Float, 0.0, 1.0, low_open=True) = 3e-4
@@ -151,6 +157,43 @@ class PPOConfig(_Section):
     vf_coef: _range(Float, 0.0, 10.0) = 0.5
     max_grad_norm: _range(Float, 0.0, 1e6, low_open=True) = 0.5
     target_kl: _range(Float, 0.0, 10.0, low_open=True) | None = None
+    critic_warmup: _range(Int, 0, 1 << 20) = 0
+    use_sde: StrictBool = False
+    sde_sample_freq: _range(Int, -1, 1 << 20) = -1
+
+
+class OffPolicyConfig(_Section):
+    """SAC and TD3 hyperparameters (``algo: sac`` or ``td3``), named as SB3's keywords.
+
+    Args:
+        learning_rate: Adam step size of the actor and the critics.
+        buffer_size: transitions the replay buffer keeps. SB3 allocates it whole, and every
+            checkpoint writes it whole (about 280 bytes a transition on the cube: 28 MB at the
+            default, filled or not).
+        learning_starts: environment steps of random actions before learning starts.
+        batch_size: minibatch size of each gradient step.
+        tau: soft update coefficient of the target networks.
+        gamma: discount (0: every pose is a bandit, the critic regresses the reward).
+        train_freq: environment steps (per environment) between updates.
+        gradient_steps: gradient steps per update.
+        action_noise: TD3's Gaussian exploration noise, in action units.
+        ent_coef: SAC's entropy coefficient: ``auto`` (learned), or a number.
+    """
+
+    learning_rate: _range(Float, 0.0, 1.0, low_open=True) = 3e-4
+    buffer_size: _range(Int, 1, 1 << 30) = 100_000
+    learning_starts: _range(Int, 0, 1 << 40) = 10_000
+    batch_size: _range(Int, 1, 1 << 24) = 256
+    tau: _range(Float, 0.0, 1.0, low_open=True) = 0.005
+    gamma: _range(Float, 0.0, 1.0) = 0.0
+    train_freq: _range(Int, 1, 1 << 20) = 1
+    gradient_steps: _range(Int, 1, 1 << 20) = 1
+    action_noise: _range(Float, 0.0, 10.0) = 0.1
+    ent_coef: Literal["auto"] | _range(Float, 0.0, 10.0) = "auto"
+
+
+#: The offpolicy key of the other off-policy algorithm (refused if given, not written).
+OTHER_ALGORITHMS_KEY = {"td3": "ent_coef", "sac": "action_noise"}
 
 
 class ImitationConfig(_Section):
@@ -200,9 +243,14 @@ class TrainConfig(_Section):
         checkpoint_freq: environment steps between checkpoints (0: only at the end).
         torch_threads: CPU threads torch may use (fewer threads: less contention, the same
             numbers on every machine).
+        algo: the learning algorithm: ``ppo``, or SB3's off-policy ``td3`` or ``sac``
+            (:mod:`grasp_env_agents.algorithms`).
         policy: the network.
-        ppo: PPO hyperparameters.
-        imitation: the expert-teacher phase; None (absent or null) trains PPO from scratch.
+        ppo: PPO hyperparameters (algo: ppo).
+        offpolicy: TD3's and SAC's hyperparameters (algo: td3 or sac; absent or null: the
+            defaults).
+        imitation: the expert-teacher phase (algo: ppo); None (absent or null) trains from
+            scratch.
     """
 
     env_id: StrictStr
@@ -215,9 +263,20 @@ class TrainConfig(_Section):
     eval_episodes: _range(Int, 1, 1 << 20) = 64
     checkpoint_freq: _range(Int, 0, 1 << 40) = 50_000
     torch_threads: _range(Int, 1, 1024) = 1
+    algo: Literal["ppo", "td3", "sac"] = "ppo"
     policy: PolicyConfig = PolicyConfig()
     ppo: PPOConfig = PPOConfig()
+    offpolicy: OffPolicyConfig | None = None
     imitation: ImitationConfig | None = None
+
+    @model_validator(mode="before")
+    @classmethod
+    def _off_policy_defaults(cls, data: Any) -> Any:
+        """An off-policy config without an offpolicy section has the section's defaults."""
+        if isinstance(data, Mapping) and data.get("algo") in OTHER_ALGORITHMS_KEY:
+            if data.get("offpolicy") is None:
+                return {**data, "offpolicy": {}}
+        return data
 
     @model_validator(mode="after")
     def _consistent(self) -> TrainConfig:
@@ -229,6 +288,23 @@ class TrainConfig(_Section):
             raise ValueError(
                 "nothing to train: total_timesteps is 0 and there is no imitation section;"
                 " set total_timesteps > 0 (PPO steps) or add an imitation section"
+            )
+        if self.algo == "ppo" and self.offpolicy is not None:
+            raise ValueError("offpolicy: the section is for algo: td3 or sac, got algo: ppo")
+        if self.algo != "ppo" and "ppo" in self.model_fields_set:
+            raise ValueError(
+                f"ppo: the section is for algo: ppo, got algo: {self.algo} (its"
+                " hyperparameters go in an offpolicy section)"
+            )
+        given = set() if self.offpolicy is None else self.offpolicy.model_fields_set
+        other = OTHER_ALGORITHMS_KEY.get(self.algo)
+        if other in given:
+            owner = "SAC's entropy coefficient" if other == "ent_coef" else "TD3's noise"
+            raise ValueError(f"offpolicy.{other} is {owner}, got algo: {self.algo}")
+        if self.algo != "ppo" and self.imitation is not None:
+            raise ValueError(
+                f"imitation: the expert teaches PPO's actor-critic; algo: {self.algo} has none"
+                " (use algo: ppo)"
             )
         if self.ppo.n_steps * self.n_envs < 2:
             raise ValueError(
@@ -253,8 +329,12 @@ class TrainConfig(_Section):
         return self.env_kwargs.get("k_max_ratio", DEFAULT_K_MAX_RATIO)
 
     def to_dict(self) -> dict[str, Any]:
-        """Plain data (the YAML written into the run directory)."""
-        return self.model_dump()
+        """Plain data (the YAML written into the run directory): the sections of the config's
+        algorithm only (an off-policy config has no ppo section, a PPO one no offpolicy)."""
+        if self.algo == "ppo":
+            return self.model_dump(exclude={"offpolicy"})
+        other = OTHER_ALGORITHMS_KEY[self.algo]
+        return self.model_dump(exclude={"ppo": True, "offpolicy": {other}})
 
     def replace(self, **changes: Any) -> TrainConfig:
         """A copy with keys changed, checked like a loaded config; nested keys by dotted path:

@@ -1,10 +1,11 @@
 """A run's learning curve: held-out evaluations over training, as CSV and as a plot.
 
-``learning_curve.csv`` has one row per evaluation: the phase (``initial``, ``imitation``,
-``ppo``), the run's environment steps so far (imitation's labelled states, then PPO's steps
-after them), the wall and CPU seconds of training, and the held-out metrics of
-:func:`grasp_env_agents.envs.summarise`. ``learning_curve.png`` draws the mean and p90 gap and
-the success rate against steps and against wall time, the phases shaded.
+``learning_curve.csv`` has one row per evaluation: the phase (``initial``, ``imitation``, or
+the algorithm: ``ppo``, ``td3``, ``sac``), the run's environment steps so far (imitation's
+labelled states, then the algorithm's steps after them), the wall and CPU seconds of
+training, and the held-out metrics of :func:`grasp_env_agents.envs.summarise`.
+``learning_curve.png`` draws the mean and p90 gap and the success rate against steps and
+against wall time, the phases shaded.
 """
 
 from __future__ import annotations
@@ -30,7 +31,12 @@ FIELDS = (
 )
 #: Gaps below this are drawn at it (a log axis has no 0): the expert's own level.
 GAP_FLOOR_DEG = 0.01
-PHASES = {"imitation": ("imitation (expert as teacher)", "tab:blue"), "ppo": ("PPO", "tab:orange")}
+PHASES = {
+    "imitation": ("imitation (expert as teacher)", "tab:blue"),
+    "ppo": ("PPO", "tab:orange"),
+    "td3": ("TD3", "tab:green"),
+    "sac": ("SAC", "tab:purple"),
+}
 
 
 class Clock:

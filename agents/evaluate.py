@@ -57,7 +57,12 @@ COLUMNS = (
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     # dest "run" would shadow the CLI's args.run (the command's entry point)
     parser.add_argument(
-        "run_dir", type=Path, metavar="RUN", help="a run directory written by grasp-env train"
+        "run_dirs",
+        type=Path,
+        nargs="+",
+        metavar="RUN",
+        help="run directories written by grasp-env train; with several, also the report across"
+        " them (IQM and 95%% bootstrap intervals over seeds, runs grouped by config)",
     )
     parser.add_argument(
         "--episodes",
@@ -74,18 +79,34 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=Path,
         metavar="DIR",
         help="folder for the report, comparison.csv and the plot (default:"
-        " RUN/evaluation-<N>-scenes; --out RUN replaces the run's own report)",
+        " RUN/evaluation-<N>-scenes; --out RUN replaces the run's own report); with several"
+        " runs, the folder of the report across them (default: none, printed only)",
     )
 
 
 def run(args: argparse.Namespace) -> int:
-    out = args.out
-    if out is None:
-        episodes = args.episodes or load_config(Path(args.run_dir) / "config.yaml").eval_episodes
-        out = Path(args.run_dir) / f"evaluation-{episodes}-scenes"
-    comparison = evaluate_run(args.run_dir, args.episodes, args.physics_episodes, out)
-    print(comparison.markdown)
-    print(f"\nreport: {comparison.report}")
+    runs = [Path(run_dir) for run_dir in args.run_dirs]
+    for run_dir in runs:
+        out = args.out if len(runs) == 1 else None
+        if out is None:
+            episodes = args.episodes or load_config(run_dir / "config.yaml").eval_episodes
+            out = run_dir / f"evaluation-{episodes}-scenes"
+        comparison = evaluate_run(run_dir, args.episodes, args.physics_episodes, out)
+        print(comparison.markdown)
+        print(f"\nreport: {comparison.report}\n")
+    if len(runs) > 1:
+        from .results import group_runs, plot_curves, table, write_csv
+
+        episodes = args.episodes or load_config(runs[0] / "config.yaml").eval_episodes
+        groups = group_runs(runs, episodes)
+        markdown = table(groups, episodes)
+        print(markdown)
+        if args.out is not None:
+            args.out.mkdir(parents=True, exist_ok=True)
+            (args.out / "results.md").write_text(markdown + "\n")
+            write_csv(groups, args.out / "results.csv")
+            plot_curves(groups, args.out / "learning_curves.png")
+            print(f"\nacross the runs: {args.out / 'results.md'}, learning_curves.png")
     return 0
 
 
@@ -136,7 +157,7 @@ def evaluate_run(
         m = env.action_space.shape[0]
         k_max_ratio = config.k_max_ratio
         policies: dict[str, Any] = {
-            "trained agent": load_agent(run_dir),
+            "trained agent": load_agent(run_dir, config.algo),
             "minimax expert": MinimaxExpert(k_max_ratio),
             "equal k (paper eq. 8)": equal_k_policy(m, k_max_ratio),
             "zero interaction": ConstantPolicy(np.zeros(m)),

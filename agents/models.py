@@ -5,7 +5,8 @@ policy class, the spaces and the schedules, as base64 cloudpickle), ``policy.pth
 ``policy.optimizer.pth`` (torch tensors) and ``pytorch_variables.pth``. ``PPO.load`` unpickles
 the ``data`` entries with cloudpickle, and a pickle may call any importable function: a model
 file whose ``policy_class`` holds ``os.system`` runs a shell command when loaded. The
-``vecnormalize.pkl`` beside it (SB3's ``VecNormalize.save``) is a plain pickle, likewise.
+``vecnormalize.pkl`` beside it (SB3's ``VecNormalize.save``) and an off-policy checkpoint's
+replay buffer (``save_replay_buffer``) are plain pickles, likewise.
 
 So every file is read here, never by SB3's unpickling:
 
@@ -42,8 +43,9 @@ from typing import Any
 
 import gymnasium as gym
 import torch
-from stable_baselines3 import PPO
+from stable_baselines3 import PPO, SAC, TD3
 from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.running_mean_std import RunningMeanStd
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
@@ -51,14 +53,14 @@ from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 from .baselines import TrainedAgent
 
 #: The algorithms a model file may be loaded as (the file does not say which wrote it).
-ALGORITHMS: dict[str, type[BaseAlgorithm]] = {"ppo": PPO}
+ALGORITHMS: dict[str, type[BaseAlgorithm]] = {"ppo": PPO, "td3": TD3, "sac": SAC}
 
 #: Everything a model file's pickles may name, by module. Classes are only referenced or
 #: rebuilt (their __init__ is not what unpickling calls); the functions rebuild arrays, numpy
 #: random generators and containers from data. None of them runs code given as data.
 ALLOWED: dict[str, set[str]] = {
     "collections": {"deque", "OrderedDict"},
-    "numpy": {"dtype", "ndarray"},
+    "numpy": {"dtype", "ndarray", "float32", "float64"},
     "numpy._core.multiarray": {"_reconstruct", "scalar"},
     "numpy._core.numeric": {"_frombuffer"},
     "numpy.core.multiarray": {"_reconstruct", "scalar"},  # numpy 1.x's names
@@ -68,13 +70,19 @@ ALLOWED: dict[str, set[str]] = {
     "numpy.random._mt19937": {"MT19937"},
     "numpy.random.bit_generator": {"SeedSequence", "__pyx_unpickle_SeedSequence"},
     "gymnasium.spaces.box": {"Box"},
+    "torch": {"device"},  # a replay buffer's (torch.device("cpu") is all unpickling calls)
     "torch.nn.modules.activation": {"Tanh", "ReLU", "SiLU"},  # config: policy.activation
     "stable_baselines3.common.policies": {"ActorCriticPolicy"},
-    "stable_baselines3.common.buffers": {"RolloutBuffer"},
+    "stable_baselines3.td3.policies": {"TD3Policy"},
+    "stable_baselines3.sac.policies": {"SACPolicy"},
+    "stable_baselines3.common.buffers": {"RolloutBuffer", "ReplayBuffer"},
+    "stable_baselines3.common.noise": {"NormalActionNoise", "VectorizedActionNoise"},
+    "stable_baselines3.common.type_aliases": {"TrainFreq", "TrainFrequencyUnit"},
     "stable_baselines3.common.utils": {"FloatSchedule", "ConstantSchedule", "LinearSchedule"},
     "stable_baselines3.common.running_mean_std": {"RunningMeanStd"},
     "stable_baselines3.common.vec_env.vec_normalize": {"VecNormalize"},
     "grasp_env_agents.policy": {"ForceDirectionPolicy"},
+    "grasp_env_agents.algorithms": {"ForceDirectionTD3Policy", "ForceDirectionSACPolicy"},
     "grasp_env_agents.features": {"GraspFeatures"},
 }
 #: Modules under their earlier names (the package was importable as ``agents``).
@@ -256,6 +264,23 @@ def load_vecnormalize(path: str | Path, venv: VecEnv | None = None) -> VecNormal
                 f"{path}: the statistics do not fit the environment ({error})"
             ) from None
     return normalizer
+
+
+# --- replay buffers --------------------------------------------------------------------------
+
+
+def load_replay_buffer(path: str | Path) -> ReplayBuffer:
+    """SB3's ``model.load_replay_buffer(path)``'s buffer, without running code from the file."""
+    path = Path(path)
+    try:
+        buffer = safe_loads(path.read_bytes())
+    except ForbiddenName as error:
+        raise _refusal(path, "the pickle", str(error)) from None
+    except Exception as error:  # damaged data fails in many ways, none of them runs code
+        raise _damaged(path, "the file", error) from None
+    if not isinstance(buffer, ReplayBuffer):
+        raise ValueError(f"{path}: not a replay buffer (SB3's save_replay_buffer)")
+    return buffer
 
 
 # --- agents --------------------------------------------------------------------------------

@@ -1,22 +1,24 @@
-"""``grasp-env train``: PPO (optionally taught by the minimax expert first) from a YAML config.
+"""``grasp-env train``: PPO (optionally taught by the minimax expert first), TD3 or SAC from a
+YAML config.
 
 One run, top to bottom (:func:`train`):
 
 1. seed torch, numpy and Python, and cap torch's threads;
 2. build the training environments and the held-out evaluation scenes;
-3. build a fresh PPO model, or, with ``--resume``, load the newest intact checkpoint
-   (:mod:`grasp_env_agents.checkpoints`: PPO's, else the last imitation round's);
+3. build a fresh model of the config's ``algo`` (:func:`grasp_env_agents.algorithms.new_model`),
+   or, with ``--resume``, load the newest intact checkpoint
+   (:mod:`grasp_env_agents.checkpoints`: the algorithm's, else the last imitation round's);
 4. if the config has an ``imitation`` section: behaviour cloning and DAgger rounds from the
    minimax expert into the same policy network (:mod:`grasp_env_agents.imitation`), each round
    evaluated, logged and checkpointed;
-5. PPO for ``total_timesteps`` environment steps with SB3's progress bar, evaluation and
-   checkpoint callbacks; Ctrl-C saves a checkpoint before stopping;
+5. the algorithm for ``total_timesteps`` environment steps with evaluation and checkpoint
+   callbacks; Ctrl-C saves a checkpoint before stopping;
 6. save the model, the learning curve (CSV and PNG) and print the comparison with the expert
    and the baselines (:mod:`grasp_env_agents.evaluate`).
 
 The run directory holds ``config.yaml`` (the exact config used), ``model.zip`` (and
 ``vecnormalize.pkl`` if observations are normalised), ``checkpoints/``, ``tb/imitation`` and
-``tb/ppo`` (TensorBoard, at the run's environment steps), ``eval/evaluations.npz`` (SB3's
+``tb/<algo>`` (TensorBoard, at the run's environment steps), ``eval/evaluations.npz`` (SB3's
 evaluation log), ``learning_curve.csv`` and ``.png`` (:mod:`grasp_env_agents.curve`).
 """
 
@@ -30,19 +32,22 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
-from stable_baselines3 import PPO
+from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback, EvalCallback
 from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.logger import Logger
-from stable_baselines3.common.utils import LinearSchedule, set_random_seed
+from stable_baselines3.common.utils import set_random_seed
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize, sync_envs_normalization
 
+from .algorithms import new_model
 from .checkpoints import (
     Start,
     find_start,
     imitation_checkpoint,
     load_round_data,
-    ppo_checkpoint,
+    model_checkpoint,
+    restore,
+    save_checkpoint,
     save_model,
     save_round_data,
     tensorboard_logger,
@@ -51,17 +56,14 @@ from .checkpoints import (
 from .config import TrainConfig, config_path, load_config, save_config, shipped_configs
 from .curve import Clock, LearningCurve, last_steps
 from .envs import HeldOutScenes, find_held_out, make_held_out_env, make_vec_env
-from .features import GraspFeatures
 from .models import load_vecnormalize
-from .policy import ForceDirectionPolicy
 from .progress import say, status
 
 if TYPE_CHECKING:
     from .imitation import RoundResult
 
-HELP = "train a PPO agent from a YAML config (default: a few minutes here)"
+HELP = "train an agent (PPO, TD3 or SAC) from a YAML config (default: the expert as teacher)"
 
-ACTIVATIONS = {"tanh": torch.nn.Tanh, "relu": torch.nn.ReLU, "silu": torch.nn.SiLU}
 #: Held-out metrics logged to TensorBoard (``held_out/<name>``), from the learning curve's.
 LOGGED = ("mean_gap_deg", "p90_gap_deg", "worst_gap_deg", "success_rate", "mean_margin_deg")
 
@@ -92,7 +94,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--total-timesteps",
         type=int,
         metavar="N",
-        help="PPO environment steps, overriding the config (e.g. to extend a resumed run)",
+        help="the algorithm's environment steps, overriding the config (e.g. to extend a"
+        " resumed run)",
     )
 
 
@@ -121,11 +124,12 @@ def run(args: argparse.Namespace) -> int:
 
 def train(
     config: TrainConfig, run_dir: Path, *, resume: bool = False, progress_bar: bool = True
-) -> PPO:
+) -> BaseAlgorithm:
     """Train as ``config`` says, writing everything into ``run_dir``; return the model.
 
     With ``resume``, continue from the run's newest intact checkpoint: the weights, the
-    optimiser state, PPO's step count, the learning-rate schedule, the imitation rounds done
+    optimiser state, the algorithm's step count (and an off-policy replay buffer), the
+    learning-rate schedule, the imitation rounds done
     and their data, the learning curve and the TensorBoard logs (both cut back to the
     checkpoint) carry on; the hyperparameters are ``config``'s (the run's ``config.yaml`` for
     ``--resume``). The random streams restart from the seed and the step count, so a resumed
@@ -137,14 +141,14 @@ def train(
     start = Start()
     if resume:
         imitation_steps = last_steps(run_dir / "learning_curve.csv", "imitation")
-        start = find_start(run_dir, config.normalize, imitation_steps)
+        start = find_start(run_dir, config.normalize, imitation_steps, config.algo)
         say(f"resume: from {start.checkpoint or 'the beginning (no intact checkpoint)'}")
     run_dir.mkdir(parents=True, exist_ok=True)
     save_config(config, run_dir / "config.yaml")
 
     # 1. Seeding: torch, numpy, random; few threads (the machine is shared, numbers repeatable).
     torch.set_num_threads(config.torch_threads)
-    set_random_seed(config.seed + start.ppo_steps)
+    set_random_seed(config.seed + start.model_steps)
 
     with status("building the environments and the model"):
         env, eval_env, model = build(config, start, run_dir)
@@ -167,37 +171,39 @@ def train(
         log_held_out(logger, metrics, clock()[0], step)
         return metrics
 
-    in_ppo = start.ppo_steps > 0 or (start.checkpoint is not None and start.round < 0)
+    algo = config.algo
+    learning = start.model_steps > 0 or (start.checkpoint is not None and start.round < 0)
     try:
         # 4. The expert as teacher: behaviour cloning and DAgger rounds, then a checkpoint.
-        if config.imitation is not None and not in_ppo:
+        if config.imitation is not None and not learning:
             imitation_steps = teach(model, config, env, evaluate_now, run_dir, start)
-            save_model(model, ppo_checkpoint(run_dir, 0))
+            save_model(model, model_checkpoint(run_dir, algo, 0))
             for data in run_dir.glob("checkpoints/*.npz"):  # only an unfinished phase needs them
                 data.unlink()
-        in_ppo = True
+        learning = True
 
-        # 5. PPO, with SB3's callbacks: evaluations, and checkpoints of our own (atomic).
+        # 5. The algorithm, with SB3's callbacks: evaluations, and checkpoints of our own.
         remaining = config.total_timesteps - model.num_timesteps
         if remaining > 0 or config.imitation is None:
-            model.set_logger(tensorboard_logger(run_dir / "tb" / "ppo", offset=imitation_steps))
+            model.set_logger(tensorboard_logger(run_dir / "tb" / algo, offset=imitation_steps))
         if start.checkpoint is None and config.imitation is None:
             evaluate_now("initial", 0, model.logger, 0)
         if remaining > 0:
-            record = held_out_recorder(model, held_out, curve, clock, imitation_steps)
-            ppo(model, config, eval_env, run_dir, remaining, record, progress_bar)
+            record = held_out_recorder(model, algo, held_out, curve, clock, imitation_steps)
+            learn(model, config, eval_env, run_dir, remaining, record, progress_bar)
             steps = imitation_steps + model.num_timesteps
             if curve.last("env_steps") != steps:
-                evaluate_now("ppo", steps, model.logger, model.num_timesteps)
-            save_model(model, ppo_checkpoint(run_dir, model.num_timesteps))
+                evaluate_now(algo, steps, model.logger, model.num_timesteps)
+            save_checkpoint(model, model_checkpoint(run_dir, algo, model.num_timesteps))
     except KeyboardInterrupt:
-        # Save first: mid-PPO a checkpoint that --resume continues from; mid-imitation the
-        # rounds done are checkpointed already (the round under way is lost).
-        if in_ppo:
-            save_model(model, ppo_checkpoint(run_dir, model.num_timesteps))
+        # Save first: while learning a checkpoint that --resume continues from; mid-imitation
+        # the rounds done are checkpointed already (the round under way is lost).
+        if learning:
+            save_checkpoint(model, model_checkpoint(run_dir, algo, model.num_timesteps))
         finish(model, run_dir, curve)
-        print(f"\ninterrupted: saved the model in {run_dir} at {model.num_timesteps} PPO steps; "
-              f"continue with: grasp-env train --resume {run_dir}")  # fmt: skip
+        print(f"\ninterrupted: saved the model in {run_dir} at {model.num_timesteps} "
+              f"{algo.upper()} steps; continue with: grasp-env train --resume"
+              f" {run_dir}")  # fmt: skip
         raise
 
     # 6. The final model and the learning curve.
@@ -205,11 +211,11 @@ def train(
     return model
 
 
-def build(config: TrainConfig, start: Start, run_dir: Path) -> tuple[VecEnv, VecEnv, PPO]:
+def build(config: TrainConfig, start: Start, run_dir: Path) -> tuple[VecEnv, VecEnv, BaseAlgorithm]:
     """The training and held-out environments and the model, fresh or from ``start``."""
     # 2. Environments: training scenes from the seed, held-out scenes from a fixed far seed.
     env: VecEnv = make_vec_env(
-        config.env_id, config.env_kwargs, config.n_envs, config.seed + start.ppo_steps
+        config.env_id, config.env_kwargs, config.n_envs, config.seed + start.model_steps
     )
     eval_env: VecEnv = make_held_out_env(config.env_id, config.env_kwargs, config.eval_episodes)
     if config.normalize:
@@ -220,17 +226,17 @@ def build(config: TrainConfig, start: Start, run_dir: Path) -> tuple[VecEnv, Vec
         eval_env = VecNormalize(eval_env, training=False, norm_reward=False)
 
     # 3. The model, as the config says; on resume with the checkpoint's weights, optimiser
-    # state and step count (so the run's config.yaml stays the one source of hyperparameters).
+    # state, step count and replay buffer (so the run's config.yaml stays the one source of
+    # hyperparameters).
     model = new_model(config, env)
     if start.checkpoint is not None:
         try:
-            model.set_parameters(str(start.checkpoint), device="cpu")
+            restore(model, start)
         except Exception as error:  # intact, but another network than the config's
             config_file = run_dir / "config.yaml"
             raise ValueError(
                 f"{start.checkpoint} does not fit {config_file}'s network ({error})"
             ) from None
-        model.num_timesteps = start.ppo_steps
     return env, eval_env, model
 
 
@@ -243,7 +249,7 @@ def log_held_out(logger: Logger, metrics: dict[str, float], wall: float, step: i
 
 
 def teach(
-    model: PPO,
+    model: BaseAlgorithm,
     config: TrainConfig,
     env: VecEnv,
     evaluate_now: Callable[[str, int, Logger, int], dict[str, float]],
@@ -294,20 +300,26 @@ def teach(
 
 
 def held_out_recorder(
-    model: PPO, held_out: HeldOutScenes, curve: LearningCurve, clock: Clock, imitation_steps: int
+    model: BaseAlgorithm,
+    phase: str,
+    held_out: HeldOutScenes,
+    curve: LearningCurve,
+    clock: Clock,
+    imitation_steps: int,
 ) -> Callable[[], None]:
-    """What to do after each of PPO's evaluations: the curve's row, the TensorBoard scalars."""
+    """What to do after each of the algorithm's evaluations: the curve's row (of ``phase``),
+    the TensorBoard scalars."""
 
     def record() -> None:
         metrics = held_out.metrics()
-        curve.append("ppo", imitation_steps + model.num_timesteps, clock(), metrics)
+        curve.append(phase, imitation_steps + model.num_timesteps, clock(), metrics)
         log_held_out(model.logger, metrics, clock()[0], model.num_timesteps)
 
     return record
 
 
-def ppo(
-    model: PPO,
+def learn(
+    model: BaseAlgorithm,
     config: TrainConfig,
     eval_env: VecEnv,
     run_dir: Path,
@@ -315,8 +327,8 @@ def ppo(
     record: Callable[[], None],
     progress_bar: bool,
 ) -> None:
-    """``steps`` more PPO steps, evaluating (then ``record``) and checkpointing as the config
-    says."""
+    """``steps`` more steps of the algorithm, evaluating (then ``record``) and checkpointing as
+    the config says."""
     evaluation = EvalCallback(
         eval_env,
         callback_after_eval=RecordEvaluation(record),
@@ -329,8 +341,9 @@ def ppo(
     continue_evaluation_log(evaluation, model.num_timesteps)
     callbacks: list[BaseCallback] = [evaluation]
     if config.checkpoint_freq:
-        callbacks.append(Checkpoints(max(config.checkpoint_freq // config.n_envs, 1), run_dir))
-    with status("PPO") as detail:
+        every = max(config.checkpoint_freq // config.n_envs, 1)
+        callbacks.append(Checkpoints(every, run_dir, config.algo))
+    with status(config.algo.upper()) as detail:
         if progress_bar:
             callbacks.append(Progress(detail, model.num_timesteps + steps))
         model.learn(steps, callback=callbacks, reset_num_timesteps=False)
@@ -338,7 +351,7 @@ def ppo(
 
 def continue_evaluation_log(evaluation: EvalCallback, until: int) -> None:
     """Preload EvalCallback's lists from an earlier ``evaluations.npz`` (it rewrites the file),
-    up to PPO step ``until`` (a resumed run evaluates the later steps again)."""
+    up to step ``until`` (a resumed run evaluates the later steps again)."""
     path = Path(f"{evaluation.log_path}.npz")
     if evaluation.log_path is None or not path.is_file():
         return
@@ -351,43 +364,7 @@ def continue_evaluation_log(evaluation: EvalCallback, until: int) -> None:
             evaluation.evaluations_successes = log["successes"][keep].tolist()
 
 
-def new_model(config: TrainConfig, env: VecEnv) -> PPO:
-    """A fresh PPO model with the config's hyperparameters and network."""
-    ppo = config.ppo
-    policy = config.policy
-    return PPO(
-        ForceDirectionPolicy if policy.output == "force_directions" else "MlpPolicy",
-        env,
-        # SB3's own class, not a lambda: a model file then holds a reference, not code
-        learning_rate=(
-            LinearSchedule(ppo.learning_rate, 0.0, 1.0)
-            if ppo.lr_schedule == "linear"
-            else ppo.learning_rate
-        ),
-        n_steps=ppo.n_steps,
-        batch_size=ppo.batch_size,
-        n_epochs=ppo.n_epochs,
-        gamma=ppo.gamma,
-        gae_lambda=ppo.gae_lambda,
-        clip_range=ppo.clip_range,
-        ent_coef=ppo.ent_coef,
-        vf_coef=ppo.vf_coef,
-        max_grad_norm=ppo.max_grad_norm,
-        target_kl=ppo.target_kl,
-        policy_kwargs={
-            "net_arch": {"pi": list(policy.net_arch), "vf": list(policy.net_arch)},
-            "activation_fn": ACTIVATIONS[policy.activation],
-            "log_std_init": policy.log_std_init,
-            **({"features_extractor_class": GraspFeatures} if policy.features == "grasp" else {}),
-            **({"k_max_ratio": config.k_max_ratio} if policy.output == "force_directions" else {}),
-        },
-        seed=config.seed,
-        device="cpu",
-        verbose=0,
-    )
-
-
-def finish(model: PPO, run_dir: Path, curve: LearningCurve) -> None:
+def finish(model: BaseAlgorithm, run_dir: Path, curve: LearningCurve) -> None:
     """The run's final files: model.zip, vecnormalize.pkl (if used), learning_curve.png."""
     with status("saving the model and drawing learning_curve.png"):
         save_model(model, run_dir / "model.zip")
@@ -410,29 +387,30 @@ class RecordEvaluation(BaseCallback):
 
 
 class Progress(BaseCallback):
-    """PPO's steps on the status line (:mod:`grasp_env_agents.progress`)."""
+    """The algorithm's steps on the status line (:mod:`grasp_env_agents.progress`)."""
 
     def __init__(self, detail: Callable[[str], None], total: int) -> None:
         super().__init__()
         self.detail = detail
         self.total = total
 
-    def _on_rollout_end(self) -> None:
-        self.detail(f"{self.model.num_timesteps:,} of {self.total:,} steps")
-
     def _on_step(self) -> bool:
+        if self.n_calls % 64 == 0:  # an off-policy rollout is one step: not at rollouts' ends
+            self.detail(f"{self.model.num_timesteps:,} of {self.total:,} steps")
         return True
 
 
 class Checkpoints(BaseCallback):
-    """SB3's CheckpointCallback, written atomically (:func:`checkpoints.save_model`)."""
+    """SB3's CheckpointCallback, written atomically (:func:`checkpoints.save_checkpoint`)."""
 
-    def __init__(self, every: int, run_dir: Path) -> None:
+    def __init__(self, every: int, run_dir: Path, algo: str) -> None:
         super().__init__()
         self.every = every
         self.run_dir = run_dir
+        self.algo = algo
 
     def _on_step(self) -> bool:
         if self.n_calls % self.every == 0:
-            save_model(self.model, ppo_checkpoint(self.run_dir, self.model.num_timesteps))
+            path = model_checkpoint(self.run_dir, self.algo, self.model.num_timesteps)
+            save_checkpoint(self.model, path)
         return True

@@ -22,10 +22,10 @@ import torch
 from stable_baselines3 import PPO
 from stable_baselines3.common.env_util import make_vec_env as sb3_make_vec_env
 
+from grasp_env_agents.algorithms import new_model
 from grasp_env_agents.config import CONFIG_DIR, DEFAULT_CONFIG, load_config
 from grasp_env_agents.envs import make_vec_env
 from grasp_env_agents.imitation import StateCollector, fit, grasp_of, make_teacher
-from grasp_env_agents.train import new_model
 
 PPO_STEPS = 32_768
 STATES = 20_000

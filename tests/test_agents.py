@@ -188,6 +188,7 @@ def test_shipped_configs_by_name_from_any_directory(tmp_path, monkeypatch):
 # --- training ------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_tiny_run_end_to_end(tmp_path, capsys):
     """grasp-env train writes the run, then grasp-env evaluate compares it with the expert."""
     config_path = tmp_path / "tiny.yaml"
@@ -286,6 +287,7 @@ def test_a_damaged_newest_checkpoint_is_skipped(tmp_path, capsys):
         assert len(steps) == len(set(steps)), tag
 
 
+@pytest.mark.slow
 def test_sigkill_then_resume_logs_every_step_once(tmp_path):
     """A run killed (SIGKILL) between checkpoints and resumed: TensorBoard, the learning curve
     and SB3's evaluation log hold each step once, and the run reaches its steps."""

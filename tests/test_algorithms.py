@@ -7,7 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+import yaml
 from stable_baselines3 import SAC, TD3
+from stable_baselines3.common.logger import Logger
 
 from grasp_env_agents.algorithms import (
     ForceDirectionSACPolicy,
@@ -29,6 +31,13 @@ def env():
     venv.close()
 
 
+def quiet(model):
+    """The model with a logger that writes nothing (without one, SB3's learn makes a
+    /tmp/SB3-<date> folder)."""
+    model.set_logger(Logger(None, []))
+    return model
+
+
 def snapshot(module: torch.nn.Module) -> list[torch.Tensor]:
     return [p.detach().clone() for p in module.parameters()]
 
@@ -38,17 +47,19 @@ def changed(before: list[torch.Tensor], module: torch.nn.Module) -> bool:
 
 
 def test_warm_critic_ppo_moves_only_the_critic_during_warmup(env) -> None:
-    model = WarmCriticPPO(
-        ForceDirectionPolicy,
-        env,
-        critic_warmup=2,
-        n_steps=16,
-        batch_size=32,
-        n_epochs=2,
-        gamma=0.0,
-        seed=0,
-        device="cpu",
-        policy_kwargs={"net_arch": [16], "k_max_ratio": K_MAX_RATIO},
+    model = quiet(
+        WarmCriticPPO(
+            ForceDirectionPolicy,
+            env,
+            critic_warmup=2,
+            n_steps=16,
+            batch_size=32,
+            n_epochs=2,
+            gamma=0.0,
+            seed=0,
+            device="cpu",
+            policy_kwargs={"net_arch": [16], "k_max_ratio": K_MAX_RATIO},
+        )
     )
     policy = model.policy
     actor = [policy.mlp_extractor.policy_net, policy.action_net]
@@ -84,15 +95,17 @@ def env_space(obs: np.ndarray):
 def test_off_policy_force_direction_actors_start_at_a_squeeze_learn_and_reload(
     env, tmp_path: Path, algorithm, policy
 ) -> None:
-    model = algorithm(
-        policy,
-        env,
-        learning_starts=32,
-        batch_size=32,
-        gamma=0.0,
-        seed=0,
-        device="cpu",
-        policy_kwargs={"net_arch": [16], "k_max_ratio": K_MAX_RATIO},
+    model = quiet(
+        algorithm(
+            policy,
+            env,
+            learning_starts=32,
+            batch_size=32,
+            gamma=0.0,
+            seed=0,
+            device="cpu",
+            policy_kwargs={"net_arch": [16], "k_max_ratio": K_MAX_RATIO},
+        )
     )
     obs = env.reset()
     start, _ = model.predict(obs, deterministic=True)
@@ -116,3 +129,215 @@ def test_sac_head_refuses_gsde(env) -> None:
             device="cpu",
             policy_kwargs={"net_arch": [16], "k_max_ratio": K_MAX_RATIO},
         )
+
+
+# --- through the config, training and model files -----------------------------------------
+
+TINY = {
+    "env_id": ENV_ID,
+    "env_kwargs": {"terminate_on_slip": False},
+    "n_envs": 4,
+    "total_timesteps": 256,
+    "eval_freq": 0,
+    "eval_episodes": 4,
+    "checkpoint_freq": 0,
+    "policy": {"net_arch": [16], "features": "grasp", "output": "force_directions"},
+}
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ({"algo": "a2c"}, "algo"),
+        ({"offpolicy": {"batch_size": 8}}, "offpolicy: the section is for algo: td3 or sac"),
+        ({"algo": "td3", "imitation": {}}, "imitation: the expert teaches PPO"),
+        ({"algo": "sac", "offpolicy": {"ent_coef": "learned"}}, "ent_coef"),
+        ({"algo": "td3", "offpolicy": {"gradient_steps": 0}}, "gradient_steps"),
+        ({"ppo": {"critic_warmup": -1}}, "critic_warmup"),
+        ({"ppo": {"use_sde": 1}}, "use_sde"),
+        ({"algo": "sac", "ppo": {"n_steps": 8}}, "ppo: the section is for algo: ppo"),
+        ({"algo": "td3", "offpolicy": {"ent_coef": 0.1}}, "offpolicy.ent_coef is SAC's"),
+        ({"algo": "sac", "offpolicy": {"action_noise": 0.1}}, "offpolicy.action_noise is TD3's"),
+    ],
+)
+def test_algo_keys_are_checked(change: dict, message: str) -> None:
+    from grasp_env_agents.config import config_from_dict
+
+    with pytest.raises(ValueError, match=message):
+        config_from_dict({**TINY, **change})
+
+
+@pytest.mark.parametrize("algo", ["td3", "sac"])
+def test_off_policy_run_trains_and_its_model_file_loads_safely(tmp_path: Path, algo: str) -> None:
+    from grasp_env_agents.config import config_from_dict, load_config
+    from grasp_env_agents.evaluate import evaluate_run
+    from grasp_env_agents.models import load_agent
+    from grasp_env_agents.train import train
+
+    config = config_from_dict(
+        {
+            **TINY,
+            "algo": algo,
+            "offpolicy": {"learning_starts": 64, "batch_size": 32, "buffer_size": 1024},
+        }
+    )
+    run_dir = tmp_path / algo
+    model = train(config, run_dir, progress_bar=False)
+    assert type(model).__name__ == algo.upper()
+    agent = load_agent(run_dir, algo)  # the safe loader knows the off-policy classes
+    obs = model.get_env().reset()
+    np.testing.assert_allclose(
+        agent.predict(obs)[0], model.predict(obs, deterministic=True)[0], atol=1e-6
+    )
+    comparison = evaluate_run(run_dir, 4, 0)
+    assert comparison.metrics["trained agent"]["episodes"] == 4
+    # the run's config.yaml holds the algorithm's sections only, and reads back the same
+    written = yaml.safe_load((run_dir / "config.yaml").read_text())
+    assert written["algo"] == algo and "ppo" not in written
+    assert ("ent_coef" in written["offpolicy"]) == (algo == "sac")
+    assert ("action_noise" in written["offpolicy"]) == (algo == "td3")
+    assert load_config(run_dir / "config.yaml") == config
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("algo", ["td3", "sac"])
+def test_off_policy_resume_restores_weights_buffer_and_step_count(
+    tmp_path: Path, monkeypatch, algo: str
+) -> None:
+    from grasp_env_agents.checkpoints import find_start
+    from grasp_env_agents.config import config_from_dict
+    from grasp_env_agents.models import load_replay_buffer
+    from grasp_env_agents.train import RecordEvaluation, train
+
+    config = config_from_dict(
+        {
+            **TINY,
+            "algo": algo,
+            "eval_freq": 128,
+            "checkpoint_freq": 64,
+            "offpolicy": {"learning_starts": 32, "batch_size": 32, "buffer_size": 1024},
+        }
+    )
+    run = tmp_path / "run"
+    record = RecordEvaluation._on_step
+
+    def ctrl_c_after_first_evaluation(self):
+        record(self)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(RecordEvaluation, "_on_step", ctrl_c_after_first_evaluation)
+    with pytest.raises(KeyboardInterrupt):
+        train(config, run, progress_bar=False)
+    folder = run / "checkpoints"
+    assert sorted(p.name for p in folder.glob(f"{algo}_*_steps.zip")) == [
+        f"{algo}_128_steps.zip",
+        f"{algo}_64_steps.zip",
+    ]
+    # only the newest checkpoint keeps its (large) replay buffer
+    (buffer_file,) = folder.glob("*_replay_buffer_*")
+    assert buffer_file.name == f"{algo}_replay_buffer_128_steps.pkl"
+    start = find_start(run, False, 0, algo)
+    assert start.checkpoint == folder / f"{algo}_128_steps.zip" and start.model_steps == 128
+
+    from grasp_env_agents.algorithms import new_model
+    from grasp_env_agents.checkpoints import restore
+    from grasp_env_agents.envs import make_vec_env
+
+    saved = load_replay_buffer(buffer_file)
+    # every transition so far but the one of the interrupted step (SB3 stores it after the
+    # callbacks, one of which raised)
+    assert saved.pos == 128 // config.n_envs - 1
+    fresh = new_model(config, make_vec_env(ENV_ID, config.env_kwargs, config.n_envs, 0))
+    restore(fresh, start)
+    assert fresh.num_timesteps == 128
+    np.testing.assert_array_equal(fresh.replay_buffer.observations, saved.observations)
+    trained = load_model_from(folder / f"{algo}_128_steps.zip", algo)
+    for a, b in zip(fresh.policy.parameters(), trained.policy.parameters(), strict=True):
+        torch.testing.assert_close(a, b, rtol=0, atol=0)
+    if algo == "sac":  # the entropy coefficient lives beside the weights: restored too
+        torch.testing.assert_close(fresh.log_ent_coef, trained.log_ent_coef, rtol=0, atol=0)
+        assert not torch.equal(fresh.log_ent_coef, torch.zeros(1))
+
+    monkeypatch.setattr(RecordEvaluation, "_on_step", record)
+    model = train(config, run, resume=True, progress_bar=False)
+    assert model.num_timesteps == 256
+    assert model.replay_buffer.pos == saved.pos + 128 // config.n_envs  # old ones and new
+
+
+def load_model_from(path: Path, algo: str):
+    from grasp_env_agents.models import load_model
+
+    return load_model(path, algo)
+
+
+def test_a_replay_buffer_that_would_run_code_is_refused(tmp_path: Path) -> None:
+    import os
+    import pickle
+
+    from grasp_env_agents.models import load_replay_buffer
+
+    class Payload:
+        def __reduce__(self):
+            return (os.system, ("touch " + str(tmp_path / "ran"),))
+
+    path = tmp_path / "td3_replay_buffer_64_steps.pkl"
+    path.write_bytes(pickle.dumps(Payload()))
+    with pytest.raises(ValueError, match=r"names posix\.system.*nothing from it was run"):
+        load_replay_buffer(path)
+    assert not (tmp_path / "ran").exists()
+    path.write_bytes(pickle.dumps({"not": "a buffer"}))
+    with pytest.raises(ValueError, match="not a replay buffer"):
+        load_replay_buffer(path)
+
+
+def test_critic_warmup_is_counted_in_steps_so_a_resumed_model_does_not_warm_up_again(env) -> None:
+    model = quiet(
+        WarmCriticPPO(
+            ForceDirectionPolicy,
+            env,
+            critic_warmup=2,
+            n_steps=16,
+            batch_size=32,
+            n_epochs=1,
+            gamma=0.0,
+            seed=0,
+            device="cpu",
+            policy_kwargs={"net_arch": [16], "k_max_ratio": K_MAX_RATIO},
+        )
+    )
+    model.num_timesteps = 2 * 16 * env.num_envs  # as a checkpoint after the warm-up restores it
+    actor = snapshot(model.policy.action_net)
+    model.learn(16 * env.num_envs, reset_num_timesteps=False)
+    assert changed(actor, model.policy.action_net)
+
+
+def test_ppo_keys_reach_the_model_and_a_gsde_run_loads_safely(tmp_path: Path) -> None:
+    from stable_baselines3.common.distributions import StateDependentNoiseDistribution
+
+    from grasp_env_agents.config import config_from_dict
+    from grasp_env_agents.models import load_agent
+    from grasp_env_agents.train import train
+
+    config = config_from_dict(
+        {
+            **TINY,
+            "total_timesteps": 128,
+            "ppo": {
+                "n_steps": 16,
+                "batch_size": 32,
+                "n_epochs": 1,
+                "critic_warmup": 1,
+                "use_sde": True,
+                "sde_sample_freq": 4,
+            },
+        }
+    )
+    model = train(config, tmp_path / "run", progress_bar=False)
+    assert isinstance(model, WarmCriticPPO) and model.critic_warmup == 1
+    assert model.use_sde and model.sde_sample_freq == 4
+    assert isinstance(model.policy.action_dist, StateDependentNoiseDistribution)
+    obs = model.get_env().reset()
+    mean = model.predict(obs, deterministic=True)[0]
+    assert not np.allclose(model.predict(obs)[0], mean)  # gSDE's noise moves the action
+    agent = load_agent(tmp_path / "run", "ppo")
+    np.testing.assert_allclose(agent.predict(obs)[0], mean, atol=1e-6)

@@ -34,6 +34,7 @@ def write(path: Path, data: dict) -> Path:
 # --- results ---------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_iqm_is_the_mean_of_the_middle_runs_and_its_interval_a_bootstrap() -> None:
     values = [0.3, 5.0, 0.1, 0.2, 0.4, 0.25, 0.35, 9.0]
     estimate = results.iqm_interval(values)
@@ -112,6 +113,7 @@ def test_a_key_the_config_refuses_fails_before_any_trial(tmp_path: Path) -> None
 # --- a sweep on a local Ray ------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_two_trial_sweep_on_a_local_ray_then_resumed(tmp_path: Path) -> None:
     pytest.importorskip("ray")
     write(tmp_path / "tiny.yaml", TINY)
@@ -148,3 +150,31 @@ def test_two_trial_sweep_on_a_local_ray_then_resumed(tmp_path: Path) -> None:
     stamps = {run: (run / "model.zip").stat().st_mtime_ns for run in runs}
     sweep.sweep(path, out, num_cpus=2)
     assert {run: (run / "model.zip").stat().st_mtime_ns for run in runs} == stamps
+
+
+@pytest.mark.slow
+def test_evaluate_several_runs_reports_across_seeds(tmp_path: Path) -> None:
+    from grasp_env_agents import cli
+    from grasp_env_agents.config import config_from_dict
+    from grasp_env_agents.train import train
+
+    runs = []
+    for seed in (0, 1):
+        config = config_from_dict({**TINY, "seed": seed, "total_timesteps": 128})
+        runs.append(tmp_path / f"tiny-s{seed}")
+        train(config, runs[-1], progress_bar=False)
+    out = tmp_path / "across"
+    argv = ["evaluate", *map(str, runs), "--episodes", "4", "--physics-episodes", "0"]
+    assert cli.main([*argv, "--out", str(out)]) == 0
+    for run in runs:  # each run's own report, in its evaluation folder (not replaced by --out)
+        assert (run / "evaluation-4-scenes" / "comparison.csv").is_file()
+    with (out / "results.csv").open() as file:
+        rows = list(csv.DictReader(file))
+    assert sorted(int(r["seed"]) for r in rows) == [0, 1]
+    assert {r["group"] for r in rows} == {"tiny-s"}  # one recipe: the configs differ in the seed
+    gaps = [float(r["mean_gap_deg"]) for r in rows]
+    report = (out / "results.md").read_text()
+    assert "| tiny-s |" in report and "| 2 |" in report
+    # the IQM of two runs is their mean (both are the middle half)
+    assert f"{np.mean(gaps):.2f}" in report
+    assert (out / "learning_curves.png").stat().st_size > 10_000

@@ -6,6 +6,7 @@ import os
 import subprocess
 import sys
 
+import pytest
 import yaml
 
 from grasp_env_agents.config import ZOO_HYPERPARAMS
@@ -19,6 +20,7 @@ def test_zoo_config_covers_every_environment():
     assert sorted(hyperparams) == sorted(batched)
 
 
+@pytest.mark.slow
 def test_rl_zoo3_trains_on_cube_grasp(tmp_path):
     steps = 1024
     command = [
