@@ -81,14 +81,21 @@ def iqm_interval(values: Sequence[float], reps: int = BOOTSTRAP_REPS) -> Estimat
     if len(scores) == 1:
         value = float(scores[0, 0])
         return Estimate(value, value, value)
-    with warnings.catch_warnings():  # rliable still hands arch a RandomState: arch warns
-        warnings.simplefilter("ignore", FutureWarning)
-        point, interval = library.get_interval_estimates(
-            {"runs": scores},
-            lambda x: np.array([metrics.aggregate_iqm(x)]),
-            reps=reps,
-            random_state=np.random.RandomState(BOOTSTRAP_SEED),
-        )
+    # rliable's StratifiedBootstrap draws its resamples from numpy's global generator (its
+    # random_state reaches only arch, which does not draw): seed that one, then restore it.
+    state = np.random.get_state()  # noqa: NPY002 (rliable uses the legacy global one)
+    np.random.seed(BOOTSTRAP_SEED)  # noqa: NPY002
+    try:
+        with warnings.catch_warnings():  # rliable still hands arch a RandomState: arch warns
+            warnings.simplefilter("ignore", FutureWarning)
+            point, interval = library.get_interval_estimates(
+                {"runs": scores},
+                lambda x: np.array([metrics.aggregate_iqm(x)]),
+                reps=reps,
+                random_state=np.random.RandomState(BOOTSTRAP_SEED),
+            )
+    finally:
+        np.random.set_state(state)  # noqa: NPY002
     return Estimate(float(point["runs"][0]), *(float(v) for v in interval["runs"][:, 0]))
 
 
