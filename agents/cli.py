@@ -22,7 +22,7 @@ SUMMARIES = {
     "verify": "check grip forces in MuJoCo physics along a trajectory",
     "bench": "run the speed benchmarks in benchmarks/",
     "sweep": "a sweep on Ray Tune (grid, random or Optuna) over config keys and seeds",
-    "results": "results across runs: IQM and 95%% bootstrap intervals over seeds, the README table",
+    "results": "results across runs: IQM and 95% bootstrap intervals over seeds, the README table",
     "gait": "when to phase fingers out and in: the certified optimal gait along a long rotation",
 }
 
@@ -36,7 +36,8 @@ def main(argv: list[str] | None = None) -> int:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     chosen = argv[0] if argv and argv[0] in SUMMARIES else None
     for name, summary in SUMMARIES.items():
-        command = sub.add_parser(name, help=summary, description=summary)
+        # help is %-formatted by argparse, description is not
+        command = sub.add_parser(name, help=summary.replace("%", "%%"), description=summary)
         if name == chosen:
             with status(f"grasp-env {name}: loading its libraries"):
                 module = importlib.import_module(f".{name}", __package__)
