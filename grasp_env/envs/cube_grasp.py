@@ -177,23 +177,19 @@ class _CubeGraspEnv(gym.Env[np.ndarray, np.ndarray]):
     # -- physics and rendering (grasp_env.physics, imported only when asked for) ----------------
 
     def _update_world(self) -> None:
-        """Build the MuJoCo checker and view for a new scene; reset the checker every episode."""
+        """Build the MuJoCo checker for a new scene (the view waits for a render()); reset the
+        checker every episode."""
         episode = self.episode
         if self._world_episode is None or self._world_episode.scenes is not episode.scenes:
-            scene = episode.scene
             if self._checker is not None:
                 self._checker.close()
             if self.physics == "mujoco":
                 from ..physics import StabilityChecker
 
-                self._checker = StabilityChecker(scene)
-            if self._view is not None:
+                self._checker = StabilityChecker(episode.scene)
+            if self._view is not None:  # the next render() draws the new scene
                 self._view.close()
                 self._view = None
-            if self.render_mode is not None:
-                from ..physics import GraspView
-
-                self._view = GraspView(scene, render_mode=self.render_mode)
             self._world_episode = episode
         if self._checker is not None:
             self._checker.reset()
@@ -204,6 +200,10 @@ class _CubeGraspEnv(gym.Env[np.ndarray, np.ndarray]):
             gym.logger.warn("render() called without a render_mode; pass render_mode to make()")
             return None
         episode = self.episode
+        if self._view is None:  # built on the first render() of a scene, not at its reset
+            from ..physics import GraspView
+
+            self._view = GraspView(episode.scene, render_mode=self.render_mode)
         pose = min(self._step, len(episode)) - 1 if self._last_forces is not None else 0
         forces = episode.forces[0] if self._last_forces is None else self._last_forces
         return self._view.render(episode.rotations[pose], forces)
