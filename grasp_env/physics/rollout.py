@@ -24,7 +24,7 @@ from numpy.typing import ArrayLike
 from grasp_env.mechanics import Scene
 
 from .motion import Motion, plan_motion
-from .simulation import PhysicsModel, Trace, simulate
+from .simulation import PhysicsModel, Trace, simulate, simulate_cases
 from .stability import check_settings
 
 
@@ -225,14 +225,9 @@ def check_trajectories(
     """Rollouts of (scene, rotations, contact_forces, in_contact) cases over many scenes, all in
     parallel (runs of the same model structure share rollout calls)."""
     settings = check_settings(settings)
-    physics: dict[int, PhysicsModel] = {}
-    runs = []
-    for scene, rotations, forces, contact in cases:
-        if id(scene) not in physics:
-            physics[id(scene)] = PhysicsModel(scene, settings["timestep"], settings["settle_mu"])
-        runs.append((physics[id(scene)], plan_motion(scene, rotations, forces, contact, settings)))
-    traces = simulate(runs, threads)
     return [
-        rollout_report(model.scene, motion, trace, settings)
-        for (model, motion), trace in zip(runs, traces, strict=True)
+        rollout_report(scene, motion, trace, settings)
+        for (scene, *_), (motion, trace) in zip(
+            cases, simulate_cases(cases, settings, threads), strict=True
+        )
     ]

@@ -15,11 +15,13 @@ from __future__ import annotations
 import itertools
 import os
 import threading
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import mujoco
 import mujoco.rollout
 import numpy as np
+from numpy.typing import ArrayLike
 
 from grasp_env.mechanics import Scene, quaternion_matrix
 
@@ -30,7 +32,7 @@ from .model import (
     tip_positions,
     tip_radius,
 )
-from .motion import Motion
+from .motion import Motion, plan_motion
 
 _STATE = mujoco.mjtState.mjSTATE_FULLPHYSICS
 _CONTROL = mujoco.mjtState.mjSTATE_CTRL | mujoco.mjtState.mjSTATE_XFRC_APPLIED
@@ -279,6 +281,23 @@ def simulate(
             for r, trace in zip(part, batch, strict=True):
                 traces[r] = trace
     return traces  # type: ignore[return-value]
+
+
+def simulate_cases(
+    cases: Sequence[tuple[Scene, ArrayLike, ArrayLike, ArrayLike | None]],
+    settings: dict[str, float],
+    threads: int | None = None,
+) -> list[tuple[Motion, Trace]]:
+    """Plan and :func:`simulate` (scene, rotations (T, 3, 3), forces (T, n, 3), in_contact)
+    cases over many scenes at once, one model per scene (``settings`` already checked)."""
+    physics: dict[int, PhysicsModel] = {}
+    runs = []
+    for scene, rotations, forces, contact in cases:
+        if id(scene) not in physics:
+            physics[id(scene)] = PhysicsModel(scene, settings["timestep"], settings["settle_mu"])
+        runs.append((physics[id(scene)], plan_motion(scene, rotations, forces, contact, settings)))
+    traces = simulate(runs, threads)
+    return [(motion, trace) for (_, motion), trace in zip(runs, traces, strict=True)]
 
 
 def _simulate_batch(runs: list[tuple[PhysicsModel, Motion]], threads: int) -> list[Trace]:

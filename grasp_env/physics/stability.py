@@ -29,7 +29,7 @@ from grasp_env.mechanics import Scene
 
 from .model import check_forces, check_rotations
 from .motion import Motion, plan_motion
-from .simulation import PhysicsModel, Trace, simulate
+from .simulation import PhysicsModel, Trace, simulate, simulate_cases
 
 # Defaults of the check and of the continuous rollout (docs/physics.md), all overridable as
 # StabilityChecker and TrajectoryChecker keywords. Lengths are in units of the box's largest
@@ -225,16 +225,14 @@ def check_poses(
     """Checks of (scene, rotation, contact_forces, in_contact) cases over many scenes, all in
     parallel (runs of the same model structure share rollout calls)."""
     settings = check_settings(settings)
-    physics: dict[int, PhysicsModel] = {}
-    runs = []
-    for scene, rotation, forces, contact in cases:
-        if id(scene) not in physics:
-            physics[id(scene)] = PhysicsModel(scene, settings["timestep"], settings["settle_mu"])
-        contact = None if contact is None else np.asarray(contact)[None]
-        rotations = np.asarray(rotation, dtype=float)[None]
-        motion = plan_motion(scene, rotations, np.asarray(forces)[None], contact, settings)
-        runs.append((physics[id(scene)], motion))
+    trajectories = [
+        (scene, np.asarray(rotation, dtype=float)[None], np.asarray(forces)[None],
+         None if contact is None else np.asarray(contact)[None])
+        for scene, rotation, forces, contact in cases
+    ]  # fmt: skip
     return [
-        pose_report(model.scene, motion, trace, settings)
-        for (model, motion), trace in zip(runs, simulate(runs, threads), strict=True)
+        pose_report(scene, motion, trace, settings)
+        for (scene, *_), (motion, trace) in zip(
+            cases, simulate_cases(trajectories, settings, threads), strict=True
+        )
     ]
