@@ -387,44 +387,9 @@ def _step_kernel(
         ints[b, 0] = moves_table[k, 1]
     # 3. the grips of the loaded sets, by the environments' step kernel (eq. 4, eq. 2), one
     # call per set size
-    _score_grips(
-        0,
-        forces3,
-        directions3,
-        normals3,
-        pairs3,
-        chosen,
-        ts,
-        actions,
-        moves_table,
-        k_max_ratio,
-        weight,
-        limit,
-        T,
-        F,
-        P,
-        floats,
-        flags,
-    )
-    _score_grips(
-        1,
-        forces4,
-        directions4,
-        normals4,
-        pairs4,
-        chosen,
-        ts,
-        actions,
-        moves_table,
-        k_max_ratio,
-        weight,
-        limit,
-        T,
-        F,
-        P,
-        floats,
-        flags,
-    )
+    rest = (chosen, ts, actions, moves_table, k_max_ratio, weight, limit, T, F, P, floats, flags)
+    _score_grips(0, forces3, directions3, normals3, pairs3, *rest)
+    _score_grips(1, forces4, directions4, normals4, pairs4, *rest)
     # 4. the outcome and the next observations (the last pose's, phase 1, after the end)
     cells = contact_obs.shape[1]
     width = observations.shape[1] - cells
