@@ -121,8 +121,11 @@ class _DirectionTD3Actor(TD3Actor):
         return {**super()._get_constructor_parameters(), "k_max_ratio": self.k_max_ratio}
 
 
-class ForceDirectionTD3Policy(TD3Policy):
-    """TD3's policy whose actor is the force-direction head on the grasp features."""
+class _DirectionPolicy:
+    """What the off-policy force-direction policies share: the grasp features, and an actor
+    of ``actor_class`` with the force-direction head (``k_max_ratio`` a constructor key)."""
+
+    actor_class: type
 
     def __init__(
         self,
@@ -134,14 +137,20 @@ class ForceDirectionTD3Policy(TD3Policy):
     ) -> None:
         self.k_max_ratio = k_max_ratio
         kwargs["features_extractor_class"] = GraspFeatures
-        super().__init__(observation_space, action_space, lr_schedule, **kwargs)
+        super().__init__(observation_space, action_space, lr_schedule, **kwargs)  # type: ignore[call-arg]
 
-    def make_actor(self, features_extractor: Any = None) -> TD3Actor:
-        kwargs = self._update_features_extractor(self.actor_kwargs, features_extractor)
-        return _DirectionTD3Actor(**kwargs, k_max_ratio=self.k_max_ratio).to(self.device)
+    def make_actor(self, features_extractor: Any = None) -> Any:
+        kwargs = self._update_features_extractor(self.actor_kwargs, features_extractor)  # type: ignore[attr-defined]
+        return self.actor_class(**kwargs, k_max_ratio=self.k_max_ratio).to(self.device)  # type: ignore[attr-defined]
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
-        return {**super()._get_constructor_parameters(), "k_max_ratio": self.k_max_ratio}
+        return {**super()._get_constructor_parameters(), "k_max_ratio": self.k_max_ratio}  # type: ignore[misc]
+
+
+class ForceDirectionTD3Policy(_DirectionPolicy, TD3Policy):
+    """TD3's policy whose actor is the force-direction head on the grasp features."""
+
+    actor_class = _DirectionTD3Actor
 
 
 class _DirectionSACActor(SACActor):
@@ -170,27 +179,10 @@ class _DirectionSACActor(SACActor):
         return {**super()._get_constructor_parameters(), "k_max_ratio": self.k_max_ratio}
 
 
-class ForceDirectionSACPolicy(SACPolicy):
+class ForceDirectionSACPolicy(_DirectionPolicy, SACPolicy):
     """SAC's policy whose Gaussian mean (before the tanh) comes from the force-direction head."""
 
-    def __init__(
-        self,
-        observation_space: gym.spaces.Box,
-        action_space: gym.spaces.Box,
-        lr_schedule: Any,
-        k_max_ratio: float = DEFAULT_K_MAX_RATIO,
-        **kwargs: Any,
-    ) -> None:
-        self.k_max_ratio = k_max_ratio
-        kwargs["features_extractor_class"] = GraspFeatures
-        super().__init__(observation_space, action_space, lr_schedule, **kwargs)
-
-    def make_actor(self, features_extractor: Any = None) -> SACActor:
-        kwargs = self._update_features_extractor(self.actor_kwargs, features_extractor)
-        return _DirectionSACActor(**kwargs, k_max_ratio=self.k_max_ratio).to(self.device)
-
-    def _get_constructor_parameters(self) -> dict[str, Any]:
-        return {**super()._get_constructor_parameters(), "k_max_ratio": self.k_max_ratio}
+    actor_class = _DirectionSACActor
 
 
 # --- models from a config --------------------------------------------------------------------
