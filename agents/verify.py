@@ -426,8 +426,9 @@ def plot_rollouts(
         largest.append(angles)
         slide = np.maximum.accumulate(trace.slip[steps].max(axis=-1)) * length * 1e6
         slide = np.minimum(slide, 1e6 * length)  # past L the finger has left its face
-        top.plot(alpha, angles, color=colour, lw=1.2, label=label)
-        bottom.semilogy(alpha, np.maximum(slide, floor), color=colour, lw=1.2, label=label)
+        width = 3.0 if not largest[:-1] and len(runs) > 1 else 1.2  # the first beneath
+        top.plot(alpha, angles, color=colour, lw=width, label=label)
+        bottom.semilogy(alpha, np.maximum(slide, floor), color=colour, lw=width, label=label)
         if report.first_failure is not None:
             x = pose_alpha(alphas, report.first_failure)
             top.axvline(x, color=colour, ls=":", lw=1)
