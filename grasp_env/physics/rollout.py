@@ -24,8 +24,8 @@ from numpy.typing import ArrayLike
 from grasp_env.mechanics import Scene
 
 from .motion import Motion, plan_motion
-from .simulation import PhysicsModel, Trace, simulate, simulate_cases
-from .stability import check_settings
+from .simulation import Trace, simulate_cases
+from .stability import Checker, check_settings
 
 
 @dataclass(frozen=True)
@@ -160,7 +160,7 @@ def rollout_report(
     )
 
 
-class TrajectoryChecker:
+class TrajectoryChecker(Checker):
     """Carries grips through trajectories of ``scene`` in MuJoCo (see the module docstring).
 
     Args:
@@ -168,20 +168,6 @@ class TrajectoryChecker:
         threads: rollout threads for :meth:`check_batch` (default: every available core).
         **settings: overrides of :data:`grasp_env.physics.SETTINGS`.
     """
-
-    def __init__(self, scene: Scene, threads: int | None = None, **settings: float) -> None:
-        if not isinstance(scene, Scene):
-            raise ValueError(f"scene must be a grasp_env.mechanics.Scene, got {type(scene)}")
-        self.settings = check_settings(settings)
-        self.scene = scene
-        self.threads = threads
-        self.physics: PhysicsModel | None = PhysicsModel(
-            scene, self.settings["timestep"], self.settings["settle_mu"]
-        )
-
-    def close(self) -> None:
-        """Release the models (the checker is unusable afterwards)."""
-        self.physics = None
 
     def plan(
         self, rotations: ArrayLike, contact_forces: ArrayLike, in_contact: ArrayLike | None = None
@@ -205,12 +191,8 @@ class TrajectoryChecker:
     ) -> list[RolloutReport]:
         """:meth:`check` of several (rotations, contact_forces, in_contact) grips, in parallel
         on ``threads`` rollout threads (default: the checker's)."""
-        if self.physics is None:
-            raise ValueError("this TrajectoryChecker is closed")
         motions = [self.plan(*grip) for grip in grips]
-        traces = simulate(
-            [(self.physics, m) for m in motions], self.threads if threads is None else threads
-        )
+        traces = self._simulate(motions, threads)
         return [
             rollout_report(self.scene, m, t, self.settings)
             for m, t in zip(motions, traces, strict=True)

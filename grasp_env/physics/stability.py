@@ -144,14 +144,9 @@ def pose_report(
     )
 
 
-class StabilityChecker:
-    """Checks contact forces on ``scene`` in MuJoCo (see the module docstring).
-
-    Args:
-        scene: the grasp to simulate.
-        threads: rollout threads for :meth:`check_batch` (default: every available core).
-        **settings: overrides of :data:`SETTINGS` (positive finite numbers).
-    """
+class Checker:
+    """What the pose checker and the trajectory checker share: the scene's model, the
+    settings and the rollout threads."""
 
     def __init__(self, scene: Scene, threads: int | None = None, **settings: float) -> None:
         if not isinstance(scene, Scene):
@@ -163,6 +158,26 @@ class StabilityChecker:
             scene, self.settings["timestep"], self.settings["settle_mu"]
         )
 
+    def close(self) -> None:
+        """Release the models (the checker is unusable afterwards)."""
+        self.physics = None
+
+    def _simulate(self, motions: list[Motion], threads: int | None) -> list[Trace]:
+        if self.physics is None:
+            raise ValueError(f"this {type(self).__name__} is closed")
+        runs = [(self.physics, motion) for motion in motions]
+        return simulate(runs, self.threads if threads is None else threads)
+
+
+class StabilityChecker(Checker):
+    """Checks contact forces on ``scene`` in MuJoCo (see the module docstring).
+
+    Args:
+        scene: the grasp to simulate.
+        threads: rollout threads for :meth:`check_batch` (default: every available core).
+        **settings: overrides of :data:`SETTINGS` (positive finite numbers).
+    """
+
     @property
     def model(self):
         """The MuJoCo model at the scene's mu (the settle runs on a copy)."""
@@ -170,10 +185,6 @@ class StabilityChecker:
 
     def reset(self) -> None:
         """Nothing to do: every check starts from the same state, whatever came before."""
-
-    def close(self) -> None:
-        """Release the models (the checker is unusable afterwards)."""
-        self.physics = None
 
     def check(
         self,
@@ -199,8 +210,6 @@ class StabilityChecker:
     ) -> list[PhysicsReport]:
         """:meth:`check` of B poses at once, (B, 3, 3) and (B, n, 3) (and (B, n)), in parallel
         on ``threads`` rollout threads (default: the checker's)."""
-        if self.physics is None:
-            raise ValueError("this StabilityChecker is closed")
         rotations = check_rotations(rotations)
         forces = check_forces(contact_forces, self.scene.n_contacts, (len(rotations),))
         contact = [None] * len(rotations) if in_contact is None else np.asarray(in_contact)
@@ -208,9 +217,7 @@ class StabilityChecker:
             plan_motion(self.scene, r[None], f[None], None if c is None else c[None], self.settings)
             for r, f, c in zip(rotations, forces, contact, strict=True)
         ]
-        traces = simulate(
-            [(self.physics, m) for m in motions], self.threads if threads is None else threads
-        )
+        traces = self._simulate(motions, threads)
         return [
             pose_report(self.scene, m, t, self.settings)
             for m, t in zip(motions, traces, strict=True)
