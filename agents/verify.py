@@ -21,7 +21,11 @@ follow the grip, and the 0.2 s hold at the last pose; slip, drift and rotation a
 the whole run. The table gives each pose's verdicts (analytic and MuJoCo, over the steps nearer
 to that pose than to its neighbours), the slip and drift so far; the last lines the verdict on
 the trajectory, its margin and where each verdict first failed. Writes ``rollout.png`` and
-``rollout.json``.
+``rollout.json``. With ``--video FILE.mp4`` (which implies ``--trajectory``) the rollout is
+also written as a video (:func:`write_video`): 10 frames per pose at 30 fps, each showing the
+cube where MuJoCo has it, the fingertips, the force arrows and friction cones coloured by
+nearness to slip, and alpha, the largest friction angle and the margin. ``--alphas`` sets the
+trajectory (default the paper's -15 to +15 deg by 1 deg).
 
 With ``--agreement``: the pose agreement study of ``grasp_env.physics.agreement`` (force sets
 from 0 to 40 deg max friction angle and within 0.01 to 1 deg of the cone's edge, mu = tan 10,
@@ -51,12 +55,15 @@ from grasp_env.mechanics import (
     friction_angles,
     grasp_matrix,
     load_wrench,
+    matrix_quaternion,
     n_pairs,
+    quaternion_matrix,
     scene_grasp,
     solve_minimax,
 )
 from grasp_env.physics import (
     SETTINGS,
+    GraspView,
     PhysicsReport,
     RolloutReport,
     StabilityChecker,
@@ -73,12 +80,15 @@ from grasp_env.physics.agreement import (
 )
 
 from .progress import status
-from .scene_args import add_scene_arguments, scene_from_arguments
+from .scene_args import add_scene_arguments, floats, scene_from_arguments
 
 HELP = "check grip forces in MuJoCo physics along a trajectory (or --agreement)"
 #: Scenes of the trajectory study by default: about 70 trajectories, well under a minute here
 #: (200 give the 572 of docs/physics.md).
 DEFAULT_SCENES = 20
+#: The video of a rollout: frames per pose (spread evenly over the simulated time after the
+#: settle) and frames per second.
+FRAMES_PER_POSE, FPS = 10, 30
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -99,6 +109,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     add_scene_arguments(parser)
     parser.add_argument(
+        "--alphas",
+        type=floats(3),
+        default=(-15.0, 15.0, 1.0),
+        metavar="START,END,STEP",
+        help="the trajectory's alphas, deg (default the paper's: --alphas=-15,15,1)",
+    )
+    parser.add_argument(
         "--trajectory",
         action="store_true",
         help="carry the grip through the whole trajectory in one continuous MuJoCo rollout"
@@ -115,6 +132,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help=f"random scenes of the trajectory study (default {DEFAULT_SCENES}, about 3"
         " trajectories each; 200 give the 572 of docs/physics.md)",
     )
+    parser.add_argument(
+        "--video",
+        type=Path,
+        default=None,
+        metavar="FILE.mp4",
+        help=f"write the rollout as a video ({FRAMES_PER_POSE} frames per pose at {FPS} fps,"
+        " 480x480); implies --trajectory",
+    )
     parser.add_argument("--seed", type=int, default=0, help="seed of the agreement studies")
     parser.add_argument("--out", type=Path, default=Path("results/verify"), help="output dir")
 
@@ -127,13 +152,19 @@ def run(args: argparse.Namespace) -> int:
     scenes = DEFAULT_SCENES if args.scenes is None else args.scenes
     if scenes < 1:
         raise ValueError(f"--scenes must be >= 1, got {scenes}")
+    if args.video is not None:
+        if args.agreement:
+            raise ValueError("--video writes the rollout: use it without --agreement")
+        _imageio()  # before the rollout: say at once if the writer is missing
+        args.trajectory = True
     args.out.mkdir(parents=True, exist_ok=True)
     if args.agreement:
         if args.trajectory:
             return run_trajectory_agreement(args.seed, scenes, args.out)
         return run_agreement(args.seed, args.out)
     scene = scene_from_arguments(args)
-    trajectory = Trajectory()
+    start, end, step = args.alphas
+    trajectory = Trajectory(alpha_start_deg=start, alpha_end_deg=end, alpha_step_deg=step)
     if args.policy == "expert":
         forces, label = expert_forces(scene, trajectory), "expert"
     elif args.policy == "equal-k":
@@ -143,7 +174,7 @@ def run(args: argparse.Namespace) -> int:
         scene, forces = model_forces(path, args.algo, args.env, scene, trajectory)
         label = f"learned ({model_name(path)})"
     if args.trajectory:
-        return run_rollout(scene, trajectory, forces, label, args.out)
+        return run_rollout(scene, trajectory, forces, label, args.out, args.video)
     return run_poses(scene, trajectory, forces, label, args.out)
 
 
@@ -347,10 +378,15 @@ def pose_alpha(alphas: np.ndarray, coordinate: float | np.ndarray) -> float | np
 
 
 def run_rollout(
-    scene: Scene, trajectory: Trajectory, forces: np.ndarray, label: str, out: Path
+    scene: Scene,
+    trajectory: Trajectory,
+    forces: np.ndarray,
+    label: str,
+    out: Path,
+    video: Path | None = None,
 ) -> int:
     """Carry the grip through the trajectory in one MuJoCo rollout; print the per-pose table
-    and the verdict; save the plot and the report."""
+    and the verdict; save the plot and the report (and the video)."""
     from rich.console import Console
     from rich.table import Table
 
@@ -396,6 +432,10 @@ def run_rollout(
         json.dumps({"policy": label, "alphas_deg": alphas.tolist(), **report.as_dict()}, indent=1)
     )
     console.print(f"plot {path}, report {data}")
+    if video is not None:
+        with status(f"rendering the video {video}"):
+            frames = write_video(video, scene, alphas, report)
+        console.print(f"video {video}: {frames} frames at {FPS} fps")
     print(
         f"trajectory: analytic {word[report.predicted_holds]}, MuJoCo {word[report.holds]}"
         f" ({'agree' if report.agrees else 'DISAGREE'}); margin {report.margin_deg:+.3f} deg,"
@@ -403,6 +443,55 @@ def run_rollout(
         f" rotation {report.rotation_deg.max():.4f} deg"
     )
     return 0
+
+
+def _imageio():
+    try:
+        import imageio.v2 as imageio
+        import imageio_ffmpeg  # noqa: F401  (imageio's MP4 writer)
+    except ImportError:
+        raise ValueError(
+            '--video writes with imageio and imageio-ffmpeg: pip install "grasp-env[video]"'
+        ) from None
+    return imageio
+
+
+def write_video(
+    path: Path, scene: Scene, alphas: np.ndarray, report: RolloutReport, size: int = 480
+) -> int:
+    """Write ``report``'s rollout as an MP4 of ``size`` x ``size`` pixels: FRAMES_PER_POSE
+    frames per pose, evenly spaced in simulated time after the settle, at FPS frames per
+    second, each with alpha, the largest friction angle and the margin. Returns the frame
+    count."""
+    imageio = _imageio()
+    motion, qpos, n = report.motion, report.trace.qpos, scene.n_contacts
+    limit = float(np.degrees(scene.friction_limit))
+    angles = np.degrees(motion.friction_angles(scene).max(axis=-1))
+    count = FRAMES_PER_POSE * len(alphas)
+    steps = np.linspace(motion.settle_steps, len(motion) - 1, count).round().astype(int)
+    # A run that diverged stands at its last finite state.
+    finite = np.all(np.isfinite(qpos), axis=1)
+    last_finite = np.maximum.accumulate(np.where(finite, np.arange(len(qpos)), 0))
+    view = GraspView(scene, width=size, height=size)
+    try:
+        with imageio.get_writer(path, format="FFMPEG", fps=FPS, macro_block_size=16) as writer:
+            for k in steps:
+                # MuJoCo turns the load about the object; the picture turns the object instead.
+                rotation, state = motion.rotations[k], qpos[last_finite[k]].copy()
+                state[:3] = rotation @ state[:3]
+                state[3:7] = matrix_quaternion(rotation @ quaternion_matrix(state[3:7]))
+                state[7:] = (state[7:].reshape(n, 3) @ rotation.T).ravel()
+                text = (
+                    f"alpha {pose_alpha(alphas, motion.pose[k]):+.2f} deg",
+                    f"largest friction angle {angles[k]:.2f} deg",
+                    f"margin {limit - angles[k]:+.2f} deg (atan mu {limit:.2f})",
+                )
+                forces = motion.forces[k] @ rotation.T
+                image = view.render_state(state, rotation, forces, motion.contact[k], text)
+                writer.append_data(image)
+    finally:
+        view.close()
+    return count
 
 
 def plot_rollouts(

@@ -1,4 +1,4 @@
-"""Make the figures of docs/physics.md: ``python docs/make_figures.py`` (about 10 s).
+"""Make the figures of docs/physics.md: ``python docs/make_figures.py`` (about 50 s).
 
 - ``docs/verify.png``: ``grasp-env verify --policy equal-k --mu 0.1``, each pose checked on
   its own.
@@ -8,6 +8,9 @@
   grip, and the expert's perturbed by a bump mid-trajectory so that its largest friction angle
   passes the limit by 0.5 deg (it crosses it) or stays 0.5 deg inside it
   (:func:`grasp_env.physics.agreement.perturbed_k`).
+- ``docs/video_still.png``: the first frame of ``grasp-env verify --video`` of the expert's
+  grip on that scene (its largest friction angle, 11.31 deg at alpha = -15 deg, 2 deg inside
+  the limit: the cones orange).
 """
 
 from __future__ import annotations
@@ -70,6 +73,20 @@ def rollout_figure(path: Path) -> None:
     plot_rollouts(scene, alphas, labelled, title, path)
 
 
+def video_still(path: Path) -> None:
+    import imageio
+
+    mu = float(np.tan(np.radians(13.31)))
+    offsets = ",".join(f"{v:g}" for v in np.ravel(LAYOUT["offsets"]))
+    cg = ",".join(f"{v:g}" for v in LAYOUT["cg_offset"])
+    with tempfile.TemporaryDirectory() as out:
+        video = Path(out) / "rollout.mp4"
+        argv = ["verify", "--offsets", offsets, "--cg-offset", cg, "--mu", f"{mu:.6f}"]
+        main([*argv, "--video", str(video), "--out", out])
+        with imageio.get_reader(str(video), "ffmpeg") as reader:
+            imageio.imwrite(path, reader.get_data(0))
+
+
 def verify_figure(path: Path) -> None:
     with tempfile.TemporaryDirectory() as out:
         main(["verify", "--policy", "equal-k", "--mu", "0.1", "--out", out])
@@ -79,3 +96,4 @@ def verify_figure(path: Path) -> None:
 if __name__ == "__main__":
     verify_figure(DOCS / "verify.png")
     rollout_figure(DOCS / "rollout.png")
+    video_still(DOCS / "video_still.png")
