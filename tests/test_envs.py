@@ -655,7 +655,8 @@ def test_record_video(tmp_path):
     from gymnasium.wrappers import RecordVideo
 
     env = gym.make("grasp_env/CubeGrasp-v0", render_mode="rgb_array", terminate_on_slip=False)
-    env = RecordVideo(env, str(tmp_path), episode_trigger=lambda _: True, disable_logger=True)
+    folder = tmp_path / "videos"  # a new folder: RecordVideo warns about an existing one
+    env = RecordVideo(env, str(folder), episode_trigger=lambda _: True, disable_logger=True)
     env.reset(seed=0)
     steps = 0
     while True:
@@ -664,7 +665,7 @@ def test_record_video(tmp_path):
         if terminated or truncated:
             break
     env.close()
-    (video,) = tmp_path.glob("*.mp4")
+    (video,) = folder.glob("*.mp4")
     with imageio.get_reader(str(video), "ffmpeg") as reader:
         frames = list(reader.iter_data())  # len(reader) is inf: list(reader) tries to allocate it
         fps = reader.get_meta_data()["fps"]

@@ -155,8 +155,8 @@ class _CubeGraspEnv(gym.Env[np.ndarray, np.ndarray]):
             "margin": margin,
             "k": k,
             "contact_forces": forces,
-            "equilibrating_forces": episode.forces[t],  # read-only views
-            "expert_k": episode.expert_k[t],
+            "equilibrating_forces": episode.forces[t].copy(),  # users keep infos: new arrays
+            "expert_k": episode.expert_k[t].copy(),
             "expert_reward": expert_reward,
             "optimality_gap": expert_reward - reward,
             "slip": margin < 0.0,  # theta_i > theta_lim, as the vector env computes it
