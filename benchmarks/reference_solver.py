@@ -16,8 +16,14 @@ from __future__ import annotations
 import warnings
 from dataclasses import dataclass
 
-import cvxpy as cp
 import numpy as np
+
+try:
+    import cvxpy as cp
+except ImportError as error:  # a wheel install without the extra
+    raise ImportError(
+        'the reference solver needs cvxpy and Clarabel: pip install "grasp-env[bench]"'
+    ) from error
 
 #: Clarabel tolerances tighter than its defaults: the bisection reads the sign of s* near 0.
 SOLVER_OPTIONS = {
