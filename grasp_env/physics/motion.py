@@ -111,20 +111,85 @@ def _load(scene: Scene, rotations: np.ndarray) -> np.ndarray:
     )
 
 
-def _geodesic(start: np.ndarray, end: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, float]:
-    """Orientations (S, 3, 3) at fractions ``s`` along the shortest turn from ``start`` to
-    ``end``, and the angle of that turn, radians."""
+def _turn(start: np.ndarray, end: np.ndarray) -> tuple[np.ndarray | None, float]:
+    """The unit axis (None for no turn) and angle, radians, of the shortest turn from
+    ``start`` to ``end`` (object frame)."""
     q = _quaternion(start.T @ end)  # w >= 0: the turn of at most pi
     sine = float(np.linalg.norm(q[1:]))
     angle = 2.0 * float(np.arctan2(sine, q[0]))
     if sine < 1e-15:
-        return np.broadcast_to(start, (len(s), 3, 3)).copy(), 0.0
-    return start @ axis_angle_matrix(q[1:] / sine, s * angle), angle
+        return None, 0.0
+    return q[1:] / sine, angle
 
 
 def released(forces: np.ndarray, weight: float, released_force: float) -> np.ndarray:
     """Fingers whose force is at most ``released_force`` x w: they carry no load."""
     return np.linalg.norm(forces, axis=-1) <= released_force * weight
+
+
+def _check_contact(
+    scene: Scene, forces: np.ndarray, in_contact: ArrayLike | None, settings: dict[str, float]
+) -> np.ndarray:
+    """``in_contact`` (T, n) for ``forces`` (T, n, 3) (None: every finger), or a ValueError:
+    a finger out of contact must carry no force."""
+    n_poses, n = forces.shape[:2]
+    if in_contact is None:
+        return np.ones((n_poses, n), dtype=bool)
+    contact = np.asarray(in_contact)
+    if contact.shape != (n_poses, n) or contact.dtype != bool:
+        raise ValueError(
+            f"in_contact must be a boolean array of shape ({n_poses}, {n}), got"
+            f" {contact.dtype} {contact.shape}"
+        )
+    pushing = ~contact & ~released(forces, scene.weight, settings["released_force"])
+    if np.any(pushing):
+        t, i = np.argwhere(pushing)[0]
+        raise ValueError(
+            f"finger {i} is out of contact at pose {t} but its force is"
+            f" {np.linalg.norm(forces[t, i]):.6g} N: a finger out of contact carries none"
+        )
+    return contact
+
+
+def plan_poses(
+    scene: Scene,
+    rotations: ArrayLike,
+    forces: ArrayLike,
+    in_contact: ArrayLike | None,
+    settings: dict[str, float],
+    checked: bool = False,
+) -> list[Motion]:
+    """The one-pose runs (settle, then hold) of B poses at once: ``rotations`` (B, 3, 3),
+    ``forces`` (B, n, 3, world frame, newtons), ``in_contact`` (B, n; None: every finger).
+    Each is :func:`plan_motion` of that one pose (the same arrays), planned in one vectorised
+    pass; ``checked``: the inputs are already validated float arrays."""
+    if not checked:
+        rotations = check_rotations(rotations)
+        forces = check_forces(forces, scene.n_contacts, (len(rotations),))
+    contact = _check_contact(scene, forces, in_contact, settings)
+    dt = settings["timestep"]
+    settle = max(1, round(settings["settle_time"] / dt))
+    steps = settle + max(1, round(settings["hold_time"] / dt))
+    if steps > MAX_STEPS:
+        raise ValueError(f"the run would take more than {MAX_STEPS} steps: lower hold_time")
+    # Row vectors: P @ R is R^T P, the force in the object's frame; in units of w.
+    pose_forces = np.einsum("tnc,tcd->tnd", forces, rotations) / scene.weight
+    pose_forces[~contact] = 0.0
+    pose_load = _load(scene, rotations)
+    touching = contact & ~released(pose_forces, 1.0, settings["released_force"])
+    # One array per quantity, each run's steps a view of it (the pose held throughout).
+    every = {
+        "forces": np.repeat(pose_forces[:, None], steps, 1),
+        "load": np.repeat(pose_load[:, None], steps, 1),
+        "contact": np.repeat(touching[:, None], steps, 1),
+        "rotations": np.repeat(rotations[:, None], steps, 1),
+    }
+    pose = np.zeros(steps)
+    return [
+        Motion(**{name: value[b] for name, value in every.items()}, pose=pose.copy(),
+               settle_steps=settle)
+        for b in range(len(rotations))
+    ]  # fmt: skip
 
 
 def plan_motion(
@@ -141,23 +206,7 @@ def plan_motion(
     rotations = check_rotations(rotations)
     n_poses, n = len(rotations), scene.n_contacts
     forces = check_forces(forces, n, (n_poses,))
-    free = released(forces, scene.weight, settings["released_force"])
-    if in_contact is None:
-        contact = np.ones((n_poses, n), dtype=bool)
-    else:
-        contact = np.asarray(in_contact)
-        if contact.shape != (n_poses, n) or contact.dtype != bool:
-            raise ValueError(
-                f"in_contact must be a boolean array of shape ({n_poses}, {n}), got"
-                f" {contact.dtype} {contact.shape}"
-            )
-        pushing = ~contact & ~free
-        if np.any(pushing):
-            t, i = np.argwhere(pushing)[0]
-            raise ValueError(
-                f"finger {i} is out of contact at pose {t} but its force is"
-                f" {np.linalg.norm(forces[t, i]):.6g} N: a finger out of contact carries none"
-            )
+    contact = _check_contact(scene, forces, in_contact, settings)
     dt = settings["timestep"]
     settle = max(1, round(settings["settle_time"] / dt))
     hold = max(1, round(settings["hold_time"] / dt))
@@ -193,7 +242,7 @@ def plan_motion(
     total = settle + hold + (n_poses - 1) * dwell
     for t in range(n_poses - 1):
         hold_at(t, dwell)
-        _, angle = _geodesic(rotations[t], rotations[t + 1], np.zeros(1))
+        axis, angle = _turn(rotations[t], rotations[t + 1])
         duration = max(
             settings["min_segment_time"], np.degrees(angle) * settings["time_per_degree"]
         )
@@ -205,7 +254,10 @@ def plan_motion(
                 " min_segment_time, pose_hold_time or the number of poses"
             )
         s = np.arange(1, steps + 1) / steps
-        turned, _ = _geodesic(rotations[t], rotations[t + 1], s)
+        if axis is None:
+            turned = np.repeat(rotations[t : t + 1], steps, 0)
+        else:
+            turned = rotations[t] @ axis_angle_matrix(axis, s * angle)
         load = _load(scene, turned)
         # The fingers that carry load at either end share the turning load; a finger released
         # at both ends (or out of contact) keeps its own (tiny or zero) force, interpolated.

@@ -94,7 +94,14 @@ class PhysicsModel:
             self.model.body_simple.tobytes(),
             self.model.dof_simplenum.tobytes(),
         )
+        # Per-scene constants of the controls and the measurement, computed once.
+        self.normals = scene.normals
+        self.timestep = self.model.opt.timestep
+        self.arms = self.contacts - self.cg  # about the centre of gravity, object at rest
+        self.nu = 3 * n
+        self.wrench_start = self.nu + 6 * self.object
         self._data: list[mujoco.MjData] = []
+        self._initial: dict[bytes, np.ndarray] = {}
 
     def data(self, count: int) -> list[mujoco.MjData]:
         """``count`` MjData of this model (one per rollout thread), kept for reuse."""
@@ -104,7 +111,19 @@ class PhysicsModel:
 
     def initial_state(self, contact: np.ndarray) -> np.ndarray:
         """The full physics state at rest: the object at the identity, centre of gravity at
-        the origin, fingers in ``contact`` just inside their faces, the others parked."""
+        the origin, fingers in ``contact`` just inside their faces, the others parked (a new
+        array; built once per finger set)."""
+        return self._initial_state(contact).copy()
+
+    def _initial_state(self, contact: np.ndarray) -> np.ndarray:
+        """:meth:`initial_state`, cached per finger set (not to be written to)."""
+        key = np.asarray(contact, dtype=bool).tobytes()
+        state = self._initial.get(key)
+        if state is None:
+            state = self._initial[key] = self._build_initial_state(np.asarray(contact, bool))
+        return state
+
+    def _build_initial_state(self, contact: np.ndarray) -> np.ndarray:
         data = self.data(1)[0]
         mujoco.mj_resetData(self.model, data)
         data.qpos[:3] = -self.cg
@@ -159,69 +178,98 @@ def _rotation_angle(relative: np.ndarray) -> np.ndarray:
     return np.arctan2(0.5 * np.linalg.norm(skew, axis=-1), 0.5 * (trace - 1.0))
 
 
+def _constant(physics: list[PhysicsModel], name: str) -> np.ndarray:
+    """A per-scene constant of a batch's runs: the one array if they share their model, else
+    (B, 1, ...) stacked to broadcast over (B, N, ...)."""
+    if all(p is physics[0] for p in physics):
+        return np.asarray(getattr(physics[0], name))
+    return np.stack([np.asarray(getattr(p, name)) for p in physics])[:, None]
+
+
 def _measure(
-    physics: PhysicsModel, motion: Motion, place: np.ndarray, qpos: np.ndarray, diverged: bool
-) -> Trace:
-    """The measurements of one run from its positions after every step."""
-    scene, settle = physics.scene, motion.settle_steps
-    position = qpos[:, :3]
-    rotation = quaternion_matrix(qpos[:, 3:7])  # (N, 3, 3), object to model world
-    tips = qpos[:, 7:].reshape(len(qpos), physics.n, 3)
+    physics: list[PhysicsModel],
+    motions: list[Motion],
+    place: np.ndarray,
+    qpos: np.ndarray,
+    diverged: np.ndarray,
+) -> list[Trace]:
+    """The measurements of B runs of one length N (sharing the settle) from their positions
+    after every step, (B, N, nq), in one vectorised pass."""
+    settle = motions[0].settle_steps
+    count, steps = qpos.shape[:2]
+    n = physics[0].n
+    position = qpos[..., :3]
+    rotation = quaternion_matrix(qpos[..., 3:7])  # (B, N, 3, 3), object to model world
+    tips = qpos[..., 7:].reshape(count, steps, n, 3)
     # Row vectors: (x - p) @ R is R^T (x - p), the fingertips in the object's frame.
-    local = np.einsum("tnc,tcd->tnd", tips - position[:, None], rotation)
-    normals = scene.normals
-    gap = -np.sum((local - physics.contacts) * normals, -1) - physics.radius
-    measured = motion.contact.copy()
-    measured[:settle] = False
+    local = np.einsum("btnc,btcd->btnd", tips - position[..., None, :], rotation)
+    normals = _constant(physics, "normals")
+    contacts = _constant(physics, "contacts")
+    gap = -np.sum((local - contacts) * normals, -1) - _constant(physics, "radius")[..., None]
+    measured = np.stack([motion.contact for motion in motions])
+    measured[:, :settle] = False
     # Each finger's slide is measured from where it was placed: for the fingers placed at the
     # start, from where the settle left them.
     start = measured.copy()
-    start[1:] &= ~measured[:-1]
-    since = np.maximum.accumulate(np.where(start, np.arange(len(qpos))[:, None], 0), axis=0)
-    placed = np.take_along_axis(place, since, axis=0)
-    anchor = np.where(placed[..., None], physics.placed, local[settle - 1])
+    start[:, 1:] &= ~measured[:, :-1]
+    since = np.maximum.accumulate(np.where(start, np.arange(steps)[:, None], 0), axis=1)
+    placed = np.take_along_axis(place, since, axis=1)
+    anchor = np.where(placed[..., None], _constant(physics, "placed"), local[:, settle - 1, None])
     moved = local - anchor
     along = moved - np.sum(moved * normals, -1, keepdims=True) * normals
     slip = np.where(measured, np.linalg.norm(along, axis=-1), 0.0)
     speed = np.zeros_like(slip)
-    speed[1:] = np.linalg.norm(np.diff(along, axis=0), axis=-1) / physics.model.opt.timestep
-    speed[1:] = np.where(measured[1:] & measured[:-1], speed[1:], 0.0)
-    cg = position + rotation @ physics.cg
-    drift = np.linalg.norm(cg - cg[settle - 1], axis=-1)
-    turn = _rotation_angle(rotation @ rotation[settle - 1].T)
-    if not (
-        np.all(np.isfinite(slip)) and np.all(np.isfinite(speed)) and np.all(np.isfinite(drift))
-    ):
-        diverged = True
-    return Trace(
-        qpos=qpos,
-        slip=slip,
-        speed=speed,
-        gap=np.where(measured, gap, 0.0),
-        drift=drift,
-        rotation=turn,
-        measured=measured,
-        diverged=diverged,
+    speed[:, 1:] = np.linalg.norm(np.diff(along, axis=1), axis=-1) / physics[0].timestep
+    speed[:, 1:] = np.where(measured[:, 1:] & measured[:, :-1], speed[:, 1:], 0.0)
+    cg = _constant(physics, "cg")
+    if cg.ndim == 1:
+        cg = position + rotation @ cg
+    else:
+        cg = position + (rotation @ cg[..., None])[..., 0]
+    drift = np.linalg.norm(cg - cg[:, settle - 1, None], axis=-1)
+    turn = _rotation_angle(rotation @ np.swapaxes(rotation[:, settle - 1, None], -1, -2))
+    finite = (
+        np.isfinite(slip).all(axis=(1, 2))
+        & np.isfinite(speed).all(axis=(1, 2))
+        & np.isfinite(drift).all(axis=1)
     )
+    diverged = diverged | ~finite
+    gap = np.where(measured, gap, 0.0)
+    return [
+        Trace(
+            qpos=qpos[r],
+            slip=slip[r],
+            speed=speed[r],
+            gap=gap[r],
+            drift=drift[r],
+            rotation=turn[r],
+            measured=measured[r],
+            diverged=bool(diverged[r]),
+        )
+        for r in range(count)
+    ]
 
 
-def _controls(physics: PhysicsModel, motion: Motion, length: int) -> np.ndarray:
-    """(length, ncontrol) rows of ctrl then xfrc_applied, padded by holding the last step: the
-    touching fingertips' forces as motor forces; the load, and the forces of fingers that do
-    not touch (at their contact points), on the object."""
-    steps = len(motion)
-    controls = np.zeros((length, physics.ncontrol))
-    nu = 3 * physics.n
-    touching = motion.contact[..., None]
-    controls[:steps, :nu] = np.where(touching, motion.forces, 0.0).reshape(steps, nu)
-    ideal = np.where(touching, 0.0, motion.forces)
-    arms = physics.contacts - physics.cg  # about the centre of gravity, object at rest
-    wrench = motion.load + np.concatenate(
-        [ideal.sum(axis=1), np.cross(arms, ideal).sum(axis=1)], axis=-1
+def _controls(
+    physics: list[PhysicsModel], forces: np.ndarray, load: np.ndarray, contact: np.ndarray
+) -> np.ndarray:
+    """(B, N, ncontrol) rows of ctrl then xfrc_applied of B runs of N steps, (B, N, n, 3),
+    (B, N, 6) and (B, N, n): the touching fingertips' forces as motor forces; the load, and the
+    forces of fingers that do not touch (at their contact points), on the object."""
+    count, steps = contact.shape[:2]
+    physics0 = physics[0]
+    controls = np.zeros((count, steps, physics0.ncontrol))
+    nu, start = physics0.nu, physics0.wrench_start
+    touching = contact[..., None]
+    controls[..., :nu] = np.where(touching, forces, 0.0).reshape(count, steps, nu)
+    if contact.all():  # no ideal forces: the load alone
+        controls[..., start : start + 6] = load
+        return controls
+    ideal = np.where(touching, 0.0, forces)
+    arms = _constant(physics, "arms")
+    controls[..., start : start + 6] = load + np.concatenate(
+        [ideal.sum(axis=-2), np.cross(arms, ideal).sum(axis=-2)], axis=-1
     )
-    start = nu + 6 * physics.object
-    controls[:steps, start : start + 6] = wrench
-    controls[steps:] = controls[steps - 1]
     return controls
 
 
@@ -302,47 +350,80 @@ def simulate_cases(
 
 def _simulate_batch(runs: list[tuple[PhysicsModel, Motion]], threads: int) -> list[Trace]:
     """One batch of runs that share their model structure, settle and finger moves."""
-    physics0 = runs[0][0]
+    physics = [p for p, _ in runs]
+    motions = [motion for _, motion in runs]
+    physics0 = physics[0]
     count = len(runs)
-    length = max(len(motion) for _, motion in runs)
-    settle = runs[0][1].settle_steps
-    if any(motion.settle_steps != settle for _, motion in runs):
+    lengths = np.array([len(motion) for motion in motions])
+    length = int(lengths.max())
+    settle = motions[0].settle_steps
+    if any(motion.settle_steps != settle for motion in motions):
         raise ValueError("the runs of one batch must share the settle")
-    moves = [_moves(motion) for _, motion in runs]
+    moves = [_moves(motion) for motion in motions]
     place, lift = moves[0]  # fingers move at the same steps in every run of the batch
-    events = np.flatnonzero(np.any(place | lift, axis=-1))
-    bounds = sorted({0, settle, length, *events.tolist()})
-    controls = np.stack([_controls(physics, motion, length) for physics, motion in runs])
-    state = np.stack([physics.initial_state(motion.contact[0]) for physics, motion in runs])
+    events = set(np.flatnonzero(np.any(place | lift, axis=-1)).tolist())
+    bounds = sorted({0, settle, length, *events})
+    if np.all(lengths == length):
+        controls = _controls(
+            physics,
+            np.stack([motion.forces for motion in motions]),
+            np.stack([motion.load for motion in motions]),
+            np.stack([motion.contact for motion in motions]),
+        )
+    else:  # padded by holding each run's last step
+        controls = np.empty((count, length, physics0.ncontrol))
+        for r, (p, motion) in enumerate(runs):
+            steps = len(motion)
+            controls[r, :steps] = _controls(
+                [p], motion.forces[None], motion.load[None], motion.contact[None]
+            )[0]
+            controls[r, steps:] = controls[r, steps - 1]
+    state = np.stack([p._initial_state(motion.contact[0]) for p, motion in runs])
     nthread = min(threads, count)
     pool = _pool(nthread if nthread > 1 else 0)
     data = physics0.data(max(1, nthread))
-    qpos = np.empty((count, length, physics0.nq))
-    times = np.empty((count, length))
+    settle_models = [p.settle_model for p in physics]
+    models = [p.model for p in physics]
+    chunks = []
     for a, b in itertools.pairwise(bounds):
         if a in events:
-            for r, (physics, _) in enumerate(runs):
-                _move_fingers(physics, state[r], moves[r][0][a], moves[r][1][a])
-        models = [physics.settle_model if a < settle else physics.model for physics, _ in runs]
-        states, _ = pool.rollout(
-            models,
+            for r, p in enumerate(physics):
+                _move_fingers(p, state[r], moves[r][0][a], moves[r][1][a])
+        # Inputs are laid out as mujoco.rollout wants them (contiguous float64, one model and
+        # initial state per run, the output allocated here), so its checks are skipped.
+        states = np.empty((count, b - a, physics0.nstate))
+        pool.rollout(
+            settle_models if a < settle else models,
             data,
             state,
             np.ascontiguousarray(controls[:, a:b]),
             control_spec=_CONTROL,
+            skip_checks=True,
+            nstep=b - a,
+            state=states,
         )
-        qpos[:, a:b] = states[..., 1 : 1 + physics0.nq]
-        times[:, a:b] = states[..., 0]
-        state = np.ascontiguousarray(states[:, -1])
-    dt = physics0.model.opt.timestep
-    expected = dt * np.arange(1, length + 1)
-    traces = []
-    for r, (physics, motion) in enumerate(runs):
-        steps = len(motion)
-        # MuJoCo's rollout stops stepping (the clock stands still) on a warning.
-        diverged = not np.allclose(times[r, :steps], expected[:steps], rtol=0, atol=dt / 4)
-        traces.append(_measure(physics, motion, moves[r][0], qpos[r, :steps], diverged))
-    return traces
+        chunks.append(states)
+        state = states[:, -1].copy()  # fingers move in it: not a view of the output
+    states = chunks[0] if len(chunks) == 1 else np.concatenate(chunks, axis=1)
+    qpos = states[..., 1 : 1 + physics0.nq]
+    dt = physics0.timestep
+    # MuJoCo's rollout stops stepping (the clock stands still) on a warning.
+    late = np.abs(states[..., 0] - dt * np.arange(1, length + 1))
+    traces: list[Trace | None] = [None] * count
+    for steps in np.unique(lengths).tolist():
+        which = np.flatnonzero(lengths == steps)
+        whole = len(which) == count
+        diverged = ~np.all(late[which, :steps] <= dt / 4, axis=1)
+        measured = _measure(
+            [physics[r] for r in which],
+            [motions[r] for r in which],
+            np.stack([moves[r][0] for r in which]),
+            qpos[:, :steps] if whole else qpos[which, :steps],
+            diverged,
+        )
+        for r, trace in zip(which.tolist(), measured, strict=True):
+            traces[r] = trace
+    return traces  # type: ignore[return-value]
 
 
 __all__ = ["PhysicsModel", "Trace", "available_cores", "simulate"]

@@ -28,7 +28,7 @@ from numpy.typing import ArrayLike
 from grasp_env.mechanics import Scene
 
 from .model import check_forces, check_rotations
-from .motion import Motion, plan_motion
+from .motion import Motion, plan_poses
 from .simulation import PhysicsModel, Trace, simulate, simulate_cases
 
 # Defaults of the check and of the continuous rollout (docs/physics.md), all overridable as
@@ -195,11 +195,10 @@ class StabilityChecker(Checker):
         """Simulate ``contact_forces`` (n, 3), applied by the fingers on the object in the world
         frame, at orientation ``rotation`` (3, 3), and report whether the grasp holds.
         ``in_contact`` (n,) bool says which fingers touch (default: those commanded a force)."""
-        rotation = np.asarray(rotation, dtype=float)
-        check_rotations(rotation, single=True)
+        rotation = check_rotations(rotation, single=True)
         forces = check_forces(contact_forces, self.scene.n_contacts)
         contact = None if in_contact is None else np.asarray(in_contact)[None]
-        return self.check_batch(rotation[None], forces[None], contact, threads=1)[0]
+        return self._check(rotation[None], forces[None], contact, threads=1)[0]
 
     def check_batch(
         self,
@@ -212,11 +211,17 @@ class StabilityChecker(Checker):
         on ``threads`` rollout threads (default: the checker's)."""
         rotations = check_rotations(rotations)
         forces = check_forces(contact_forces, self.scene.n_contacts, (len(rotations),))
-        contact = [None] * len(rotations) if in_contact is None else np.asarray(in_contact)
-        motions = [
-            plan_motion(self.scene, r[None], f[None], None if c is None else c[None], self.settings)
-            for r, f, c in zip(rotations, forces, contact, strict=True)
-        ]
+        return self._check(rotations, forces, in_contact, threads)
+
+    def _check(
+        self,
+        rotations: np.ndarray,
+        forces: np.ndarray,
+        in_contact: ArrayLike | None,
+        threads: int | None,
+    ) -> list[PhysicsReport]:
+        """:meth:`check_batch` of validated rotations and forces (validated once, here)."""
+        motions = plan_poses(self.scene, rotations, forces, in_contact, self.settings, checked=True)
         traces = self._simulate(motions, threads)
         return [
             pose_report(self.scene, m, t, self.settings)
