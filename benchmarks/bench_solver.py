@@ -15,6 +15,14 @@ printed too. The solver is warmed up first (numba compiles once, then loads its 
 Issue 2's targets are for the paper's three fingers: single >= 5,000 solves/s and batched
 >= 50,000 solves/s; four fingers are reported alongside. Exits with status 1 if a target is
 missed.
+
+**The limit** (issue 19, ``benchmarks/limits.py``): the floating-point operations of a solve,
+counted by running the kernels' own source with counted arithmetic on grasps of each path
+the batch takes (weighted by the paths' shares), against the rate this machine sustains on
+the solver's Newton step (its own kernels, compiled, cached data) measured in the same run,
+on one core for "single" and on the batch's threads for "batched"; the solver's rate as a
+share of that limit, and issue 19's targets (three fingers batched >= 300,000 and single
+>= 60,000 solves/s, four fingers batched >= 80,000) against it (reported, not enforced).
 """
 
 from __future__ import annotations
@@ -35,6 +43,7 @@ from grasp_env.mechanics import (
     scene_grasp,
     solve_minimax,
 )
+from grasp_env_agents.benchmarks.limits import Limit
 from grasp_env_agents.benchmarks.reference_solver import ConeBisection
 
 BATCH = 4096
@@ -113,6 +122,12 @@ def measure(n: int, seconds: float) -> dict[str, float]:
         solve_minimax(along, along_k_max)
         return BATCH
 
+    # the limit's machine rate is timed right after the solver's in each mode
+    limit = Limit(grasps, k_max, solve_minimax(grasps[0], k_max[0]).k)
+    speeds = {}
+    for mode, call in (("single", single), ("batched", batched)):
+        speeds[mode] = rate(call, seconds)
+        limit.measure(mode, seconds)
     result = solve_minimax(batch, k_max)
     reference = ConeBisection(n)
     start = time.perf_counter()
@@ -123,8 +138,8 @@ def measure(n: int, seconds: float) -> dict[str, float]:
         errors.append(abs(result.max_angle[i] - ref.upper))
     reference_rate = REFERENCE_SCENES / (time.perf_counter() - start)
     return {
-        "single": rate(single, seconds),
-        "batched": rate(batched, seconds),
+        "limit": limit,
+        **speeds,
         "trajectories": rate(tracked, seconds),
         "untracked": rate(untracked, seconds),
         "reference": reference_rate,
@@ -166,6 +181,8 @@ def main() -> int:
             f"without follows ({figures['untracked']:,.0f} solves/s)",
             flush=True,
         )
+        for line in figures["limit"].lines(figures):
+            print(line, flush=True)
     return 1 if missed else 0
 
 

@@ -1,0 +1,585 @@
+"""The arithmetic limit of one certified minimax solve on this machine (issue 19).
+
+**Counted from the kernel.** The solver's kernels are numba functions whose Python source
+(``py_func``) is the code numba compiles. :class:`Interpreter` runs that source, unedited, in
+Python: every kernel is rebuilt on copies of its module's globals in which the kernels call
+each other's counting copies, ``np.empty`` / ``zeros`` / ``ones`` / ``full`` make arrays of
+:class:`Counted` floats, and the ``math`` functions count themselves. A :class:`Counted`
+float counts each addition or subtraction, multiplication, division, square root and
+transcendental function (atan, atan2, cos, sin, log, powers other than squares) as one
+floating-point operation; x ** 2 is one multiplication; negation, abs, min, max and
+comparisons are not counted (the compiled code does them with sign masks, min/max and
+compare instructions, not the floating-point pipeline's arithmetic), nor operations on
+constants alone (folded by the compiler). The grasp's data and limits enter as Counted
+floats, so every operation on values derived from them is counted, on the path the solve
+really takes (the interpreted solve returns the compiled one's certified path and optimum:
+checked on every grasp counted). The counts are broken down by kernel (operations done in a
+kernel's own code, its calls, and the calls it makes), which gives the units of work: an
+SQP step (``sqp`` calls ``quadprog`` once a step), a Newton step on a KKT system (``polish``
+calls ``lu_solve`` once a step), a certificate (``certify``), a friction-angle evaluation
+(``evaluate``). The leaf kernels' counts have closed forms in n and m (``*_flops`` below;
+tests/test_bench_limits.py checks them against the interpreter).
+
+**The units a solve performs.** The benchmark's batch is solved once by the compiled
+``solve_batch``, which reports for each grasp the attempt that certified it (its path). The
+counts are measured on a few grasps of each path and weighted by how often each path occurs
+in the whole batch (the rare paths, the fallback's barrier method and bisection, cost far
+more than the common ones: an unweighted small sample would miss or overweight them).
+
+**The machine's rate on that kind of code.** :func:`newton_steps` runs the solver's own leaf
+kernels (``evaluate``, ``finger_derivatives`` with the exact Hessian, ``lu_solve`` with
+partial pivoting on the KKT system of every finger at the maximum, size m + n + 1, and the
+atan and square roots they contain) compiled, on data that stays in the cache, and its
+operations per step are counted by the same interpreter. Its rate (counted operations per
+second) is the most this machine sustains on the solver's kind of work: small dense systems,
+short loops, branches, transcendental functions. Measured on one core (the one-grasp-per-call
+path) and on as many threads as ``solve_minimax`` uses for a batch (it splits batches
+between a thread pool of the CPUs this process may run on; the kernels release the GIL).
+"""
+
+from __future__ import annotations
+
+import importlib
+import math
+import threading
+import time
+import types
+from collections import defaultdict
+from collections.abc import Callable
+from typing import ClassVar
+
+import numba
+import numpy as np
+from numba.core.dispatcher import Dispatcher
+
+from grasp_env.mechanics import Grasp
+from grasp_env.mechanics.minimax import _THREADS
+from grasp_env.mechanics.minimax.driver import solve_batch
+from grasp_env.mechanics.minimax.fingers import evaluate, finger_derivatives, setup
+from grasp_env.mechanics.minimax.linalg import lu_solve
+
+#: The kernel modules, callees before callers.
+MODULES = ("linalg", "fingers", "starts", "sqp", "certificate", "newton", "barrier", "driver")
+#: The kinds of operation counted, in the order of Counted's tallies.
+KINDS = ("add", "mul", "div", "sqrt", "transcendental")
+ADD, MUL, DIV, SQRT, TRANS = range(5)
+
+
+class _Tally:
+    """The tallies of the kernel running now (the interpreter swaps them per call)."""
+
+    current: ClassVar[list[int]] = [0] * len(KINDS)
+    #: every operation counted so far, in any kernel
+    grand: ClassVar[list[int]] = [0]
+
+
+def _inexact(x: float, y: float, op: Callable[[np.float64, np.float64], np.float64]) -> float:
+    with np.errstate(all="ignore"):  # the kernels' error model: IEEE results, no exceptions
+        return float(op(np.float64(x), np.float64(y)))
+
+
+class Counted(float):
+    """A float whose arithmetic counts itself into the running kernel's tallies."""
+
+    __slots__ = ()
+
+    def _count(self, kind: int, value: float) -> Counted:
+        _Tally.current[kind] += 1
+        _Tally.grand[0] += 1
+        return Counted(value)
+
+    def __add__(self, other):  # type: ignore[no-untyped-def]
+        return self._count(ADD, float(self) + float(other))
+
+    __radd__ = __add__
+
+    def __sub__(self, other):  # type: ignore[no-untyped-def]
+        return self._count(ADD, float(self) - float(other))
+
+    def __rsub__(self, other):  # type: ignore[no-untyped-def]
+        return self._count(ADD, float(other) - float(self))
+
+    def __mul__(self, other):  # type: ignore[no-untyped-def]
+        return self._count(MUL, float(self) * float(other))
+
+    __rmul__ = __mul__
+
+    def __truediv__(self, other):  # type: ignore[no-untyped-def]
+        y = float(other)
+        value = float(self) / y if y != 0.0 else _inexact(self, y, np.divide)
+        return self._count(DIV, value)
+
+    def __rtruediv__(self, other):  # type: ignore[no-untyped-def]
+        x, y = float(other), float(self)
+        return self._count(DIV, x / y if y != 0.0 else _inexact(x, y, np.divide))
+
+    def __pow__(self, other):  # type: ignore[no-untyped-def]
+        if other == 2:
+            return self._count(MUL, float(self) * float(self))
+        return self._count(TRANS, _inexact(self, float(other), np.power))
+
+    def __rpow__(self, other):  # type: ignore[no-untyped-def]
+        return self._count(TRANS, _inexact(float(other), self, np.power))
+
+    def __neg__(self) -> Counted:
+        return Counted(-float(self))
+
+    def __pos__(self) -> Counted:
+        return self
+
+    def __abs__(self) -> Counted:
+        return Counted(abs(float(self)))
+
+
+def _counting(kind: int, function: Callable[..., float]) -> Callable[..., Counted]:
+    def counted(*args: float) -> Counted:
+        _Tally.current[kind] += 1
+        _Tally.grand[0] += 1
+        with np.errstate(all="ignore"):
+            return Counted(float(function(*(np.float64(x) for x in args))))
+
+    return counted
+
+
+#: The math functions the kernels import, as counting copies (numpy's, for IEEE results).
+MATH = {
+    "sqrt": _counting(SQRT, np.sqrt),
+    "atan": _counting(TRANS, np.arctan),
+    "atan2": _counting(TRANS, np.arctan2),
+    "cos": _counting(TRANS, np.cos),
+    "sin": _counting(TRANS, np.sin),
+    "log": _counting(TRANS, np.log),
+}
+
+
+def _is_float(dtype: object) -> bool:
+    return dtype is None or dtype is float or np.dtype(dtype) == np.float64
+
+
+class _CountingNumpy:
+    """numpy for the interpreted kernels: float arrays hold Counted floats (object arrays)."""
+
+    def __getattr__(self, name: str) -> object:
+        return getattr(np, name)
+
+    @staticmethod
+    def full(shape, value, dtype=None):  # type: ignore[no-untyped-def]
+        if not _is_float(dtype):
+            return np.full(shape, value, dtype)
+        array = np.empty(shape, dtype=object)
+        array.fill(value if isinstance(value, Counted) else Counted(value))
+        return array
+
+    @staticmethod
+    def zeros(shape, dtype=None):  # type: ignore[no-untyped-def]
+        return _CountingNumpy.full(shape, 0.0, dtype)
+
+    @staticmethod
+    def empty(shape, dtype=None):  # type: ignore[no-untyped-def]
+        return np.empty(shape, dtype) if not _is_float(dtype) else _CountingNumpy.zeros(shape)
+
+    @staticmethod
+    def ones(shape, dtype=None):  # type: ignore[no-untyped-def]
+        return _CountingNumpy.full(shape, 1.0, dtype)
+
+
+def counted_array(array: np.ndarray) -> np.ndarray:
+    """An object array of Counted floats with the values of ``array``."""
+    out = np.empty(np.shape(array), dtype=object)
+    out.ravel()[:] = [Counted(x) for x in np.ravel(array)]
+    return out
+
+
+class Interpreter:
+    """The kernels' own Python source, run with counted arithmetic.
+
+    ``kernel(name)`` is the counting copy of a kernel (by its function name). After calls,
+    ``own[name]`` holds the operations done in that kernel's own code (tallies by KINDS),
+    ``inclusive[name]`` those done in it and in everything it called, ``calls[name]`` its
+    calls and ``edges[(caller, callee)]`` the calls between kernels.
+    """
+
+    def __init__(self, extra: dict[str, types.ModuleType] | None = None) -> None:
+        self.own: dict[str, list[int]] = defaultdict(lambda: [0] * len(KINDS))
+        self.inclusive: dict[str, int] = defaultdict(int)
+        self.calls: dict[str, int] = defaultdict(int)
+        self.edges: dict[tuple[str, str], int] = defaultdict(int)
+        self._stack = ["(outside)"]
+        self._copies: dict[object, Callable] = {}
+        modules = [importlib.import_module(f"grasp_env.mechanics.minimax.{m}") for m in MODULES]
+        modules += list((extra or {}).values())
+        self._globals = {module.__name__: dict(vars(module)) for module in modules}
+        for names in self._globals.values():
+            for name, value in list(names.items()):
+                if isinstance(value, Dispatcher):
+                    names[name] = self._copy(value)
+                elif name == "np":
+                    names[name] = _CountingNumpy()
+                elif name in MATH and value is getattr(math, name):
+                    names[name] = MATH[name]
+        self._names = {
+            name: value
+            for names in self._globals.values()
+            for name, value in names.items()
+            if getattr(value, "counted_kernel", False)
+        }
+
+    def _copy(self, dispatcher: Dispatcher) -> Callable:
+        source = dispatcher.py_func
+        if source in self._copies:
+            return self._copies[source]
+        body = types.FunctionType(
+            source.__code__,
+            self._globals[source.__module__],
+            source.__name__,
+            source.__defaults__,
+            source.__closure__,
+        )
+        name = source.__name__
+
+        def counting(*args):  # type: ignore[no-untyped-def]
+            self.calls[name] += 1
+            self.edges[(self._stack[-1], name)] += 1
+            outer = _Tally.current
+            _Tally.current = self.own[name]
+            self._stack.append(name)
+            before = _Tally.grand[0]
+            try:
+                return body(*args)
+            finally:
+                self._stack.pop()
+                _Tally.current = outer
+                if name not in self._stack:  # (recursion would count twice)
+                    self.inclusive[name] += _Tally.grand[0] - before
+
+        counting.counted_kernel = True  # type: ignore[attr-defined]
+        self._copies[source] = counting
+        return counting
+
+    def kernel(self, name: str) -> Callable:
+        return self._names[name]
+
+    def reset(self) -> None:
+        self.own.clear()
+        self.inclusive.clear()
+        self.calls.clear()
+        self.edges.clear()
+
+    def total(self) -> int:
+        return sum(sum(tallies) for tallies in self.own.values())
+
+    def by_kind(self) -> dict[str, int]:
+        return {kind: sum(t[i] for t in self.own.values()) for i, kind in enumerate(KINDS)}
+
+    def solve(
+        self, F: np.ndarray, E: np.ndarray, N: np.ndarray, k_max: float, f_max: float
+    ) -> tuple[np.ndarray, float, int, int]:
+        """``solve_one`` on one grasp (world-frame arrays), counted: (k, lower, status, path)."""
+        n, m = F.shape[0], E.shape[0]
+        k = counted_array(np.zeros(m))
+        theta = counted_array(np.zeros(n))
+        lower, status, path = self.kernel("solve_one")(
+            counted_array(F),
+            counted_array(E),
+            counted_array(N),
+            Counted(k_max),
+            Counted(f_max),
+            k,
+            theta,
+            k,
+            False,
+        )
+        return np.array(k, dtype=float), float(lower), int(status), int(path)
+
+
+# ------------------------------------------------------- closed forms of the leaf kernels
+
+
+def evaluate_flops(n: int, m: int) -> int:
+    """``evaluate``: per finger the 3 m multiply-adds of a_i, tau_i (6 m), |tau_i| (2 mul,
+    1 add, 1 sqrt) and the angle (a division and an atan where a_i > 0: 2)."""
+    return n * (6 * m + 6)
+
+
+def finger_derivatives_flops(m: int, exact: bool) -> int:
+    """``finger_derivatives`` for one finger with rho_i > 0, a_i > 0 and a weight: the unit
+    tangent (2 div), r2 (3), the gradient (7 per component), the Hessian's coefficients c1
+    (3) and, exact only, c2 (6) and c3 (5), per row p its two rotated gradients (6), per
+    entry (p, q) those of q (6) and the three terms added to H (13; with exact False the
+    coefficients c2 = c3 = 0 are runtime values, multiplied all the same), the angle (div,
+    atan)."""
+    return 10 + (11 if exact else 0) + 13 * m + 19 * m * m
+
+
+def lu_solve_flops(size: int) -> int:
+    """``lu_solve`` of a dense ``size`` system (no zero multipliers skipped): elimination
+    per column c the pivot threshold 1e-14 |A|max (1 mul) and, per row below it, the multiplier
+    (1 div), the row update 2 (s - c - 1) and the right-hand side's (2); back substitution
+    2 (s - c - 1) + 1 per row."""
+    flops = size
+    for c in range(size):
+        below = size - c - 1
+        flops += below * (1 + 2 * below + 2) + 2 * below + 1
+    return flops
+
+
+# -------------------------------------------------------- the machine's rate on that code
+
+
+@numba.njit(nogil=True, cache=True)
+def newton_steps(k0, a0, al, tau0, T, repeats):
+    """``repeats`` Newton steps on the KKT system of every finger at the maximum (the
+    polish's work, with its kernels): evaluate, exact Hessians, the bordered system, LU.
+    k stays at k0 plus a rounding-size drift, so every step does the same arithmetic."""
+    n, m = al.shape
+    size = m + n + 1
+    a = np.empty(n)
+    tau = np.empty((n, 2))
+    rho = np.empty(n)
+    theta = np.empty(n)
+    grads = np.empty((n, m))
+    H = np.empty((m, m))
+    A = np.empty((size, size))
+    rhs = np.empty(size)
+    k = np.empty(m)
+    total = 0.0
+    for j in range(m):
+        k[j] = k0[j]
+    for _ in range(repeats):
+        evaluate(k, a0, al, tau0, T, a, tau, rho, theta)
+        for p in range(m):
+            for q in range(m):
+                H[p, q] = 0.0
+        for i in range(n):
+            finger_derivatives(True, i, 1.0 / n, a, tau, rho, al, T, grads[i], H)
+        for p in range(size):
+            for q in range(size):
+                A[p, q] = 0.0
+        for p in range(m):
+            for q in range(m):
+                A[p, q] = H[p, q]
+            rhs[p] = 0.0
+        for i in range(n):
+            for p in range(m):
+                A[p, m + i] = grads[i, p]
+                A[m + i, p] = grads[i, p]
+            A[m + i, size - 1] = -1.0
+            A[size - 1, m + i] = 1.0
+            rhs[m + i] = theta[i] - theta[0]
+        rhs[size - 1] = 1.0
+        lu_solve(A, rhs, size)
+        for j in range(m):
+            k[j] = k0[j] + 1e-12 * rhs[j]
+        total += rhs[size - 1]
+    return total
+
+
+def newton_inputs(grasp: Grasp, k: np.ndarray) -> tuple[np.ndarray, ...]:
+    """(k in units of the load, a0, al, tau0, T) of one grasp, from the solver's ``setup``."""
+    F = np.ascontiguousarray(grasp.equilibrating, dtype=float)
+    E = np.ascontiguousarray(grasp.basis, dtype=float)
+    N = np.ascontiguousarray(grasp.normals, dtype=float)
+    n, m = F.shape[0], E.shape[0]
+    a0, al, tau0, T = np.empty(n), np.empty((n, m)), np.empty((n, 2)), np.empty((n, 2, m))
+    scale, _ = _setup(F, E, N, a0, al, tau0, T)
+    return np.asarray(k, dtype=float) / scale, a0, al, tau0, T
+
+
+@numba.njit(cache=True)
+def _setup(F, E, N, a0, al, tau0, T):
+    return setup(F, E, N, a0, al, tau0, T)
+
+
+def newton_step_flops(inputs: tuple[np.ndarray, ...]) -> int:
+    """The operations of one :func:`newton_steps` step on ``inputs``, counted by the
+    interpreter (the same rules as the solve's)."""
+    import sys
+
+    interpreter = Interpreter({"limits": sys.modules[__name__]})
+    steps = interpreter.kernel("newton_steps")
+    counted = [counted_array(x) for x in inputs]
+    steps(*counted, 1)
+    one = interpreter.total()
+    interpreter.reset()
+    steps(*counted, 3)
+    three = interpreter.total()
+    return (three - one) // 2
+
+
+def machine_rate(inputs: tuple[np.ndarray, ...], threads: int, seconds: float) -> float:
+    """Counted floating-point operations per second that :func:`newton_steps` sustains on
+    ``threads`` threads at once (each on its own copy of the data), averaged over about
+    ``seconds`` as the solver's rates are (a shared machine slows both alike)."""
+    flops = newton_step_flops(inputs)
+    copies = [tuple(x.copy() for x in inputs) for _ in range(threads)]
+    newton_steps(*copies[0], 10)  # compiled (or loaded from the cache) before timing
+    repeats, done = 1 << 12, 0
+    start = time.perf_counter()
+    while (elapsed := time.perf_counter() - start) < seconds:
+        workers = [threading.Thread(target=newton_steps, args=(*c, repeats)) for c in copies]
+        for worker in workers:
+            worker.start()
+        for worker in workers:
+            worker.join()
+        done += threads * repeats
+    return done * flops / elapsed
+
+
+# ------------------------------------------------------------------ the flops of a solve
+
+
+def batch_paths(grasps: list[Grasp], k_max: np.ndarray) -> np.ndarray:
+    """The path (the attempt that certified it) of each grasp, from the compiled solver."""
+    F = np.stack([g.equilibrating for g in grasps]).astype(float)
+    E = np.stack([g.basis for g in grasps]).astype(float)
+    N = np.stack([g.normals for g in grasps]).astype(float)
+    size, n, m = F.shape[0], F.shape[1], E.shape[1]
+    path = np.empty(size, np.int8)
+    solve_batch(
+        F, E, N, np.asarray(k_max, float).copy(), np.full(size, np.inf),
+        np.empty((size, m)), np.empty((size, n)), np.empty(size), np.empty(size, np.int8),
+        path, np.zeros(size, bool), 0, size,
+    )  # fmt: skip
+    return path
+
+
+#: The units of work reported: (name, kernel whose inclusive count is the unit's, the call
+#: that marks one unit (caller, callee) or None for the kernel's own calls). Disjoint: none
+#: of these kernels calls another of them.
+UNITS = (
+    ("SQP step", "sqp", ("sqp", "quadprog")),
+    ("Newton step", "polish", ("polish", "lu_solve")),
+    ("multiplier estimate", "multiplier_estimate", None),
+    ("certificate", "certify", None),
+    ("barrier solve", "barrier_solve", None),
+)
+
+
+class SolveCount:
+    """The counted operations of one solve, averaged over the benchmark's grasps (weighted
+    by the batch's paths): ``flops`` in all, ``kinds`` by kind, ``units[name]`` = (units per
+    solve, flops per unit) for UNITS, ``evaluations`` of the friction angles per solve,
+    ``paths[code]`` = (share of the batch, flops of a solve on that path)."""
+
+    def __init__(self) -> None:
+        self.flops = 0.0
+        self.kinds: dict[str, float] = dict.fromkeys(KINDS, 0.0)
+        self.units: dict[str, tuple[float, float]] = {}
+        self.evaluations = 0.0
+        self.paths: dict[int, tuple[float, float]] = {}
+        self.counted = 0
+
+    @property
+    def rest(self) -> float:
+        """Flops per solve outside the units (starts, angle evaluations outside them, the
+        attempts' bookkeeping)."""
+        return self.flops - sum(count * each for count, each in self.units.values())
+
+
+def count_solves(grasps: list[Grasp], k_max: np.ndarray, per_path: int = 3) -> SolveCount:
+    """Flops per solve: ``per_path`` grasps of each path counted, weighted by the paths'
+    shares of the whole batch. Raises if an interpreted solve departs from the compiled one."""
+    paths = batch_paths(grasps, k_max)
+    interpreter = Interpreter()
+    result = SolveCount()
+    units = {name: [0.0, 0.0] for name, _, _ in UNITS}  # units, flops per solve
+    codes, shares = np.unique(paths, return_counts=True)
+    for code, share in zip(codes, shares / len(paths), strict=True):
+        chosen = np.flatnonzero(paths == code)[:per_path]
+        weight = share / len(chosen)
+        flops = 0.0
+        for b in chosen:
+            g = grasps[b]
+            interpreter.reset()
+            _, _, _, path = interpreter.solve(
+                g.equilibrating, g.basis, g.normals, float(k_max[b]), math.inf
+            )
+            if path != code:
+                raise RuntimeError(f"interpreted solve took path {path}, compiled {code}")
+            total = interpreter.total()
+            flops += total / len(chosen)
+            result.flops += weight * total
+            for kind, value in interpreter.by_kind().items():
+                result.kinds[kind] += weight * value
+            for name, kernel, marker in UNITS:
+                count = interpreter.edges[marker] if marker else interpreter.calls[kernel]
+                units[name][0] += weight * count
+                units[name][1] += weight * interpreter.inclusive[kernel]
+            result.evaluations += weight * interpreter.calls["evaluate"]
+            result.counted += 1
+        result.paths[int(code)] = (float(share), flops)
+    result.units = {
+        name: (count, flops / count if count else 0.0) for name, (count, flops) in units.items()
+    }
+    return result
+
+
+# ----------------------------------------------------------------------------- the report
+
+#: Issue 19's targets, solves per second: {fingers: {mode: target}}.
+TARGETS = {3: {"single": 60_000, "batched": 300_000}, 4: {"batched": 80_000}}
+PATH_NAMES = {0: "apex", 1: "direct", 2: "SQP", 3: "released", 4: "restarted", 5: "fallback",
+              6: "uncertified", 7: "nearby", 8: "bisection"}  # fmt: skip
+
+
+class Limit:
+    """The arithmetic limit of one solve: the counted flops and the machine's rates.
+
+    ``measure(mode, seconds)`` times the machine's rate for "single" (one core) or
+    "batched" (the threads ``solve_minimax`` splits a batch between): call it next to the
+    solver's own measurement of that mode."""
+
+    def __init__(self, grasps: list[Grasp], k_max: np.ndarray, k: np.ndarray) -> None:
+        self.n = grasps[0].equilibrating.shape[0]
+        self.count = count_solves(grasps, k_max)
+        self.inputs = newton_inputs(grasps[0], k)
+        self.step_flops = newton_step_flops(self.inputs)
+        self.threads = _THREADS
+        self.rate: dict[str, float] = {}  # flops per second by mode
+
+    def measure(self, mode: str, seconds: float) -> None:
+        if mode not in ("single", "batched"):
+            raise ValueError(f"mode must be 'single' or 'batched', got {mode!r}")
+        threads = 1 if mode == "single" else self.threads
+        self.rate[mode] = machine_rate(self.inputs, threads, seconds)
+
+    def solves(self, mode: str) -> float:
+        """The limit: solves per second the machine's rate allows for the counted flops."""
+        return self.rate[mode] / self.count.flops
+
+    def lines(self, speeds: dict[str, float]) -> list[str]:
+        c = self.count
+        kinds = ", ".join(f"{c.kinds[k] / c.flops:.0%} {k}" for k in KINDS)
+        paths = ", ".join(
+            f"{PATH_NAMES.get(code, code)} {share:.1%} at {flops:,.0f}"
+            for code, (share, flops) in c.paths.items()
+        )
+        units = ", ".join(
+            f"{count:.2f} {name}s at {each:,.0f}" for name, (count, each) in c.units.items()
+        )
+        lines = [
+            f"  limit: {c.flops:,.0f} flops a solve (counted from the kernels on {c.counted} "
+            f"grasps, weighted by the batch's paths: {paths}); {kinds}",
+            f"    per solve: {units}, the rest {c.rest:,.0f} ({c.evaluations:.1f} angle "
+            f"evaluations at {evaluate_flops(self.n, n_pairs(self.n))})",
+            f"    the machine sustains {self.rate['single'] / 1e9:.2f} Gflop/s on the solver's "
+            f"Newton step ({self.step_flops:,} flops, compiled, cached data) on one core, "
+            f"{self.rate['batched'] / 1e9:.2f} on {self.threads} threads: a limit of "
+            f"{self.solves('single'):,.0f} solves/s single, {self.solves('batched'):,.0f} batched",
+        ]
+        reach = ", ".join(
+            f"{mode} {speeds[mode] / self.solves(mode):.3f} of it" for mode in ("single", "batched")
+        )
+        lines.append(f"    the solver reaches: {reach}")
+        for mode, target in TARGETS.get(self.n, {}).items():
+            share = target / self.solves(mode)
+            verdict = "below the limit" if share < 1 else "ABOVE the limit: unreachable"
+            lines.append(
+                f"    issue 19's target {mode} >= {target:,}: {share:.2f} x the limit "
+                f"({verdict}), {target / speeds[mode]:.1f} x the solver's rate"
+            )
+        return lines
+
+
+def n_pairs(n: int) -> int:
+    return n * (n - 1) // 2

@@ -1,0 +1,126 @@
+"""The solver benchmark's flop counting (benchmarks/limits.py): the interpreter that runs the
+kernels' source with counted arithmetic against the closed forms counted by hand from the
+kernels, and its solves against the compiled solver. No timing."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from grasp_env.mechanics import solve_minimax
+from grasp_env_agents.benchmarks import limits
+from grasp_env_agents.benchmarks.bench_solver import random_grasps
+from grasp_env_agents.benchmarks.limits import Counted, Interpreter, counted_array
+
+
+def test_counted_arithmetic_counts_each_operation_once():
+    interpreter = Interpreter()
+    limits._Tally.current = interpreter.own["test"]
+    try:
+        x = Counted(3.0)
+        y = (x * 2 + 1) / x - x**2  # mul, add, div, mul (the square), sub
+        z = 1.0 / Counted(0.0)  # the kernels' error model: inf, no exception
+        w = -abs(x)  # sign operations: not counted
+    finally:
+        limits._Tally.current = [0] * len(limits.KINDS)
+    assert y == pytest.approx((3.0 * 2 + 1) / 3.0 - 9.0)
+    assert z == math.inf and w == -3.0
+    assert dict(zip(limits.KINDS, interpreter.own["test"], strict=True)) == {
+        "add": 2, "mul": 2, "div": 2, "sqrt": 0, "transcendental": 0,
+    }  # fmt: skip
+
+
+def frame_arrays(n: int) -> tuple[np.ndarray, ...]:
+    """(k, a0, al, tau0, T) of a benchmark grasp at its optimum, as Counted arrays."""
+    grasps, k_max = random_grasps(n, 1, seed=n)
+    optimum = solve_minimax(grasps[0], k_max[0])
+    return tuple(counted_array(x) for x in limits.newton_inputs(grasps[0], optimum.k))
+
+
+@pytest.mark.parametrize("n", [3, 4])
+def test_leaf_kernels_match_their_closed_forms(n):
+    m = n * (n - 1) // 2
+    k, a0, al, tau0, T = frame_arrays(n)
+    interpreter = Interpreter()
+    a, rho, theta = (counted_array(np.zeros(n)) for _ in range(3))
+    tau = counted_array(np.zeros((n, 2)))
+    interpreter.kernel("evaluate")(k, a0, al, tau0, T, a, tau, rho, theta)
+    assert min(a) > 0 and min(rho) > 0  # the closed forms' branch (atan, unit tangent)
+    assert interpreter.total() == limits.evaluate_flops(n, m)
+    for exact in (True, False):
+        interpreter.reset()
+        grad, H = counted_array(np.zeros(m)), counted_array(np.zeros((m, m)))
+        interpreter.kernel("finger_derivatives")(
+            exact, n - 1, Counted(0.5), a, tau, rho, al, T, grad, H
+        )
+        assert interpreter.total() == limits.finger_derivatives_flops(m, exact)
+    rng = np.random.default_rng(n)
+    for size in (1, m + n + 1, 2 * m + 2):
+        A = counted_array(rng.normal(size=(size, size)) + 3 * np.eye(size))
+        b = counted_array(rng.normal(size=size))
+        solution = np.linalg.solve(np.array(A, float), np.array(b, float))
+        interpreter.reset()
+        assert interpreter.kernel("lu_solve")(A, b, size)
+        assert interpreter.total() == limits.lu_solve_flops(size)
+        np.testing.assert_allclose(np.array(b, float), solution, rtol=1e-10)
+
+
+@pytest.mark.parametrize("n", [3, 4])
+def test_interpreted_solve_is_the_compiled_one_and_its_units_add_up(n):
+    m = n * (n - 1) // 2
+    grasps, k_max = random_grasps(n, 2, seed=n + 10)
+    interpreter = Interpreter()
+    for g, K in zip(grasps, k_max, strict=True):
+        interpreter.reset()
+        k, lower, status, path = interpreter.solve(
+            g.equilibrating, g.basis, g.normals, float(K), math.inf
+        )
+        compiled = solve_minimax(g, K)
+        np.testing.assert_allclose(k, compiled.k, rtol=1e-12, atol=1e-12 * K)
+        assert lower == pytest.approx(float(compiled.lower_bound), abs=1e-15)
+        assert status == compiled.status
+        assert path == limits.batch_paths([g], np.array([K]))[0]
+        # evaluate's own code (its angles are the inline `angle`'s) per call: 6 m + 4 a finger
+        evaluations = interpreter.calls["evaluate"]
+        assert evaluations > 0
+        assert sum(interpreter.own["evaluate"]) == evaluations * n * (6 * m + 4)
+        # every operation belongs to exactly one kernel, and the solve's is the whole
+        assert interpreter.inclusive["solve_one"] == interpreter.total()
+        units = sum(interpreter.inclusive[kernel] for _, kernel, _ in limits.UNITS)
+        assert 0 < units < interpreter.total()
+
+
+def test_solve_count_weights_the_paths_of_the_batch():
+    grasps, k_max = random_grasps(3, 24, seed=5)
+    count = limits.count_solves(grasps, k_max, per_path=1)
+    shares = [share for share, _ in count.paths.values()]
+    assert sum(shares) == pytest.approx(1.0)
+    assert count.flops == pytest.approx(sum(s * f for s, f in count.paths.values()))
+    assert sum(count.kinds.values()) == pytest.approx(count.flops)
+    assert count.rest > 0
+    paths = limits.batch_paths(grasps, k_max)
+    for code, (share, _) in count.paths.items():
+        assert share == pytest.approx(np.mean(paths == code))
+
+
+def test_newton_step_count_is_per_step():
+    inputs = tuple(np.array(x, float) for x in frame_arrays(3))
+    flops = limits.newton_step_flops(inputs)
+    m, n = 3, 3
+    dense = (
+        limits.evaluate_flops(n, m)
+        + n * limits.finger_derivatives_flops(m, True)
+        + limits.lu_solve_flops(m + n + 1)
+    )
+    # the KKT matrix's zero blocks skip some of the elimination's row updates
+    assert limits.evaluate_flops(n, m) + n * limits.finger_derivatives_flops(m, True) < flops
+    assert flops < dense + 2 * m + n
+
+
+def test_limit_refuses_an_unknown_mode():
+    grasps, k_max = random_grasps(3, 4, seed=1)
+    limit = limits.Limit(grasps, k_max, solve_minimax(grasps[0], k_max[0]).k)
+    with pytest.raises(ValueError, match=r"single.*batched"):
+        limit.measure("threads", 0.01)
