@@ -31,10 +31,23 @@ _ENVS = {
     "CubeGrasp-v0": ("CubeGraspEnv", "CubeGraspVectorEnv", {}),
     "CubeGraspRandom-v0": ("CubeGraspRandomEnv", "CubeGraspRandomVectorEnv", {}),
     "CubeGrasp4-v0": ("CubeGraspEnv", "CubeGraspVectorEnv", _FOUR_FINGERS),
-    # MuJoCo checks every step (about 13 ms): no batched vector env for these.
-    "CubeGraspMujoco-v0": ("CubeGraspEnv", None, {"physics": "mujoco"}),
-    "CubeGraspRandomMujoco-v0": ("CubeGraspRandomEnv", None, {"physics": "mujoco"}),
-    "CubeGrasp4Mujoco-v0": ("CubeGraspEnv", None, {**_FOUR_FINGERS, "physics": "mujoco"}),
+    # MuJoCo checks every step and rolls out each ended episode; the vector envs check all
+    # sub-environments' poses of a step in one parallel MuJoCo batch (envs/mujoco_vector.py).
+    "CubeGraspMujoco-v0": (
+        "CubeGraspEnv",
+        "mujoco_vector:CubeGraspMujocoVectorEnv",
+        {"physics": "mujoco"},
+    ),
+    "CubeGraspRandomMujoco-v0": (
+        "CubeGraspRandomEnv",
+        "mujoco_vector:CubeGraspRandomMujocoVectorEnv",
+        {"physics": "mujoco"},
+    ),
+    "CubeGrasp4Mujoco-v0": (
+        "CubeGraspEnv",
+        "mujoco_vector:CubeGraspMujocoVectorEnv",
+        {**_FOUR_FINGERS, "physics": "mujoco"},
+    ),
     # issue 16: a hand with reach phases fingers out and in along a long rotation
     "CubeGait-v0": ("gait:CubeGaitEnv", "gait:CubeGaitVectorEnv", {}),
 }

@@ -88,6 +88,7 @@ class _CubeGraspEnv(gym.Env[np.ndarray, np.ndarray]):
         self._done = True
         self._last_forces: np.ndarray | None = None
         self._checker: Any = None
+        self._grips: list[np.ndarray] = []  # the forces of this episode's steps (physics)
         self._view: Any = None
         self._world_episode: Episode | None = None  # what the checker and view show
 
@@ -126,6 +127,7 @@ class _CubeGraspEnv(gym.Env[np.ndarray, np.ndarray]):
         self._step = 0
         self._done = False
         self._last_forces = None
+        self._grips = []
         if self.physics is not None or self.render_mode is not None:
             self._update_world()
         if self.render_mode == "human":
@@ -166,15 +168,29 @@ class _CubeGraspEnv(gym.Env[np.ndarray, np.ndarray]):
             report = self._checker.check(episode.rotations[t], forces)
             info["physics"] = report.as_dict()
             terminated = self.terminate_on_slip and not report.holds
+            self._grips.append(forces.copy())  # info's forces are the user's to change
         self._step = t + 1
         truncated = self._step == len(episode)
         self._done = terminated or truncated
+        if self._done and self._checker is not None:
+            info["physics_trajectory"] = self._trajectory_report()
         self._last_forces = forces
         if self.render_mode == "human":
             self.render()
         return episode.observations[t + 1].copy(), reward, terminated, truncated, info
 
     # -- physics and rendering (grasp_env.physics, imported only when asked for) ----------------
+
+    def _trajectory_report(self) -> dict[str, Any]:
+        """The episode's grips carried through its poses in one continuous MuJoCo rollout
+        (:class:`grasp_env.physics.TrajectoryChecker`), as plain values: a grip that holds at
+        every pose checked on its own may still slip on the way between poses."""
+        from ..physics import check_trajectories
+
+        episode = self.episode
+        grips = np.stack(self._grips)
+        case = (self._checker.scene, episode.rotations[: len(grips)], grips, None)
+        return check_trajectories([case], threads=1)[0].as_dict()
 
     def _update_world(self) -> None:
         """Build the MuJoCo checker for a new scene (the view waits for a render()); reset the
@@ -274,7 +290,14 @@ _DOC_SPACES = """
     action earns more than `expert_reward` beyond rounding (where no grip in the box keeps
     every finger pushing, `expert_reward` is the certified bound theta_lim - 90 deg);
     `optimality_gap` = expert_reward - reward >= 0; `slip` (n,) bool; with
-    `physics="mujoco"` also `physics`, the MuJoCo report as a dict. `MinimaxExpert.predict`
+    `physics="mujoco"` also `physics`, the MuJoCo check of this step's forces at its pose
+    (`PhysicsReport.as_dict()`: `holds`, `slip`, `contact_lost`, `released`, `drift`,
+    `rotation_deg`, `time`), and at the episode's last step (terminated or truncated)
+    `physics_trajectory`, the grips of all its steps carried through its poses in one
+    continuous MuJoCo rollout (`RolloutReport.as_dict()`: `holds`, `predicted_holds`,
+    `pose_holds`, `pose_predicted`, `max_angle_deg`, `margin_deg`, `slip`, `drift`,
+    `rotation_deg`, `first_failure`, `predicted_first_failure`, `time`; plain Python values).
+    `MinimaxExpert.predict`
     solves the same problem from the float32 observation: its reward is up to about 1e-6 rad
     below `expert_reward`.
 
@@ -290,7 +313,9 @@ _DOC_COMMON_ARGS = """\
       command.
     - `terminate_on_slip` (default True): end the episode when a finger slips.
     - `physics` (default None): "mujoco" checks every step's forces in MuJoCo
-      (`grasp_env.physics.StabilityChecker`, about 13 ms a step) and terminates on its verdict.
+      (`grasp_env.physics.StabilityChecker`, a few ms a step) and terminates on its verdict;
+      at the episode's end it carries the episode's grips through one continuous rollout
+      (`grasp_env.physics.TrajectoryChecker`, `info["physics_trajectory"]`).
     - `render_mode`: None, "rgb_array" or "human" (MuJoCo view of the grasp).
 """
 

@@ -1,0 +1,248 @@
+"""Vector environments of the ``...Mujoco-v0`` ids: the batched numpy step, then every
+sub-environment's forces checked in MuJoCo in one parallel call.
+
+``gym.make_vec("grasp_env/CubeGraspMujoco-v0", num_envs=N,
+vectorization_mode="vector_entry_point")`` returns them. A step is the batched step of
+:mod:`grasp_env.envs.vector` (analytic termination off), then one ``mujoco.rollout`` batch over
+all sub-environments' poses (each sub-environment's scene keeps its own MuJoCo model; runs of
+one model structure share rollout calls), and at the end of episodes one batch of continuous
+rollouts (:func:`grasp_env.physics.check_trajectories`) over the sub-environments whose episode
+ended. MuJoCo's verdicts do not depend on batching or threads, so step for step these equal
+single environments seeded seed, seed + 1, ... (``info["physics"]``,
+``info["physics_trajectory"]`` and termination included).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+from gymnasium.vector import AutoresetMode
+
+from ..mechanics import START_ROTATION, contact_pairs
+from .episodes import Episode
+from .kernels import pose_geometry
+from .observation import ObservationLayout
+from .scenes import EDGE, SceneBatch
+from .validation import check_bool
+from .vector import CubeGraspRandomVectorEnv, CubeGraspVectorEnv, _CubeGraspVectorEnv
+
+
+def trajectory_rotations(scenes: SceneBatch, index: np.ndarray) -> list[np.ndarray]:
+    """The rotations (T, 3, 3) of trajectories ``index`` of ``scenes``, by the kernel that
+    builds the episodes (so bit for bit the single environment's; the vector env's store
+    keeps no rotations)."""
+    lengths = scenes.length[index]
+    episode = np.repeat(index, lengths)
+    step = np.arange(len(episode)) - np.repeat(np.cumsum(lengths) - lengths, lengths)
+    count, n = len(episode), scenes.contacts.shape[1]
+    pairs = contact_pairs(n)
+    layout = ObservationLayout(n)
+    rotations = np.empty((count, 3, 3))
+    pose_geometry(
+        scenes.contacts - scenes.cg_offset[:, None, :], scenes.normals, scenes.axis,
+        scenes.alpha_start, scenes.alpha_step, scenes.length, scenes.weight, scenes.mu,
+        scenes.extra_force, scenes.extra_torque, EDGE, episode, step, START_ROTATION, pairs,
+        *layout.bounds(), np.empty(count), rotations, np.empty((count, n, 3)),
+        np.empty((count, n, 3)), np.empty((count, len(pairs), 3)), np.empty((count, n, 3)),
+        np.empty((count, layout.size), np.float32), np.empty(count),
+    )  # fmt: skip
+    return np.split(rotations, np.cumsum(lengths)[:-1])
+
+
+def _arrays(report: dict[str, Any]) -> dict[str, Any]:
+    """A pose report with its per-finger lists as arrays (batched to (N, n) in the info)."""
+    return {key: np.asarray(v) if isinstance(v, list) else v for key, v in report.items()}
+
+
+class _MujocoVectorEnv(_CubeGraspVectorEnv):
+    """N grasp environments checked in MuJoCo; see the single environment with
+    ``physics="mujoco"`` for spaces, reward, termination and info.
+
+    Args:
+        num_envs: number of sub-environments.
+        autoreset_mode: ``AutoresetMode.NEXT_STEP`` (default) or ``AutoresetMode.SAME_STEP``
+            (the ended episodes' last info, ``physics_trajectory`` included, is in
+            ``info["final_info"]``).
+        physics: "mujoco" (the only engine; the registered ids pass it).
+        **kwargs: the single environment's keywords (``render_mode`` is not supported).
+
+    The info is a dict of arrays with Gymnasium's ``_key`` masks, as the numpy vector env's;
+    ``info["physics"]`` is a dict of arrays (N,) or (N, n) (``holds``, ``slip``,
+    ``contact_lost``, ``released``, ``drift``, ``rotation_deg``, ``time``) with its own masks,
+    and ``info["physics_trajectory"]`` (the sub-environments whose episode ended at this step)
+    a dict in the layout Gymnasium's ``SyncVectorEnv`` gives: per-pose lists in object arrays.
+    """
+
+    def __init__(
+        self,
+        num_envs: int = 1,
+        autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
+        physics: str | None = "mujoco",
+        terminate_on_slip: bool = True,
+        **kwargs: Any,
+    ) -> None:
+        if physics != "mujoco":
+            raise ValueError(f'physics must be "mujoco" for this vector env, got {physics!r}')
+        terminate = check_bool("terminate_on_slip", terminate_on_slip)
+        # The batched step runs without analytic termination: MuJoCo's verdict terminates.
+        super().__init__(num_envs, autoreset_mode, terminate_on_slip=False, **kwargs)
+        self.terminate_on_slip = terminate
+        # Per sub-environment: its episode's rotations, its MuJoCo checker (its own for a drawn
+        # scene, shared for the default scene and a scene option) and the forces of its steps.
+        self._rotations: list[np.ndarray | None] = [None] * self.num_envs
+        self._checkers: list[Any] = [None] * self.num_envs
+        self._own = np.zeros(self.num_envs, bool)
+        self._default_checker: Any = None
+        self._option: tuple[Episode | None, Any] = (None, None)
+        self._grips: list[list[np.ndarray]] = [[] for _ in range(self.num_envs)]
+
+    # -- episodes ------------------------------------------------------------------------------
+
+    def _shared_checker(self, episode: Episode) -> Any:
+        """The checker of a shared episode: the default scene's (kept) or the latest scene
+        option's (a new option resets every sub-environment, so the old one goes)."""
+        from ..physics import StabilityChecker
+
+        if episode is self._store.default:
+            if self._default_checker is None:
+                self._default_checker = StabilityChecker(episode.scene)
+            return self._default_checker
+        if self._option[0] is not episode:
+            if self._option[1] is not None:
+                self._option[1].close()
+            self._option = (episode, StabilityChecker(episode.scene))
+        return self._option[1]
+
+    def _start(self, envs: np.ndarray, scene: Mapping[str, Any] | None) -> None:
+        super()._start(envs, scene)
+        if len(envs) == 0:
+            return
+        from ..physics import StabilityChecker
+
+        for e in envs:
+            if self._own[e]:
+                self._checkers[e].close()
+            self._own[e] = False
+            self._grips[e] = []
+        first = self._scenes[envs[0]]
+        if first is None:  # a shared episode, the same for all of envs
+            episode = self._store.option if scene is not None else self._store.default
+            checker = self._shared_checker(episode)
+            for e in envs:
+                self._rotations[e] = episode.rotations
+                self._checkers[e] = checker
+            return
+        batch = first[0]  # episodes drawn for envs in one batch
+        index = np.array([self._scenes[e][1] for e in envs])
+        for e, j, rotations in zip(envs, index, trajectory_rotations(batch, index), strict=True):
+            self._rotations[e] = rotations
+            self._checkers[e] = StabilityChecker(batch.scene(int(j)))
+            self._own[e] = True
+
+    # -- stepping ------------------------------------------------------------------------------
+
+    def _check_poses(self, envs: np.ndarray, poses: np.ndarray, forces: np.ndarray) -> list:
+        """MuJoCo pose checks of sub-environments ``envs`` at their poses, in one parallel
+        batch over all their models (what each one's ``StabilityChecker.check`` computes)."""
+        from ..physics.motion import plan_motion
+        from ..physics.simulation import simulate
+        from ..physics.stability import pose_report
+
+        runs = []
+        for e, t, f in zip(envs, poses, forces, strict=True):
+            checker = self._checkers[e]
+            rotation = self._rotations[e][t]
+            motion = plan_motion(checker.scene, rotation[None], f[None], None, checker.settings)
+            runs.append((checker, motion))
+        traces = simulate([(checker.physics, motion) for checker, motion in runs])
+        return [
+            pose_report(checker.scene, motion, trace, checker.settings)
+            for (checker, motion), trace in zip(runs, traces, strict=True)
+        ]
+
+    def _check_trajectories(self, envs: np.ndarray) -> list:
+        from ..physics import check_trajectories
+
+        cases = []
+        for e in envs:
+            grips = np.stack(self._grips[e])
+            cases.append((self._checkers[e].scene, self._rotations[e][: len(grips)], grips, None))
+        return check_trajectories(cases)
+
+    def step(
+        self, actions: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+        """Step every sub-environment, then check their forces in MuJoCo (see the class)."""
+        mode, terminate = self.autoreset_mode, self.terminate_on_slip
+        # The batched step, as NEXT_STEP without termination: the resets wait for MuJoCo.
+        self.autoreset_mode, self.terminate_on_slip = AutoresetMode.NEXT_STEP, False
+        try:
+            observations, reward, _, truncated, info = super().step(actions)
+        finally:
+            self.autoreset_mode, self.terminate_on_slip = mode, terminate
+        active = info["_alpha_deg"]
+        data = {key: value for key, value in info.items() if not key.startswith("_")}
+        count = self.num_envs
+        acting = np.flatnonzero(active)
+        poses = self._t[acting] - 1
+        forces = data["contact_forces"][acting]
+        physics: dict[str, Any] = {}
+        holds = np.ones(count, bool)
+        reports = self._check_poses(acting, poses, forces)
+        for e, f, report in zip(acting, forces, reports, strict=True):
+            physics = self._add_info(physics, _arrays(report.as_dict()), int(e))
+            holds[e] = report.holds
+            self._grips[e].append(f.copy())
+        data["physics"] = physics
+        terminated = ~holds if terminate else np.zeros(count, bool)
+        done = terminated | truncated
+        ended = np.flatnonzero(done)
+        trajectories: dict[str, Any] = {}
+        for e, report in zip(ended, self._check_trajectories(ended), strict=True):
+            trajectories = self._add_info(trajectories, report.as_dict(), int(e))
+        if mode == AutoresetMode.SAME_STEP:
+            self._autoreset[:] = False
+            info = {**data, **{f"_{key}": active & ~done for key in data}}
+            if ended.size:
+                final_obs = np.full(count, None, dtype=object)
+                final_obs[ended] = list(observations[ended])
+                final = {**data, "physics_trajectory": trajectories}
+                final_info = {**final, **{f"_{key}": done for key in final}}
+                self._start(ended, None)
+                observations[ended] = self._store.arrays["observations"][self._base[ended]]
+                info.update(
+                    final_obs=final_obs, _final_obs=done, final_info=final_info, _final_info=done
+                )
+        else:
+            self._autoreset = done
+            info = {**data, **{f"_{key}": active for key in data}}
+            if ended.size:
+                info.update(physics_trajectory=trajectories, _physics_trajectory=done)
+        return observations, reward, terminated, truncated, info
+
+    def close_extras(self, **kwargs: Any) -> None:
+        for checker in [*np.array(self._checkers, dtype=object)[self._own], self._default_checker,
+                        self._option[1]]:  # fmt: skip
+            if checker is not None:
+                checker.close()
+        self._checkers = [None] * self.num_envs
+        self._own[:] = False
+        self._default_checker, self._option = None, (None, None)
+        super().close_extras(**kwargs)
+
+
+class CubeGraspMujocoVectorEnv(_MujocoVectorEnv, CubeGraspVectorEnv):
+    __doc__ = "Batched `grasp_env/CubeGraspMujoco-v0` (and `CubeGrasp4Mujoco-v0`).\n\n    " + (
+        _MujocoVectorEnv.__doc__ or ""
+    )
+
+
+class CubeGraspRandomMujocoVectorEnv(_MujocoVectorEnv, CubeGraspRandomVectorEnv):
+    __doc__ = "Batched `grasp_env/CubeGraspRandomMujoco-v0`.\n\n    " + (
+        _MujocoVectorEnv.__doc__ or ""
+    )
+
+
+__all__ = ["CubeGraspMujocoVectorEnv", "CubeGraspRandomMujocoVectorEnv", "trajectory_rotations"]

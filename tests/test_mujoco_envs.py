@@ -1,0 +1,257 @@
+"""The ``...Mujoco-v0`` environments: the end-of-episode continuous rollout in the single env
+(``info["physics_trajectory"]``) and the vector entry point (envs/mujoco_vector.py), step for
+step against single environments."""
+
+from __future__ import annotations
+
+import warnings
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.vector import AutoresetMode
+
+import grasp_env
+from grasp_env import MinimaxExpert
+from grasp_env.envs.mujoco_vector import CubeGraspMujocoVectorEnv
+from grasp_env.physics import check_trajectories
+
+MUJOCO_IDS = [i for i in grasp_env.ENV_IDS if "Mujoco" in i]
+TRAJECTORY_KEYS = {
+    "holds", "predicted_holds", "pose_holds", "pose_predicted", "max_angle_deg", "margin_deg",
+    "slip", "drift", "rotation_deg", "first_failure", "predicted_first_failure", "time",
+}  # fmt: skip
+SHORT = {"trajectory": {"alpha_start_deg": -15.0, "alpha_end_deg": -12.0}}  # four poses
+
+
+def make(env_id: str, **kwargs):
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        return gym.make(env_id, **kwargs)
+
+
+def make_vec(env_id: str, num_envs: int, **kwargs):
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        return gym.make_vec(
+            env_id, num_envs=num_envs, vectorization_mode="vector_entry_point", **kwargs
+        )
+
+
+def run_episode(env, policy, seed=0, options=None):
+    """Every step's info of one episode."""
+    obs, _ = env.reset(seed=seed, options=options)
+    infos = []
+    while True:
+        obs, _, terminated, truncated, info = env.step(policy(obs))
+        infos.append(info)
+        if terminated or truncated:
+            return infos, terminated, truncated
+
+
+# ------------------------------------------------------------------------- the single env
+
+
+def test_expert_trajectory_holds_and_is_reported_at_the_end():
+    env = make("grasp_env/CubeGraspMujoco-v0")
+    expert = MinimaxExpert()
+    infos, terminated, truncated = run_episode(env, lambda obs: expert.predict(obs)[0])
+    assert truncated and not terminated and len(infos) == 31
+    assert all("physics_trajectory" not in info for info in infos[:-1])
+    report = infos[-1]["physics_trajectory"]
+    assert set(report) == TRAJECTORY_KEYS
+    assert report["holds"] and report["predicted_holds"]
+    assert report["first_failure"] is None and report["predicted_first_failure"] is None
+    assert report["pose_holds"] == [True] * 31 and len(report["slip"]) == 31
+    assert report["margin_deg"] > 26.0  # the paper's optimum is 0 deg, atan(0.5) = 26.57 deg
+    # plain Python values, as the per-step report
+    assert type(report["holds"]) is bool and type(report["margin_deg"]) is float
+    assert type(report["slip"][0][0]) is float and type(report["pose_holds"][0]) is bool
+    assert all(info["physics"]["holds"] for info in infos)
+    env.close()
+
+
+def test_trajectory_report_is_the_rollout_of_the_commanded_grips():
+    """The report is the continuous rollout of exactly the forces the steps applied, at the
+    poses they acted on."""
+    env = make("grasp_env/CubeGraspRandomMujoco-v0")
+    expert = MinimaxExpert()
+    options = {"scene": {**SHORT, "mu": 0.8, "cg_offset": [0.1, -0.05, 0.0]}}
+    rng = np.random.default_rng(1)
+
+    def policy(obs):  # near the expert: a grip of its own, still inside the cones
+        return (expert.predict(obs)[0] + rng.uniform(-0.05, 0.05, 3)).astype(np.float32)
+
+    infos, terminated, truncated = run_episode(env, policy, seed=3, options=options)
+    assert truncated and not terminated and len(infos) == 4
+    episode = env.unwrapped.episode
+    forces = np.stack([info["contact_forces"] for info in infos])
+    expected = check_trajectories([(episode.scene, episode.rotations, forces, None)])[0]
+    assert infos[-1]["physics_trajectory"] == expected.as_dict()
+    assert expected.holds
+
+
+def test_bad_grip_fails_the_trajectory():
+    """Zero interaction on the paper's scene leaves a finger pulling: MuJoCo sees it slip."""
+    env = make("grasp_env/CubeGraspMujoco-v0", terminate_on_slip=False)
+    zero = np.zeros(3, np.float32)
+    infos, terminated, truncated = run_episode(env, lambda obs: zero, options={"scene": SHORT})
+    assert truncated and not terminated and len(infos) == 4
+    report = infos[-1]["physics_trajectory"]
+    assert not report["holds"] and not report["predicted_holds"]
+    assert report["first_failure"] is not None and report["first_failure"] < 1.0
+    assert not any(report["pose_holds"])
+    assert not any(info["physics"]["holds"] for info in infos)
+
+
+def test_episode_ended_at_its_first_step_gets_a_one_pose_rollout():
+    env = make("grasp_env/CubeGraspMujoco-v0")
+    env.reset(seed=0)
+    _, _, terminated, truncated, info = env.step(np.array([1.0, -1.0, 1.0], np.float32))
+    assert terminated and not truncated and not info["physics"]["holds"]
+    report = info["physics_trajectory"]
+    assert not report["holds"] and len(report["pose_holds"]) == 1
+    # a new episode starts a new record of grips
+    expert = MinimaxExpert()
+    obs, _ = env.reset(seed=0, options={"scene": SHORT})
+    infos = []
+    for _ in range(4):
+        obs, _, terminated, truncated, info = env.step(expert.predict(obs)[0])
+        infos.append(info)
+    assert truncated and infos[-1]["physics_trajectory"]["holds"]
+    assert len(infos[-1]["physics_trajectory"]["pose_holds"]) == 4
+
+
+# ------------------------------------------------------------------------- the vector env
+
+
+def assert_physics_equal(vector: dict, single: dict, i: int) -> None:
+    for key, value in single.items():
+        assert vector[f"_{key}"][i], key
+        got = vector[key][i]
+        if value is None:
+            assert got is None, key
+        else:
+            np.testing.assert_array_equal(np.asarray(got, dtype=float), value, err_msg=key)
+
+
+@pytest.mark.parametrize("env_id", MUJOCO_IDS)
+def test_vector_env_equals_single_envs(env_id):
+    """NEXT_STEP autoreset: observations, rewards, endings, info["physics"] and
+    info["physics_trajectory"] as N single environments seeded seed + i."""
+    count = 3
+    venv = make_vec(env_id, count)
+    envs = [make(env_id) for _ in range(count)]
+    assert venv.single_action_space == envs[0].action_space
+    obs, _ = venv.reset(seed=20)
+    np.testing.assert_array_equal(obs, [e.reset(seed=20 + i)[0] for i, e in enumerate(envs)])
+    expert = MinimaxExpert()
+    rng = np.random.default_rng(0)
+    autoreset = np.zeros(count, bool)
+    ended = 0
+    for _ in range(8):
+        # the expert's grip, perturbed: some sub-environments slip, others carry on
+        noise = rng.uniform(-0.4, 0.4, venv.action_space.shape) * (rng.random((count, 1)) < 0.3)
+        actions = np.clip(expert.predict(obs)[0] + noise, -1, 1).astype(np.float32)
+        obs, reward, terminated, truncated, info = venv.step(actions)
+        assert venv.observation_space.contains(obs)
+        for i, env in enumerate(envs):
+            if autoreset[i]:
+                o, _ = env.reset()
+                np.testing.assert_array_equal(obs[i], o)
+                assert reward[i] == 0 and not info["_physics"][i] and not info["_theta"][i]
+                continue
+            o, r, te, tr, single = env.step(actions[i])
+            np.testing.assert_array_equal(obs[i], o)
+            assert (reward[i], terminated[i], truncated[i]) == (r, te, tr)
+            np.testing.assert_array_equal(info["contact_forces"][i], single["contact_forces"])
+            assert info["_physics"][i]
+            assert_physics_equal(info["physics"], single["physics"], i)
+            if te or tr:
+                ended += 1
+                assert info["_physics_trajectory"][i]
+                assert_physics_equal(info["physics_trajectory"], single["physics_trajectory"], i)
+            else:
+                assert "physics_trajectory" not in single
+                assert not info.get("_physics_trajectory", np.zeros(count, bool))[i]
+        autoreset = terminated | truncated
+    assert ended >= 2
+
+
+def test_vector_env_same_step_autoreset():
+    count = 3
+    env_id = "grasp_env/CubeGraspRandomMujoco-v0"
+    venv = make_vec(env_id, count, autoreset_mode=AutoresetMode.SAME_STEP)
+    envs = [make(env_id) for _ in range(count)]
+    obs, _ = venv.reset(seed=[5, 6, 7])
+    for i, env in enumerate(envs):
+        env.reset(seed=5 + i)
+    rng = np.random.default_rng(3)
+    expert = MinimaxExpert()
+    ended = 0
+    for _ in range(6):
+        noise = rng.uniform(-0.5, 0.5, venv.action_space.shape) * (rng.random((count, 1)) < 0.4)
+        actions = np.clip(expert.predict(obs)[0] + noise, -1, 1).astype(np.float32)
+        obs, reward, terminated, truncated, info = venv.step(actions)
+        assert "physics_trajectory" not in info  # the ended episodes' info is final_info
+        for i, env in enumerate(envs):
+            o, r, te, tr, single = env.step(actions[i])
+            assert (reward[i], terminated[i], truncated[i]) == (r, te, tr)
+            if te or tr:
+                ended += 1
+                final = info["final_info"]
+                np.testing.assert_array_equal(info["final_obs"][i], o)
+                assert info["_final_info"][i] and not info["_physics"][i]
+                assert_physics_equal(final["physics"], single["physics"], i)
+                assert_physics_equal(final["physics_trajectory"], single["physics_trajectory"], i)
+                o, _ = env.reset()
+            else:
+                assert_physics_equal(info["physics"], single["physics"], i)
+            np.testing.assert_array_equal(obs[i], o)
+    assert ended >= 1
+
+
+def test_vector_env_matches_gymnasiums_sync_vector_env():
+    """The same results as SyncVectorEnv over the single envs, info["physics"] included."""
+    env_id = "grasp_env/CubeGraspMujoco-v0"
+    venv = make_vec(env_id, 2)
+    sync = gym.make_vec(env_id, num_envs=2, vectorization_mode="sync")
+    for env in (venv, sync):
+        obs, _ = env.reset(seed=0)
+    actions = np.stack([MinimaxExpert().predict(obs[0])[0], [1.0, -1.0, 1.0]]).astype(np.float32)
+    ours, theirs = venv.step(actions), sync.step(actions)
+    for a, b in zip(ours[:4], theirs[:4], strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert ours[2].tolist() == [False, True]  # the second grip slips
+    for key in ("physics", "physics_trajectory"):
+        assert set(ours[4][key]) == set(theirs[4][key])
+        np.testing.assert_array_equal(ours[4][f"_{key}"], theirs[4][f"_{key}"])
+        for field, value in theirs[4][key].items():
+            if not field.startswith("_"):
+                for i in np.flatnonzero(theirs[4][key][f"_{field}"]):
+                    got, want = ours[4][key][field][i], value[i]
+                    assert (got is None) == (want is None)
+                    if want is not None:
+                        np.testing.assert_array_equal(np.asarray(got, float), want)
+    venv.close()
+    sync.close()
+
+
+def test_vector_env_scene_option_and_errors():
+    venv = make_vec("grasp_env/CubeGraspMujoco-v0", 2, terminate_on_slip=False)
+    venv.reset(seed=0, options={"scene": SHORT})
+    zero = np.zeros((2, 3), np.float32)
+    for step in range(4):
+        _, _, terminated, truncated, info = venv.step(zero)
+        assert not terminated.any() and truncated.all() == (step == 3)
+        assert not info["physics"]["holds"].any()  # the zero grip slips, but does not end
+    assert info["_physics_trajectory"].all()
+    assert not info["physics_trajectory"]["holds"].any()
+    assert [len(p) for p in info["physics_trajectory"]["pose_holds"]] == [4, 4]
+    venv.close()
+    with pytest.raises(ValueError, match='physics must be "mujoco"'):
+        CubeGraspMujocoVectorEnv(num_envs=2, physics=None)
+    with pytest.raises(ValueError, match="render_mode"):
+        CubeGraspMujocoVectorEnv(num_envs=2, render_mode="rgb_array")
+    with pytest.raises(ValueError, match="terminate_on_slip"):
+        CubeGraspMujocoVectorEnv(num_envs=2, terminate_on_slip=1)
