@@ -255,3 +255,27 @@ def test_vector_env_scene_option_and_errors():
         CubeGraspMujocoVectorEnv(num_envs=2, render_mode="rgb_array")
     with pytest.raises(ValueError, match="terminate_on_slip"):
         CubeGraspMujocoVectorEnv(num_envs=2, terminate_on_slip=1)
+
+
+def test_vector_env_scene_options_and_gymnasium_wrappers():
+    """A scene option on random scenes (one shared checker, replaced by the next option) equals
+    the single env with that option; Gymnasium's vector wrappers run on the env."""
+    env_id = "grasp_env/CubeGraspRandomMujoco-v0"
+    venv = gym.wrappers.vector.RecordEpisodeStatistics(make_vec(env_id, 2))
+    single = make(env_id)
+    expert = MinimaxExpert()
+    for mu in (0.6, 0.9):
+        options = {"scene": {**SHORT, "mu": mu}}
+        obs, _ = venv.reset(seed=1, options=options)
+        o, _ = single.reset(seed=1, options=options)
+        np.testing.assert_array_equal(obs, [o, o])
+        actions = np.stack([expert.predict(o)[0], [1.0, -1.0, 1.0]]).astype(np.float32)
+        _, _, terminated, _, info = venv.step(actions)
+        _, _, te, _, want = single.step(actions[0])
+        assert terminated.tolist() == [te, True] and not te
+        assert_physics_equal(info["physics"], want["physics"], 0)
+        assert info["_physics_trajectory"].tolist() == [False, True]
+        assert info["_episode"].tolist() == [False, True] and info["episode"]["l"][1] == 1
+    _, _, _, _, info = venv.step(actions)  # sub-environment 1 starts a drawn scene
+    assert info["_physics"].tolist() == [True, False]
+    venv.close()

@@ -223,8 +223,8 @@ class _MujocoVectorEnv(_CubeGraspVectorEnv):
         return observations, reward, terminated, truncated, info
 
     def close_extras(self, **kwargs: Any) -> None:
-        for checker in [*np.array(self._checkers, dtype=object)[self._own], self._default_checker,
-                        self._option[1]]:  # fmt: skip
+        own = [c for c, mine in zip(self._checkers, self._own, strict=True) if mine]
+        for checker in [*own, self._default_checker, self._option[1]]:
             if checker is not None:
                 checker.close()
         self._checkers = [None] * self.num_envs
