@@ -484,6 +484,9 @@ UNITS = (
     ("multiplier estimate", "multiplier_estimate", None),
     ("certificate", "certify", None),
     ("barrier solve", "barrier_solve", None),
+    ("tangential-force start", "apex_start", None),
+    ("common-normal-force start", "normal_start", None),
+    ("released-finger start", "release_start", None),
 )
 
 
@@ -504,8 +507,8 @@ class SolveCount:
 
     @property
     def rest(self) -> float:
-        """Flops per solve outside the units (starts, angle evaluations outside them, the
-        attempts' bookkeeping)."""
+        """Flops per solve outside the units (angle evaluations outside them, the attempts'
+        bookkeeping, setup)."""
         return self.flops - sum(count * each for count, each in self.units.values())
 
 
@@ -614,7 +617,9 @@ class Limit:
             for code, (share, flops) in c.paths.items()
         )
         units = ", ".join(
-            f"{count:.2f} {name}s at {each:,.0f}" for name, (count, each) in c.units.items()
+            f"{count:.2f} {name}s at {each:,.0f}"
+            for name, (count, each) in c.units.items()
+            if count > 0
         )
         lines = [
             f"  limit: {c.flops:,.0f} flops a solve (counted from the kernels on {c.counted} "
