@@ -145,17 +145,24 @@ class _MujocoVectorEnv(_CubeGraspVectorEnv):
 
     def _check_poses(self, envs: np.ndarray, poses: np.ndarray, forces: np.ndarray) -> list:
         """MuJoCo pose checks of sub-environments ``envs`` at their poses, in one parallel
-        batch over all their models (what each one's ``StabilityChecker.check`` computes)."""
-        from ..physics.motion import plan_motion
+        batch over all their models: what each one's ``StabilityChecker.check`` computes, the
+        poses of one checker planned together."""
+        from ..physics.motion import plan_poses
         from ..physics.simulation import simulate
         from ..physics.stability import pose_report
 
-        runs = []
-        for e, t, f in zip(envs, poses, forces, strict=True):
-            checker = self._checkers[e]
-            rotation = self._rotations[e][t]
-            motion = plan_motion(checker.scene, rotation[None], f[None], None, checker.settings)
-            runs.append((checker, motion))
+        groups: dict[int, list[int]] = {}
+        for j, e in enumerate(envs):
+            groups.setdefault(id(self._checkers[e]), []).append(j)
+        runs: list[tuple[Any, Any]] = [(None, None)] * len(envs)
+        for members in groups.values():
+            checker = self._checkers[envs[members[0]]]
+            rotations = np.stack([self._rotations[envs[j]][poses[j]] for j in members])
+            motions = plan_poses(
+                checker.scene, rotations, forces[members], None, checker.settings, checked=True
+            )
+            for j, motion in zip(members, motions, strict=True):
+                runs[j] = (checker, motion)
         traces = simulate([(checker.physics, motion) for checker, motion in runs])
         return [
             pose_report(checker.scene, motion, trace, checker.settings)
