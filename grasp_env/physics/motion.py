@@ -111,10 +111,9 @@ def _load(scene: Scene, rotations: np.ndarray) -> np.ndarray:
     )
 
 
-def _turn(start: np.ndarray, end: np.ndarray) -> tuple[np.ndarray | None, float]:
-    """The unit axis (None for no turn) and angle, radians, of the shortest turn from
-    ``start`` to ``end`` (object frame)."""
-    q = _quaternion(start.T @ end)  # w >= 0: the turn of at most pi
+def _axis_angle(q: np.ndarray) -> tuple[np.ndarray | None, float]:
+    """The unit axis (None for no turn) and angle, radians, of the turn of the unit quaternion
+    ``q`` with w >= 0 (the turn of at most pi)."""
     sine = float(np.linalg.norm(q[1:]))
     angle = 2.0 * float(np.arctan2(sine, q[0]))
     if sine < 1e-15:
@@ -240,9 +239,12 @@ def plan_motion(
     hold_at(0, settle)
     dwell = max(1, round(settings["pose_hold_time"] / dt))
     total = settle + hold + (n_poses - 1) * dwell
+    # The turns between poses: their quaternions at once, then each segment's duration.
+    relative = np.swapaxes(rotations[:-1], -1, -2) @ rotations[1:]
+    quaternions = _quaternion(relative) if n_poses > 1 else np.zeros((0, 4))
+    segments = []
     for t in range(n_poses - 1):
-        hold_at(t, dwell)
-        axis, angle = _turn(rotations[t], rotations[t + 1])
+        axis, angle = _axis_angle(quaternions[t])
         duration = max(
             settings["min_segment_time"], np.degrees(angle) * settings["time_per_degree"]
         )
@@ -253,12 +255,30 @@ def plan_motion(
                 f"the run would take more than {MAX_STEPS} steps: lower time_per_degree,"
                 " min_segment_time, pose_hold_time or the number of poses"
             )
-        s = np.arange(1, steps + 1) / steps
+        segments.append((axis, angle, np.arange(1, steps + 1) / steps))
+    # The orientations along every turning segment, and the load there, in one pass.
+    turning = [t for t, (axis, _, _) in enumerate(segments) if axis is not None]
+    if turning:
+        starts = np.concatenate([np.repeat(rotations[t : t + 1], len(segments[t][2]), 0)
+                                 for t in turning])  # fmt: skip
+        axes = np.concatenate([np.repeat(segments[t][0][None], len(segments[t][2]), 0)
+                               for t in turning])  # fmt: skip
+        angles = np.concatenate([segments[t][2] * segments[t][1] for t in turning])
+        turned_all = starts @ axis_angle_matrix(axes, angles)
+        load_all = _load(scene, turned_all)
+        bounds = np.cumsum([0] + [len(segments[t][2]) for t in turning])
+        along = {
+            t: (turned_all[a:b], load_all[a:b])
+            for t, a, b in zip(turning, bounds[:-1], bounds[1:], strict=True)
+        }
+    for t, (axis, _, s) in enumerate(segments):
+        hold_at(t, dwell)
+        steps = len(s)
         if axis is None:
             turned = np.repeat(rotations[t : t + 1], steps, 0)
+            load = _load(scene, turned)
         else:
-            turned = rotations[t] @ axis_angle_matrix(axis, s * angle)
-        load = _load(scene, turned)
+            turned, load = along[t]
         # The fingers that carry load at either end share the turning load; a finger released
         # at both ends (or out of contact) keeps its own (tiny or zero) force, interpolated.
         active = carrying[t] | carrying[t + 1]

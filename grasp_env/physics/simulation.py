@@ -180,6 +180,24 @@ def _rotation_angle(relative: np.ndarray) -> np.ndarray:
     return np.arctan2(0.5 * np.linalg.norm(skew, axis=-1), 0.5 * (trace - 1.0))
 
 
+def _rotations(quaternions: np.ndarray) -> np.ndarray:
+    """:func:`~grasp_env.mechanics.quaternion_matrix` of MuJoCo's (finite, unit) quaternions
+    (..., 4), the same arithmetic written into one array (no checks, no stacking)."""
+    norm = np.linalg.norm(quaternions, axis=-1, keepdims=True)
+    w, x, y, z = np.moveaxis(quaternions / norm, -1, 0)
+    out = np.empty((*quaternions.shape[:-1], 3, 3))
+    out[..., 0, 0] = 1 - 2 * (y * y + z * z)
+    out[..., 0, 1] = 2 * (x * y - w * z)
+    out[..., 0, 2] = 2 * (x * z + w * y)
+    out[..., 1, 0] = 2 * (x * y + w * z)
+    out[..., 1, 1] = 1 - 2 * (x * x + z * z)
+    out[..., 1, 2] = 2 * (y * z - w * x)
+    out[..., 2, 0] = 2 * (x * z - w * y)
+    out[..., 2, 1] = 2 * (y * z + w * x)
+    out[..., 2, 2] = 1 - 2 * (x * x + y * y)
+    return out
+
+
 def _constant(physics: list[PhysicsModel], name: str) -> np.ndarray:
     """A per-scene constant of a batch's runs: the one array if they share their model, else
     (B, 1, ...) stacked to broadcast over (B, N, ...)."""
@@ -201,10 +219,11 @@ def _measure(
     count, steps = qpos.shape[:2]
     n = physics[0].n
     position = qpos[..., :3]
-    rotation = quaternion_matrix(qpos[..., 3:7])  # (B, N, 3, 3), object to model world
+    rotation = _rotations(qpos[..., 3:7])  # (B, N, 3, 3), object to model world
     tips = qpos[..., 7:].reshape(count, steps, n, 3)
     # Row vectors: (x - p) @ R is R^T (x - p), the fingertips in the object's frame.
-    local = np.einsum("btnc,btcd->btnd", tips - position[..., None, :], rotation)
+    offset = tips - position[..., None, :]
+    local = sum(offset[..., c, None] * rotation[..., None, c, :] for c in range(3))
     normals = _constant(physics, "normals")
     contacts = _constant(physics, "contacts")
     gap = -np.sum((local - contacts) * normals, -1) - _constant(physics, "radius")[..., None]
@@ -214,9 +233,14 @@ def _measure(
     # start, from where the settle left them.
     start = measured.copy()
     start[:, 1:] &= ~measured[:, :-1]
-    since = np.maximum.accumulate(np.where(start, np.arange(steps)[:, None], 0), axis=1)
-    placed = np.take_along_axis(place, since, axis=1)
-    anchor = np.where(placed[..., None], _constant(physics, "placed"), local[:, settle - 1, None])
+    if place.any():
+        since = np.maximum.accumulate(np.where(start, np.arange(steps)[:, None], 0), axis=1)
+        placed = np.take_along_axis(place, since, axis=1)
+        anchor = np.where(
+            placed[..., None], _constant(physics, "placed"), local[:, settle - 1, None]
+        )
+    else:  # no finger placed after the start: all from where the settle left them
+        anchor = local[:, settle - 1, None]
     moved = local - anchor
     along = moved - np.sum(moved * normals, -1, keepdims=True) * normals
     slip = np.where(measured, np.linalg.norm(along, axis=-1), 0.0)
