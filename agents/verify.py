@@ -32,10 +32,12 @@ from 0 to 40 deg max friction angle and within 0.01 to 1 deg of the cone's edge,
 20 and 30 deg, several poses and contact layouts; writes ``agreement.png``); with
 ``--agreement --trajectory`` the trajectory study (``--scenes`` random scenes, each with the
 expert's grip and grips perturbed to cross the limit mid-trajectory or stay inside it by 0.05
-to 2 deg, plus the equal-k grip at eight mu and a grip that slips only between coarse steps;
-writes ``trajectory_agreement.png``). Both print the confusion matrix, the runtime and a last
-line with the overall agreement and the agreement at >= 0.05 deg from the edge, and exit with 1
-if any case at >= 0.05 deg from the edge disagrees.
+to 2 deg, plus the equal-k grip at eight mu, a grip that slips only between coarse steps and
+windows of the certified finger-phasing gait, as planned and perturbed; ``--policy`` with a
+saved model adds its grips on the study's scenes with the environment's number of fingers,
+driven through ``--env``; writes ``trajectory_agreement.png``). Both print the confusion
+matrix, the runtime and a last line with the overall agreement and the agreement at >= 0.05 deg
+from the edge, and exit with 1 if any case at >= 0.05 deg from the edge disagrees.
 """
 
 from __future__ import annotations
@@ -71,9 +73,11 @@ from grasp_env.physics import (
 )
 from grasp_env.physics.agreement import (
     FAR_FROM_EDGE_DEG,
+    TrajectoryCase,
     agreement_sets,
     check_cases,
     check_sets,
+    gait_cases,
     summarise,
     summarise_trajectories,
     trajectory_cases,
@@ -97,7 +101,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default="expert",
         metavar="expert|equal-k|PATH",
         help="the grip: the minimax expert (default), the paper's equal-k grip, or a saved"
-        " SB3 model (a .zip, or a `grasp-env train` run directory)",
+        " SB3 model (a .zip, or a `grasp-env train` run directory); with --agreement"
+        " --trajectory, a saved model whose grips join the study",
     )
     parser.add_argument(
         "--algo", default="ppo", help="the algorithm that wrote a saved model (default ppo)"
@@ -160,7 +165,20 @@ def run(args: argparse.Namespace) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     if args.agreement:
         if args.trajectory:
-            return run_trajectory_agreement(args.seed, scenes, args.out)
+            policy = None
+            if args.policy != "expert":
+                if args.policy == "equal-k":
+                    raise ValueError(
+                        "--policy with --agreement --trajectory adds a saved model's grips:"
+                        " give its .zip or run directory (the expert and equal-k grips are"
+                        " in the study already)"
+                    )
+                policy = Path(args.policy)
+            return run_trajectory_agreement(
+                args.seed, scenes, args.out, policy, args.algo, args.env
+            )
+        if args.policy != "expert":
+            raise ValueError("--policy with --agreement is for the trajectory study (--trajectory)")
         return run_agreement(args.seed, args.out)
     scene = scene_from_arguments(args)
     start, end, step = args.alphas
@@ -212,6 +230,13 @@ def model_forces(
     ``vecnormalize.pkl`` beside it, if any, normalises the observations). Returns the
     environment's scene and the contact forces it applied, (T, n, 3).
     """
+    return model_grips(path, algo, env_id, [(scene, trajectory)])[0]
+
+
+def model_grips(
+    path: Path, algo: str, env_id: str, problems: list[tuple[Scene, Trajectory]]
+) -> list[tuple[Scene, np.ndarray]]:
+    """:func:`model_forces` on several (scene, trajectory) problems, the model loaded once."""
     model_file = path / "model.zip" if path.is_dir() else path
     if not model_file.is_file():
         raise ValueError(
@@ -226,33 +251,38 @@ def model_forces(
 
     agent = load_agent(path, algo)
     env = gym.make(env_id, terminate_on_slip=False)
-    options: dict = {
-        "weight": scene.weight,
-        "mu": scene.mu,
-        "cg_offset": scene.cg_offset.tolist(),
-        "trajectory": {
-            "axis": tuple(trajectory.axis),
-            "alpha_start_deg": trajectory.alpha_start_deg,
-            "alpha_end_deg": trajectory.alpha_end_deg,
-            "alpha_step_deg": trajectory.alpha_step_deg,
-        },
-    }
-    if env.unwrapped.faces == PAPER_FACES:
-        options["contacts"] = scene.contacts.tolist()
-    obs, _ = env.reset(seed=0, options={"scene": options})
-    env_scene = env.unwrapped.scene
-    forces, done = [], False
-    while not done:
-        action, _ = agent.predict(obs, deterministic=True)
-        obs, _, terminated, truncated, info = env.step(action)
-        forces.append(info["contact_forces"])
-        done = terminated or truncated
+    grips = []
+    for scene, trajectory in problems:
+        options: dict = {
+            "weight": scene.weight,
+            "mu": scene.mu,
+            "cg_offset": scene.cg_offset.tolist(),
+            "trajectory": {
+                "axis": tuple(trajectory.axis),
+                "alpha_start_deg": trajectory.alpha_start_deg,
+                "alpha_end_deg": trajectory.alpha_end_deg,
+                "alpha_step_deg": trajectory.alpha_step_deg,
+            },
+        }
+        if env.unwrapped.faces == PAPER_FACES:
+            options["contacts"] = scene.contacts.tolist()
+        obs, _ = env.reset(seed=0, options={"scene": options})
+        env_scene = env.unwrapped.scene
+        forces, done = [], False
+        while not done:
+            action, _ = agent.predict(obs, deterministic=True)
+            obs, _, terminated, truncated, info = env.step(action)
+            forces.append(info["contact_forces"])
+            done = terminated or truncated
+        forces = np.array(forces)
+        # The forces must balance the load at our poses: a guard against a mismatched
+        # trajectory.
+        if len(forces) != len(trajectory) or not _balanced(env_scene, trajectory, forces):
+            env.close()
+            raise ValueError(f"the environment {env_id} did not follow the verified trajectory")
+        grips.append((env_scene, forces))
     env.close()
-    forces = np.array(forces)
-    # The forces must balance the load at our poses: a guard against a mismatched trajectory.
-    if len(forces) != len(trajectory) or not _balanced(env_scene, trajectory, forces):
-        raise ValueError(f"the environment {env_id} did not follow the verified trajectory")
-    return env_scene, forces
+    return grips
 
 
 def _balanced(scene: Scene, trajectory: Trajectory, forces: np.ndarray) -> bool:
@@ -621,17 +651,53 @@ def _plot_agreement(sets, reports: list[PhysicsReport], path: Path) -> None:
     plt.close(fig)
 
 
-def run_trajectory_agreement(seed: int, scenes: int, out: Path) -> int:
+def learned_cases(
+    cases: list[TrajectoryCase], path: Path, algo: str, env_id: str
+) -> list[TrajectoryCase]:
+    """A saved model's grips (kind "learned") on the scenes and trajectories of the study's
+    expert cases whose number of fingers is the environment's, driven through ``env_id``
+    (:func:`model_grips`)."""
+    import gymnasium as gym
+
+    import grasp_env  # noqa: F401  (registers the environments)
+
+    env = gym.make(env_id)
+    env.reset(seed=0)
+    fingers = env.unwrapped.scene.n_contacts
+    env.close()
+    experts = [
+        c for c in cases
+        if c.kind == "expert" and c.trajectory is not None and c.scene.n_contacts == fingers
+    ]  # fmt: skip
+    grips = model_grips(path, algo, env_id, [(c.scene, c.trajectory) for c in experts])
+    return [
+        TrajectoryCase("learned", scene, c.alphas_deg, c.rotations, forces, None, c.trajectory)
+        for c, (scene, forces) in zip(experts, grips, strict=True)
+    ]
+
+
+def run_trajectory_agreement(
+    seed: int,
+    scenes: int,
+    out: Path,
+    policy: Path | None = None,
+    algo: str = "ppo",
+    env_id: str = "grasp_env/CubeGrasp-v0",
+) -> int:
     """The trajectory study: confusion matrix, agreement by kind of grip and by distance from
-    the edge, the disagreements, runtime and the one-line summary."""
+    the edge, the disagreements, runtime and the one-line summary. With ``policy`` (a saved
+    model) its grips on the study's scenes of ``env_id``'s number of fingers are cases too."""
     from rich.console import Console
     from rich.table import Table
     from tqdm import tqdm
 
     console = Console()
     start = time.perf_counter()
-    with status(f"generating the trajectories of {scenes} scenes"):
-        cases = trajectory_cases(seed, scenes)
+    with status(f"generating the trajectories of {scenes} scenes and the gaits"):
+        cases = trajectory_cases(seed, scenes) + gait_cases(seed)
+    if policy is not None:
+        with status(f"driving {model_name(policy)} through {env_id}"):
+            cases += learned_cases(cases, policy, algo, env_id)
     generated = time.perf_counter()
     reports = check_cases(
         cases, progress=lambda c: tqdm(c, desc="MuJoCo rollouts", unit="trajectory")

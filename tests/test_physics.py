@@ -8,6 +8,7 @@ fingers and fingers phased out and in; and they pin down determinism and the ref
 
 from __future__ import annotations
 
+import itertools
 import json
 
 import mujoco
@@ -26,9 +27,16 @@ from grasp_env.mechanics import (
     n_pairs,
     pose_rotation,
     scene_grasp,
+    solve_gait,
     solve_minimax,
 )
-from grasp_env.physics import SETTINGS, PhysicsReport, StabilityChecker, TrajectoryChecker
+from grasp_env.physics import (
+    SETTINGS,
+    PhysicsReport,
+    StabilityChecker,
+    TrajectoryChecker,
+    agreement,
+)
 from grasp_env.physics.agreement import (
     CROSSINGS_DEG,
     ForceSet,
@@ -36,6 +44,8 @@ from grasp_env.physics.agreement import (
     check_sets,
     coarse_steps_case,
     force_set_k,
+    gait_cases,
+    gait_windows,
     perturbed_k,
     released_sets,
     summarise,
@@ -511,6 +521,41 @@ def test_trajectory_study_cases_hit_their_margins_and_agree_with_mujoco():
     assert summary.confusion[0, 0] == sum(r.predicted_holds for r in reports)
 
 
+def test_gait_windows_touch_at_most_four_sites_and_cover_the_gait():
+    # fingers 0 to 2 hold sites 0 to 2 throughout; finger 3 walks over sites 3, 4, 5 and back
+    walk = np.repeat([3, -1, 4, -1, 5, 3], 10)
+    contacts = np.column_stack([np.zeros(60), np.ones(60), np.full(60, 2), walk]).astype(int)
+    windows = gait_windows(contacts, longest=25)
+    assert windows[0] == slice(0, 20) and windows[-1].stop == 60
+    assert all(a.stop == b.start for a, b in itertools.pairwise(windows))
+    for window in windows:
+        assert 0 < window.stop - window.start <= 25
+        assert len({int(s) for s in contacts[window].ravel() if s >= 0}) <= 4
+
+
+def test_gait_cases_hold_slip_and_agree_with_mujoco(monkeypatch):
+    """The certified gait on a short trajectory (four contacts in the model, one of them
+    placed on the way), and perturbed to cross the limit or stay inside by 0.05 deg: the
+    margins are the targets, the in_contact schedule places the finger, and the verdicts agree."""
+    monkeypatch.setattr(agreement, "GAIT_TRAJECTORIES", SHORT_GAIT)
+    cases = gait_cases(seed=0)
+    assert [c.kind for c in cases] == ["gait", "gait crossing", "gait inside"]
+    gait = cases[0]
+    assert gait.scene.n_contacts == 4 and gait.in_contact.shape == (31, 4)
+    assert not gait.in_contact[0].all() and gait.in_contact[-1].all()  # one finger placed
+    reports = check_cases(cases)
+    solution = solve_gait(trajectory=SHORT_GAIT[0])
+    assert reports[0].margin_deg == pytest.approx(np.degrees(solution.optimal.margin), abs=0.01)
+    assert reports[1].margin_deg == pytest.approx(-CROSSINGS_DEG[0], abs=1e-6)
+    assert reports[2].margin_deg == pytest.approx(CROSSINGS_DEG[0], abs=1e-6)
+    for case, report in zip(cases, reports, strict=True):
+        assert report.agrees, (case.kind, report.as_dict())
+    assert reports[0].holds and not reports[1].holds
+    # a perturbation keeps the forces balanced and the fingers away without force
+    assert np.all(cases[1].forces[~gait.in_contact] == 0)
+    assert np.allclose(cases[1].forces.sum(axis=1), gait.forces.sum(axis=1), atol=1e-9)
+
+
 # ----------------------------------------------------------------------- grasp-env verify
 
 
@@ -556,14 +601,21 @@ def test_verify_trajectory_reports_where_the_equal_k_grip_first_slips(tmp_path, 
     assert not report["pose_predicted"][0] and report["pose_predicted"][15]
 
 
-def test_verify_trajectory_agreement_on_one_scene(tmp_path, capsys):
+#: A short gait for the tests: the paper's axis from -15 to 15 deg, one window, one finger
+#: placed (at alpha = -9 deg).
+SHORT_GAIT = (Trajectory(tuple(PAPER_AXIS), -15.0, 15.0, 1.0),)
+
+
+def test_verify_trajectory_agreement_on_one_scene(tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(agreement, "GAIT_TRAJECTORIES", SHORT_GAIT)
     argv = ["verify", "--agreement", "--trajectory", "--scenes", "1", "--out", str(tmp_path)]
     status = main(argv)
     out = capsys.readouterr().out
-    # One scene gives the expert's grip and two perturbed ones, plus 8 equal-k and coarse steps.
-    assert out.strip().splitlines()[-1].startswith("agreement: 100.00% overall (12 trajectories)")
+    # One scene gives the expert's grip and two perturbed ones, plus 8 equal-k, coarse steps
+    # and the gait with its two perturbations.
+    assert out.strip().splitlines()[-1].startswith("agreement: 100.00% overall (15 trajectories)")
     assert status == 0
-    assert "coarse steps" in out and "MuJoCo slips" in out
+    assert "coarse steps" in out and "gait crossing" in out and "MuJoCo slips" in out
     assert (tmp_path / "trajectory_agreement.png").stat().st_size > 10_000
 
 
@@ -614,6 +666,28 @@ def test_verify_runs_a_saved_model(tmp_path, capsys):
     assert main(argv) == 0
     assert "trajectory: analytic" in capsys.readouterr().out
     assert json.loads((tmp_path / "rollout.json").read_text())["policy"].startswith("learned (")
+
+
+@pytest.mark.slow  # about 40 s: Stable-Baselines3, PPO and a small trajectory study
+def test_verify_trajectory_agreement_adds_a_saved_models_grips(tmp_path, capsys, monkeypatch):
+    import gymnasium as gym
+    from stable_baselines3 import PPO
+
+    import grasp_env  # noqa: F401
+
+    monkeypatch.setattr(agreement, "GAIT_TRAJECTORIES", SHORT_GAIT)
+    PPO("MlpPolicy", gym.make("grasp_env/CubeGrasp-v0"), seed=0, device="cpu").save(
+        tmp_path / "model.zip"
+    )
+    argv = ["verify", "--agreement", "--trajectory", "--scenes", "2", "--policy", str(tmp_path)]
+    main([*argv, "--out", str(tmp_path)])
+    out = capsys.readouterr().out
+    # Of the two scenes, the first has three fingers (the environment's): one learned grip.
+    assert "(19 trajectories)" in out.strip().splitlines()[-1]
+    assert "learned" in out
+    argv = ["verify", "--agreement", "--trajectory", "--policy", "equal-k"]
+    assert main([*argv, "--out", str(tmp_path)]) == 2
+    assert "saved model" in capsys.readouterr().err
 
 
 def test_verify_rejects_a_missing_model(tmp_path, capsys):

@@ -18,7 +18,7 @@ step of the run.
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -26,15 +26,20 @@ from grasp_env.mechanics import (
     FOUR_FINGER_FACES,
     PAPER_AXIS,
     PAPER_FACES,
+    PAPER_TURN,
     PHI,
     START_ROTATION,
+    VERTICAL_TURN,
+    GaitSolution,
     Grasp,
     Scene,
     Trajectory,
     axis_angle_matrix,
     friction_angles,
+    grasp_matrix,
     pose_rotation,
     scene_grasp,
+    solve_gait,
     solve_minimax,
 )
 
@@ -282,9 +287,9 @@ class TrajectoryCase:
     "crossing" and "inside" (the expert's grip perturbed by a bump mid-trajectory until its
     largest friction angle lies a chosen distance above or below the limit), "equal-k" (the
     paper's eq. 8 grip), "coarse steps" (an expert grip that holds at every pose and slips
-    between two) or "learned" (a trained policy's, added by ``grasp-env verify``); a finger-
-    phasing gait enters with its ``in_contact`` (T, n).
-    """
+    between two), "gait", "gait crossing" and "gait inside" (a window of the certified optimal
+    finger-phasing gait, with its ``in_contact`` (T, n), as planned and perturbed) or "learned"
+    (a trained policy's, added by ``grasp-env verify --policy``)."""
 
     kind: str
     scene: Scene
@@ -292,6 +297,7 @@ class TrajectoryCase:
     rotations: np.ndarray
     forces: np.ndarray
     in_contact: np.ndarray | None = None
+    trajectory: Trajectory | None = None  #: the trajectory, where it is one (for a policy)
 
 
 def _step_angles(scene: Scene, forces: np.ndarray, settle: int) -> float:
@@ -346,6 +352,33 @@ def perturbed_k(
     return None
 
 
+def _bisected_bump(
+    scene: Scene,
+    rotations: np.ndarray,
+    forces: np.ndarray,
+    in_contact: np.ndarray | None,
+    bump: np.ndarray,
+    target: float,
+) -> float | None:
+    """The scale c in [0, 4] of the force change ``bump`` (T, n, 3) at which the largest
+    friction angle over the run's steps of ``forces`` + c ``bump`` equals ``target`` radians;
+    None if c = 4 does not reach it or the angle jumps past it (a finger becoming loaded)."""
+    base = plan_motion(scene, rotations, forces, in_contact, SETTINGS)
+    moved = plan_motion(scene, rotations, forces + bump, in_contact, SETTINGS)
+    change = moved.forces - base.forces  # the steps' forces are affine in c
+
+    def largest(c: float) -> float:
+        return _step_angles(scene, base.forces + c * change, base.settle_steps)
+
+    low, high = 0.0, 4.0  # at most 4 w added to a grip: far beyond it, the grip means nothing
+    if largest(low) >= target or largest(high) < target:
+        return None
+    for _ in range(60):
+        middle = (low + high) / 2
+        low, high = (middle, high) if largest(middle) < target else (low, middle)
+    return high if abs(largest(high) - target) <= 1e-9 else None
+
+
 def _random_trajectory(index: int, rng: np.random.Generator) -> Trajectory:
     if index % 3 == 0:
         return Trajectory()  # the paper's: about a, -15 to 15 deg by 1 deg
@@ -383,7 +416,9 @@ def trajectory_cases(seed: int = 0, scenes: int = 200) -> list[TrajectoryCase]:
             continue
         limit = expert + np.radians(rng.uniform(0.2, 8.0))
         scene = Scene.on_faces(**layout, mu=float(np.tan(limit)))
-        cases.append(TrajectoryCase("expert", scene, alphas, rotations, grasps.forces(k)))
+        cases.append(
+            TrajectoryCase("expert", scene, alphas, rotations, grasps.forces(k), None, trajectory)
+        )
         offset = np.radians(CROSSINGS_DEG[index % len(CROSSINGS_DEG)])
         for kind, target in (("crossing", limit + offset), ("inside", limit - offset)):
             perturbed = perturbed_k(scene, rotations, alphas, k, target, rng)
@@ -417,6 +452,107 @@ def coarse_steps_case() -> TrajectoryCase:
     grasps = scene_grasp(scene, rotations)
     forces = grasps.forces(solve_minimax(grasps, 2 * scene.weight).k)
     return TrajectoryCase("coarse steps", scene, trajectory.alphas_deg, rotations, forces)
+
+
+#: The finger-phasing gaits of the study: the certified optimal gait of the default
+#: :class:`GaitScene` and :class:`Hand` along these trajectories (docs/gait.md).
+GAIT_TRAJECTORIES = (PAPER_TURN, VERTICAL_TURN)
+#: A gait case is a window of at most this many poses (4.7 s at the default timing), as long
+#: as the paper's trajectory: holding grips creep in MuJoCo at up to about 1e-6 L/s, so a run
+#: of 9 s reaches the 1e-5 L slip threshold at a margin of 7 deg (docs/physics.md).
+GAIT_WINDOW = 31
+
+
+def gait_windows(contacts: np.ndarray, longest: int = GAIT_WINDOW) -> list[slice]:
+    """Consecutive windows of a gait's poses, each touching at most four sites (a
+    :class:`Scene`, hence one MuJoCo model, has at most four contacts) and at most ``longest``
+    poses long; ``contacts`` (T, F) is the gait's site per finger (-1: none)."""
+    windows, start, used = [], 0, set()
+    for t, row in enumerate(contacts):
+        sites = {int(s) for s in row if s >= 0}
+        if len(used | sites) > 4 or t - start >= longest:
+            windows.append(slice(start, t))
+            start, used = t, set()
+        used |= sites
+    windows.append(slice(start, len(contacts)))
+    return windows
+
+
+def gait_window_case(solution: GaitSolution, window: slice) -> TrajectoryCase:
+    """A window of the solution's optimal gait as a case: one contact per site the window's
+    fingers touch (which finger holds a site is immaterial to the physics), touched where some
+    finger touches it, with that finger's certified grip (zero for one being placed or lifted)."""
+    gait = solution.optimal
+    contacts = gait.contacts[window]
+    sites = sorted({int(s) for s in contacts.ravel() if s >= 0})
+    finger_forces = solution.forces(gait)[window]
+    forces = np.zeros((len(contacts), len(sites), 3))
+    touching = np.zeros((len(contacts), len(sites)), dtype=bool)
+    for t, row in enumerate(contacts):
+        for f, s in enumerate(row):
+            if s >= 0:
+                forces[t, sites.index(s)] = finger_forces[t, f]
+                touching[t, sites.index(s)] = True
+    trajectory = solution.trajectory
+    return TrajectoryCase(
+        "gait",
+        solution.scene.scene(sites),
+        np.asarray(trajectory.alphas_deg)[window],
+        trajectory.rotations()[window],
+        forces,
+        touching,
+    )
+
+
+def perturbed_gait(
+    case: TrajectoryCase, target: float, rng: np.random.Generator, tries: int = 10
+) -> np.ndarray | None:
+    """A gait case's forces plus a bump centred in the middle third of its poses: at each pose
+    a random force change in the null space of the loaded fingers' grasp matrix (it balances
+    nothing, like a change of the k_ij; fingers placed, lifted or away keep zero force), of
+    size w times the bump, scaled so that the largest friction angle over the run's steps
+    equals ``target`` radians. None if no direction reaches it."""
+    scene, rotations, forces = case.scene, case.rotations, case.forces
+    loaded = ~released(forces, scene.weight, SETTINGS["released_force"])
+    arms = np.einsum("tij,nj->tni", rotations, scene.contacts - scene.cg_offset)
+    alphas = np.asarray(case.alphas_deg)
+    lo, hi = np.percentile(alphas, [100 / 3, 200 / 3])
+    for _ in range(tries):
+        u = rng.normal(size=forces.shape[1:])
+        centre, width = rng.uniform(lo, hi), rng.uniform(2.0, 6.0)
+        bump = np.zeros_like(forces)
+        for t, height in enumerate(np.exp(-(((alphas - centre) / width) ** 2))):
+            on = np.flatnonzero(loaded[t])
+            _, values, vt = np.linalg.svd(grasp_matrix(arms[t, on]))
+            null = vt[np.sum(values > 1e-9 * values[0]) :]  # (3 |on| - rank, 3 |on|)
+            change = null.T @ (null @ u[on].ravel())
+            bump[t, on] = height * scene.weight * (change / np.linalg.norm(change)).reshape(-1, 3)
+        scale = _bisected_bump(scene, rotations, forces, case.in_contact, bump, target)
+        if scale is not None:
+            return forces + scale * bump
+    return None
+
+
+def gait_cases(seed: int = 0) -> list[TrajectoryCase]:
+    """The study's finger-phasing gaits: each window (:func:`gait_windows`) of the certified
+    optimal gait along each of :data:`GAIT_TRAJECTORIES`, as planned ("gait") and perturbed
+    to cross the limit ("gait crossing") or stay just inside it ("gait inside") by
+    :data:`CROSSINGS_DEG` in turn (deterministic for a seed)."""
+    rng = np.random.default_rng(seed)
+    cases = []
+    for trajectory in GAIT_TRAJECTORIES:
+        solution = solve_gait(trajectory=trajectory)
+        limit = solution.scene.friction_limit
+        for index, window in enumerate(gait_windows(solution.optimal.contacts)):
+            case = gait_window_case(solution, window)
+            cases.append(case)
+            offset = np.radians(CROSSINGS_DEG[index % len(CROSSINGS_DEG)])
+            targets = {"gait crossing": limit + offset, "gait inside": limit - offset}
+            for kind, target in targets.items():
+                forces = perturbed_gait(case, target, rng)
+                if forces is not None:
+                    cases.append(replace(case, kind=kind, forces=forces))
+    return cases
 
 
 def check_cases(
