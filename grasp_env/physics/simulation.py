@@ -342,16 +342,17 @@ def simulate(
         raise ValueError(f"threads must be >= 1, got {threads}")
     traces: list[Trace | None] = [None] * len(runs)
     groups: dict[tuple, list[int]] = {}
+    moves = [_moves(motion) for _, motion in runs]
     for r, (physics, motion) in enumerate(runs):
-        place, lift = _moves(motion)
-        moves = np.flatnonzero(np.any(place | lift, axis=-1)).tobytes()
-        groups.setdefault((physics.signature, motion.settle_steps, moves), []).append(r)
+        place, lift = moves[r]
+        steps = np.flatnonzero(np.any(place | lift, axis=-1)).tobytes()
+        groups.setdefault((physics.signature, motion.settle_steps, steps), []).append(r)
     for which in groups.values():
         length = max(len(runs[r][1]) for r in which)
         per_batch = max(1, _ROWS_PER_BATCH // length)
         for start in range(0, len(which), per_batch):
             part = which[start : start + per_batch]
-            batch = _simulate_batch([runs[r] for r in part], threads)
+            batch = _simulate_batch([runs[r] for r in part], [moves[r] for r in part], threads)
             for r, trace in zip(part, batch, strict=True):
                 traces[r] = trace
     return traces  # type: ignore[return-value]
@@ -374,8 +375,13 @@ def simulate_cases(
     return [(motion, trace) for (_, motion), trace in zip(runs, traces, strict=True)]
 
 
-def _simulate_batch(runs: list[tuple[PhysicsModel, Motion]], threads: int) -> list[Trace]:
-    """One batch of runs that share their model structure, settle and finger moves."""
+def _simulate_batch(
+    runs: list[tuple[PhysicsModel, Motion]],
+    moves: list[tuple[np.ndarray, np.ndarray]],
+    threads: int,
+) -> list[Trace]:
+    """One batch of runs that share their model structure, settle and finger moves (their
+    :func:`_moves`)."""
     physics = [p for p, _ in runs]
     motions = [motion for _, motion in runs]
     physics0 = physics[0]
@@ -385,7 +391,6 @@ def _simulate_batch(runs: list[tuple[PhysicsModel, Motion]], threads: int) -> li
     settle = motions[0].settle_steps
     if any(motion.settle_steps != settle for motion in motions):
         raise ValueError("the runs of one batch must share the settle")
-    moves = [_moves(motion) for motion in motions]
     place, lift = moves[0]  # fingers move at the same steps in every run of the batch
     events = set(np.flatnonzero(np.any(place | lift, axis=-1)).tolist())
     bounds = sorted({0, settle, length, *events})
@@ -436,7 +441,7 @@ def _simulate_batch(runs: list[tuple[PhysicsModel, Motion]], threads: int) -> li
     # MuJoCo's rollout stops stepping (the clock stands still) on a warning.
     late = np.abs(states[..., 0] - dt * np.arange(1, length + 1))
     traces: list[Trace | None] = [None] * count
-    for steps in np.unique(lengths).tolist():
+    for steps in sorted(set(lengths.tolist())):
         which = np.flatnonzero(lengths == steps)
         whole = len(which) == count
         diverged = ~np.all(late[which, :steps] <= dt / 4, axis=1)
