@@ -63,3 +63,20 @@ def test_runs_of_different_lengths_share_a_batch_unchanged(paper):
         for name in ("qpos", "slip", "speed", "gap", "drift", "rotation", "measured"):
             np.testing.assert_array_equal(getattr(trace, name), getattr(alone, name), name)
         assert trace.diverged == alone.diverged
+
+
+def test_measured_rotations_are_quaternion_matrix_bit_for_bit():
+    from grasp_env.mechanics import quaternion_matrix
+    from grasp_env.physics.simulation import _rotations
+
+    rng = np.random.default_rng(3)
+    quaternions = rng.normal(size=(4, 50, 4))
+    quaternions[0, :10] = [1.0, 0.0, 0.0, 0.0]
+    quaternions[1, :10, 1:] *= 1e-9  # near the identity, as a held grasp's
+    rotations = _rotations(quaternions)
+    expected = quaternion_matrix(quaternions)
+    np.testing.assert_array_equal(rotations, expected)
+    np.testing.assert_array_equal(np.signbit(rotations), np.signbit(expected))
+    # The layout too: numpy may take another product kernel for another one.
+    assert rotations.flags.c_contiguous
+    np.testing.assert_array_equal(rotations @ [0.3, -0.2, 0.1], expected @ [0.3, -0.2, 0.1])

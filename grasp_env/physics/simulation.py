@@ -180,22 +180,27 @@ def _rotation_angle(relative: np.ndarray) -> np.ndarray:
     return np.arctan2(0.5 * np.linalg.norm(skew, axis=-1), 0.5 * (trace - 1.0))
 
 
+# The rotation matrix of a unit quaternion q = (w, x, y, z), entry by entry (row-major), as
+# base + scale (q_a q_b + sign q_c q_d): e.g. R_00 = 1 - 2 (y y + z z), R_01 = 2 (x y - w z).
+# Indices into the flattened outer product q q^T (4 a + b for q_a q_b).
+_Q_AB = 4 * np.array([2, 1, 1, 1, 1, 2, 1, 2, 1]) + np.array([2, 2, 3, 2, 1, 3, 3, 3, 1])
+_Q_CD = 4 * np.array([3, 0, 0, 0, 3, 0, 0, 0, 2]) + np.array([3, 3, 2, 3, 3, 1, 2, 1, 2])
+_Q_SIGN = np.array([1.0, -1.0, 1.0, 1.0, 1.0, -1.0, -1.0, 1.0, 1.0])
+_Q_SCALE = np.array([-2.0, 2.0, 2.0, 2.0, -2.0, 2.0, 2.0, 2.0, -2.0])
+_Q_BASE = np.eye(3).ravel()
+
+
 def _rotations(quaternions: np.ndarray) -> np.ndarray:
     """:func:`~grasp_env.mechanics.quaternion_matrix` of MuJoCo's (finite, unit) quaternions
-    (..., 4), the same arithmetic written into one array (no checks, no stacking)."""
-    norm = np.linalg.norm(quaternions, axis=-1, keepdims=True)
-    w, x, y, z = np.moveaxis(quaternions / norm, -1, 0)
-    out = np.empty((*quaternions.shape[:-1], 3, 3))
-    out[..., 0, 0] = 1 - 2 * (y * y + z * z)
-    out[..., 0, 1] = 2 * (x * y - w * z)
-    out[..., 0, 2] = 2 * (x * z + w * y)
-    out[..., 1, 0] = 2 * (x * y + w * z)
-    out[..., 1, 1] = 1 - 2 * (x * x + z * z)
-    out[..., 1, 2] = 2 * (y * z - w * x)
-    out[..., 2, 0] = 2 * (x * z - w * y)
-    out[..., 2, 1] = 2 * (y * z + w * x)
-    out[..., 2, 2] = 1 - 2 * (x * x + y * y)
-    return out
+    (..., 4): the same products and sums, gathered from the quaternion's outer product in a few
+    whole-array operations (no checks, no stacking)."""
+    q = quaternions / np.linalg.norm(quaternions, axis=-1, keepdims=True)
+    outer = (q[..., :, None] * q[..., None, :]).reshape(*q.shape[:-1], 16)
+    terms = outer[..., _Q_AB] + _Q_SIGN * outer[..., _Q_CD]
+    # C-contiguous (..., 3, 3), as numpy's matrix products downstream expect for the same
+    # arithmetic (another layout can take another product kernel).
+    rotation = np.ascontiguousarray(_Q_BASE + _Q_SCALE * terms)
+    return rotation.reshape(*quaternions.shape[:-1], 3, 3)
 
 
 def _constant(physics: list[PhysicsModel], name: str) -> np.ndarray:
