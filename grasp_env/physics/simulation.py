@@ -8,6 +8,11 @@ contact, just inside the face; a lifted one to its parking place off the face). 
 fingers that do not touch (released, see :mod:`~grasp_env.physics.motion`) act on the object
 directly, at their contact points. Shorter runs
 are padded by holding their last step, and measured over their own steps only.
+
+The Python around the rollout is kept to whole-batch array work, since it does not run in
+parallel: the controls of a batch are built in one pass, initial states are cached per finger
+set, ``mujoco.rollout`` gets its inputs laid out as it wants them (its checks skipped), and the
+measurements of the runs of one length are taken in one vectorised pass.
 """
 
 from __future__ import annotations
