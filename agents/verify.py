@@ -87,8 +87,8 @@ from .progress import status
 from .scene_args import add_scene_arguments, floats, scene_from_arguments
 
 HELP = "check grip forces in MuJoCo physics along a trajectory (or --agreement)"
-#: Scenes of the trajectory study by default: about 70 trajectories, well under a minute here
-#: (200 give the 572 of docs/physics.md).
+#: Scenes of the trajectory study by default: about 70 trajectories and the 66 of the gaits
+#: (200 give 638 with the gaits, 732 with docs/physics.md's learned policy).
 DEFAULT_SCENES = 20
 #: The video of a rollout: frames per pose (spread evenly over the simulated time after the
 #: settle) and frames per second.
@@ -135,7 +135,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         metavar="N",
         help=f"random scenes of the trajectory study (default {DEFAULT_SCENES}, about 3"
-        " trajectories each; 200 give the 572 of docs/physics.md)",
+        " trajectories each, plus 66 of gaits; 200 give 638)",
     )
     parser.add_argument(
         "--video",
