@@ -10,8 +10,10 @@ moved contacts, a moved centre of gravity); and four-finger optima that release 
 **Trajectories.** Grips carried through whole trajectories in one continuous rollout each
 (:mod:`grasp_env.physics.rollout`): the expert's, grips perturbed mid-trajectory to cross the
 limit (or stay just inside it) by 0.05 to 2 deg, the paper's equal-k grip at several mu, and a
-grip on coarse steps that slips only between poses (:func:`trajectory_cases`); verdicts are
-compared for the whole trajectory, the edge distance being the analytic margin over every
+grip on coarse steps that slips only between poses (:func:`trajectory_cases`); windows of the
+certified finger-phasing gait, fingers lifted and placed, as planned and perturbed the same way
+(:func:`gait_cases`); ``grasp-env verify --policy`` adds a learned policy's grips. Verdicts
+are compared for the whole trajectory, the edge distance being the analytic margin over every
 step of the run.
 """
 
