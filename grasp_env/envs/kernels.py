@@ -1,14 +1,15 @@
 """The environments' compiled kernels: the step (eq. 4 and eq. 2 for a batch of grips) and the
 per-pose geometry of episodes (the numpy mechanics written out per pose).
 
-The single and the vector environments step through the one kernel :func:`evaluate_grips`,
-so both compute the very same numbers. Building an episode (and screening candidate scenes)
-costs one minimax solve per pose; around it, numpy's per-call costs on batches of a few
-hundred poses came to as much again, so :func:`pose_geometry` does the arithmetic of
+The single and the vector environments step through the one kernel :func:`grip_row` (the single
+env by :func:`step_grip`, the batches by :func:`evaluate_grips` and :func:`step_batch`), so all
+compute the very same numbers. Building an episode (and screening candidate scenes) costs one
+minimax solve per pose; around it, numpy's per-call costs on batches of a few hundred poses came
+to as much again, so :func:`pose_geometry` does the arithmetic of
 :func:`grasp_env.mechanics.pose_rotation`, :func:`~grasp_env.mechanics.grasp` and
-:func:`~grasp_env.mechanics.equilibrating_forces` in one pass (``tests/test_envs.py`` checks
-it against those functions), and :func:`observation_grasps` rebuilds the grasp from
-observations for the expert.
+:func:`~grasp_env.mechanics.equilibrating_forces` in one pass (``tests/test_envs.py`` checks it
+against those functions), and :func:`observation_grasps` rebuilds the grasp from observations
+for the expert.
 """
 
 from __future__ import annotations
@@ -227,21 +228,14 @@ def released(force, k, w, pairs, i, p):
 
 
 @_kernel
-def step_grip(
-    forces, directions, normals, pairs, row, action, k_max_ratio, w, limit, k, net, theta, margin,
-    unit,
+def grip_row(
+    forces, directions, normals, pairs, row, actions, b, k_max_ratio, w, limit, k, net, theta,
+    margin, unit,
 ):  # fmt: skip
-    """One (pose, action) pair: the step of every environment (eq. 4 and eq. 2), computed in
-    units of the weight w and reported in newtons.
-
-    ``forces`` (R, n, 3) equilibrating forces F_i / w, ``directions`` (R, m, 3) the unit
-    vectors u_ij and ``normals`` (R, n, 3) of R stored poses, of which ``row`` is the one;
-    ``action`` (m,) is clipped to [-1, 1] and scaled by ``k_max_ratio`` (k_max / w); ``w`` is
-    the weight, newtons, and ``limit`` theta_lim. Fills ``k`` (m,) and ``net`` (n, 3) P in
-    newtons, ``theta`` and ``margin`` (n,), using ``unit`` (n, 3) as scratch for P / w;
-    returns (finite, reward): finite is False if an action element is not finite (the outputs
-    are then meaningless). A released finger (:data:`RELEASE`) has theta_i = 0. The angles of
-    P / w do not depend on w, and nothing here can overflow or underflow for any w.
+    """:func:`step_grip` for row ``b`` of batched arrays: ``actions`` (B, m), and it fills
+    ``k[b]``, ``net[b]``, ``theta[b]`` and ``margin[b]`` by index. The one step of every
+    environment: the batched kernels call it row by row without taking slices (each slice of an
+    array costs numba a reference count, which came to a sixth of the vector step).
     """
     n = forces.shape[1]
     m = directions.shape[1]
@@ -250,11 +244,11 @@ def step_grip(
         for c in range(3):
             unit[i, c] = forces[row, i, c]
     for q in range(m):
-        a = action[q]
+        a = actions[b, q]
         if not math.isfinite(a):
             finite = False
         kq = min(max(a, -1.0), 1.0) * k_max_ratio
-        k[q] = kq * w
+        k[b, q] = kq * w
         # P_i += k_ij u_ij and P_j -= k_ij u_ij: the basis e_ij of eq. 4
         i = pairs[q, 0]
         j = pairs[q, 1]
@@ -269,11 +263,11 @@ def step_grip(
     worst = np.inf
     for i in range(n):
         px, py, pz = unit[i, 0], unit[i, 1], unit[i, 2]
-        net[i, 0], net[i, 1], net[i, 2] = px * w, py * w, pz * w
+        net[b, i, 0], net[b, i, 1], net[b, i, 2] = px * w, py * w, pz * w
         tiny = px * px + py * py + pz * pz <= small
-        if tiny and released(forces[row, i], k, w, pairs, i, unit[i]):
-            theta[i] = 0.0
-            margin[i] = limit
+        if tiny and released(forces[row, i], k[b], w, pairs, i, unit[i]):
+            theta[b, i] = 0.0
+            margin[b, i] = limit
             worst = min(worst, limit)
             continue
         nx, ny, nz = normals[row, i, 0], normals[row, i, 1], normals[row, i, 2]
@@ -290,10 +284,35 @@ def step_grip(
             t = 0.5 * math.pi + math.atan(-normal / tangential)
         else:  # unreachable: P_i = 0 is released
             t = 0.0
-        theta[i] = t
-        margin[i] = limit - t
+        theta[b, i] = t
+        margin[b, i] = limit - t
         worst = min(worst, limit - t)
     return finite, worst
+
+
+@_kernel
+def step_grip(
+    forces, directions, normals, pairs, row, action, k_max_ratio, w, limit, k, net, theta, margin,
+    unit,
+):  # fmt: skip
+    """One (pose, action) pair: the step of every environment (eq. 4 and eq. 2), computed in
+    units of the weight w and reported in newtons.
+
+    ``forces`` (R, n, 3) equilibrating forces F_i / w, ``directions`` (R, m, 3) the unit
+    vectors u_ij and ``normals`` (R, n, 3) of R stored poses, of which ``row`` is the one;
+    ``action`` (m,) is clipped to [-1, 1] and scaled by ``k_max_ratio`` (k_max / w); ``w`` is
+    the weight, newtons, and ``limit`` theta_lim. Fills ``k`` (m,) and ``net`` (n, 3) P in
+    newtons, ``theta`` and ``margin`` (n,), using ``unit`` (n, 3) as scratch for P / w;
+    returns (finite, reward): finite is False if an action element is not finite (the outputs
+    are then meaningless). A released finger (:data:`RELEASE`) has theta_i = 0. The angles of
+    P / w do not depend on w, and nothing here can overflow or underflow for any w. The
+    arithmetic is :func:`grip_row`'s, on the arrays as batches of one (contiguous arrays).
+    """
+    m, n = action.shape[0], theta.shape[0]
+    return grip_row(
+        forces, directions, normals, pairs, row, action.reshape(1, m), 0, k_max_ratio, w, limit,
+        k.reshape(1, m), net.reshape(1, n, 3), theta.reshape(1, n), margin.reshape(1, n), unit,
+    )  # fmt: skip
 
 
 @_kernel
@@ -312,9 +331,9 @@ def evaluate_grips(forces, directions, normals, pairs, rows, actions, k_max_rati
     unit = np.empty((n, 3))
     ok = True
     for b in range(count):
-        finite, reward[b] = step_grip(
-            forces, directions, normals, pairs, rows[b], actions[b], k_max_ratio, weight[b],
-            limit[b], k[b], net[b], theta[b], margin[b], unit,
+        finite, reward[b] = grip_row(
+            forces, directions, normals, pairs, rows[b], actions, b, k_max_ratio, weight[b],
+            limit[b], k, net, theta, margin, unit,
         )  # fmt: skip
         ok &= finite
     return ok, k, net, theta, margin, reward
@@ -342,9 +361,9 @@ def step_batch(
     for b in range(rows.shape[0]):
         row = rows[b]
         w = weight[b]
-        _, r = step_grip(
-            forces, directions, normals, pairs, row, actions[b], k_max_ratio, w, limit[b],
-            k[b], net[b], theta[b], margin[b], unit,
+        _, r = grip_row(
+            forces, directions, normals, pairs, row, actions, b, k_max_ratio, w, limit[b], k,
+            net, theta, margin, unit,
         )  # fmt: skip
         reward[b] = r
         best = expert_reward[row]

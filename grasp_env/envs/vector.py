@@ -8,7 +8,10 @@ per-episode precomputation and the step kernel.
 
 from __future__ import annotations
 
+import itertools
+import os
 from collections.abc import Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from numbers import Integral
 from typing import Any
 
@@ -27,7 +30,7 @@ from .validation import MAX_ENVS, check_integer, check_seed
 _MODES = (AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP)
 
 
-_STORED = (
+_STORED = (  # in step_batch's order
     "forces_w", "directions", "normals", "observations", "alphas", "expert_k_w", "expert_reward",
 )  # fmt: skip
 #: The most pose rows the store of a vector environment may hold (about 3 GB with three
@@ -35,6 +38,47 @@ _STORED = (
 MAX_STORE_ROWS = 1 << 23
 # Where a sub-environment's episode lives in the store.
 _DEFAULT, _OPTION, _SLOT = 0, 1, 2
+#: Threads a step's kernel is split across (the cores this process may use): step_batch releases
+#: the GIL and each sub-environment's row depends on its own inputs alone, so the parts are the
+#: very numbers of one call.
+_THREADS = max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else 1)
+_PARALLEL_FROM = 512  # fewer sub-environments are not worth the hand-off to a thread
+_executor: ThreadPoolExecutor | None = None
+
+
+def _pool() -> ThreadPoolExecutor:
+    """The threads that step the other parts of a batch (the caller steps the first)."""
+    global _executor
+    if _executor is None:
+        _executor = ThreadPoolExecutor(_THREADS - 1, thread_name_prefix="grasp-vector-step")
+    return _executor
+
+
+def _step_parts(
+    stored: tuple[np.ndarray, ...],
+    rows: np.ndarray,
+    actions: np.ndarray,
+    k_max_ratio: float,
+    per_env: tuple[np.ndarray, ...],
+    outputs: tuple[np.ndarray, ...],
+) -> None:
+    """:func:`step_batch` over contiguous parts of the batch, one a thread (the caller's the
+    first): ``stored`` the store's arrays and the pairs, ``per_env`` the weights and limits,
+    ``outputs`` step_batch's."""
+    count = len(rows)
+    parts = _THREADS if count >= _PARALLEL_FROM else 1
+
+    def part(lo: int, hi: int) -> None:
+        step_batch(
+            *stored, rows[lo:hi], actions[lo:hi], k_max_ratio,
+            *(x[lo:hi] for x in per_env), *(out[lo:hi] for out in outputs),
+        )  # fmt: skip
+
+    bounds = [count * p // parts for p in range(parts + 1)]
+    others = [_pool().submit(part, lo, hi) for lo, hi in itertools.pairwise(bounds[1:])]
+    part(bounds[0], bounds[1])
+    for other in others:
+        other.result()
 
 
 def _padded(episode: Episode) -> dict[str, np.ndarray]:
@@ -303,12 +347,14 @@ class _CubeGraspVectorEnv(VectorEnv):
         k, expert_k = np.empty((count, m)), np.empty((count, m))
         forces, equilibrating = np.empty((count, n, 3)), np.empty((count, n, 3))
         theta, margin = np.empty((count, n)), np.empty((count, n))
-        step_batch(
-            arrays["forces_w"], arrays["directions"], arrays["normals"],
-            arrays["observations"], arrays["alphas"], arrays["expert_k_w"],
-            arrays["expert_reward"], self._pairs, rows, a, self.template.k_max_ratio,
-            self._weight, self._limit, observations, reward, k, forces, theta, margin,
-            equilibrating, expert_k, expert_reward, gap, alpha,
+        stored = tuple(arrays[name] for name in _STORED)
+        outputs = (
+            observations, reward, k, forces, theta, margin, equilibrating, expert_k,
+            expert_reward, gap, alpha,
+        )  # fmt: skip
+        _step_parts(
+            (*stored, self._pairs), rows, a, self.template.k_max_ratio,
+            (self._weight, self._limit), outputs,
         )  # fmt: skip
         terminated = reward < 0.0 if self.terminate_on_slip else np.zeros(count, bool)
         self._t += 1
