@@ -19,6 +19,9 @@ A *results spec* (YAML) lists the groups of a table::
       - label: PPO from scratch, force directions
         config: configs/ppo.yaml         # what produces the runs (printed in the table)
         runs: runs/ppo-seed*             # a glob, or a list of run directories
+      - label: the paper's equal-k grip (eq. 8)
+        runs: runs/ppo-seed*
+        policy: equal k (paper eq. 8)    # another row of the same evaluations: a baseline
 
 ``grasp-env results SPEC`` (:func:`run`) evaluates any run not yet evaluated on that many
 scenes, writes ``results.md``, ``results.csv`` and ``learning_curves.png`` beside the spec (or
@@ -53,6 +56,8 @@ METRICS = {
     "p90_gap_deg": ("p90 gap (deg)", "{:.2f}"),
     "success_rate": ("success", "{:.1%}"),
 }
+#: The evaluation's row of the trained agent (the others are the expert and the baselines).
+AGENT = "trained agent"
 #: Gaps below this are drawn at it (a log axis has no 0): the expert's own level.
 GAP_FLOOR_DEG = 0.01
 #: Learning-curve fields drawn in the aggregate plot.
@@ -114,25 +119,31 @@ class RunResult:
     curve: list[dict[str, float]] = field(default_factory=list)
 
 
-def read_run(run_dir: Path, episodes: int | None = None, final: str = "evaluation") -> RunResult:
+def read_run(
+    run_dir: Path,
+    episodes: int | None = None,
+    final: str = "evaluation",
+    policy: str = AGENT,
+) -> RunResult:
     """The run's results, evaluating it first if it has no comparison on ``episodes`` scenes.
 
     With ``final="curve"`` the final metrics are the learning curve's last evaluation instead
-    (the run's ``eval_episodes`` held-out scenes, no new evaluation).
+    (the run's ``eval_episodes`` held-out scenes, no new evaluation). ``policy`` picks the
+    evaluation's row: the trained agent, or a baseline it was compared with on the same scenes.
     """
     run_dir = Path(run_dir)
     if final == "curve":
         agent = {k: str(v) for k, v in read_curve(run_dir / "learning_curve.csv")[-1].items()}
     else:
-        agent = find_evaluation(run_dir, episodes)
+        agent = find_evaluation(run_dir, episodes, policy)
     if agent is None:
         from .evaluate import evaluate_run
 
         out = None if episodes is None else evaluation_dir(run_dir, episodes)
         evaluate_run(run_dir, episodes, None, out)
-        agent = find_evaluation(run_dir, episodes)
+        agent = find_evaluation(run_dir, episodes, policy)
     if agent is None:
-        raise ValueError(f"{run_dir}: its evaluation has no row for the trained agent")
+        raise ValueError(f"{run_dir}: its evaluation has no row for the policy {policy!r}")
     curve = read_curve(run_dir / "learning_curve.csv")
     config = yaml.safe_load((run_dir / "config.yaml").read_text())
     # training time from the initial evaluation on: numba's one-off compilation of the
@@ -153,22 +164,24 @@ def evaluation_dir(run_dir: Path, episodes: int) -> Path:
     return Path(run_dir) / f"evaluation-{episodes}-scenes"
 
 
-def find_evaluation(run_dir: Path, episodes: int | None) -> dict[str, str] | None:
-    """The trained agent's row of an evaluation of the run on ``episodes`` scenes (None: any,
-    the run's own first), or None if it has none."""
+def find_evaluation(
+    run_dir: Path, episodes: int | None, policy: str = AGENT
+) -> dict[str, str] | None:
+    """The ``policy``'s row of an evaluation of the run on ``episodes`` scenes (None: any, the
+    run's own first), or None if it has none."""
     candidates = [run_dir / "comparison.csv"]
     if episodes is not None:
         candidates.insert(0, evaluation_dir(run_dir, episodes) / "comparison.csv")
     for path in candidates:
-        row = _agent_row(path) if path.is_file() else None
+        row = _policy_row(path, policy) if path.is_file() else None
         if row is not None and (episodes is None or int(row["episodes"]) == episodes):
             return row
     return None
 
 
-def _agent_row(path: Path) -> dict[str, str] | None:
+def _policy_row(path: Path, policy: str) -> dict[str, str] | None:
     with path.open() as file:
-        return next((r for r in csv.DictReader(file) if r["policy"] == "trained agent"), None)
+        return next((r for r in csv.DictReader(file) if r["policy"] == policy), None)
 
 
 def read_curve(path: Path) -> list[dict[str, float]]:
@@ -205,6 +218,13 @@ class Group:
     label: str
     runs: list[RunResult]
     config: str = ""
+    policy: str = AGENT
+
+    @property
+    def trained(self) -> bool:
+        """Whether the group reports its runs' trained agents (else a baseline: no training
+        cost, no learning curve)."""
+        return self.policy == AGENT
 
     def estimate(self, key: str) -> Estimate:
         if key in ("wall_minutes", "cpu_minutes"):
@@ -235,7 +255,10 @@ def table(groups: Sequence[Group], episodes: int) -> str:
     ]
     for group in groups:
         cells = [group.estimate(key).format(fmt) for key, (_, fmt) in METRICS.items()]
-        cost = [group.estimate(key).format("{:.1f}") for key in ("wall_minutes", "cpu_minutes")]
+        cost = [
+            group.estimate(key).format("{:.1f}") if group.trained else "none"
+            for key in ("wall_minutes", "cpu_minutes")
+        ]
         config = f"`{group.config}`" if group.config else ""
         lines.append(
             f"| {group.label} | {config} | {len(group.runs)} | " + " | ".join(cells + cost) + " |"
@@ -259,7 +282,7 @@ def plot_curves(groups: Sequence[Group], path: Path) -> None:
     from matplotlib.ticker import EngFormatter, FuncFormatter
 
     fig, axes = plt.subplots(2, 2, figsize=(12, 8), sharex="col")
-    for group in groups:
+    for group in (g for g in groups if g.trained):
         for row, key in enumerate(CURVE_METRICS):
             for column, x in enumerate(("env_steps", "cpu_seconds")):
                 xs, values = group.curve(key, x)
@@ -314,8 +337,17 @@ def load_spec(path: Path) -> tuple[int, str, list[dict]]:
     for i, group in enumerate(groups):
         if not isinstance(group, dict) or "label" not in group or "runs" not in group:
             raise ValueError(f"results spec {path}: groups[{i}] needs a label and runs")
-        if set(group) - {"label", "runs", "config"}:
-            raise ValueError(f"results spec {path}: groups[{i}] accepts label, config and runs")
+        if set(group) - {"label", "runs", "config", "policy"}:
+            raise ValueError(
+                f"results spec {path}: groups[{i}] accepts label, config, runs and policy"
+            )
+        if not isinstance(group.get("policy", AGENT), str):
+            raise ValueError(f"results spec {path}: groups[{i}].policy must be a policy's name")
+        if group.get("policy", AGENT) != AGENT and final == "curve":
+            raise ValueError(
+                f"results spec {path}: groups[{i}].policy needs final: evaluation (learning"
+                " curves hold only the trained agent)"
+            )
     return episodes, final, groups
 
 
@@ -327,8 +359,12 @@ def build_groups(spec: Path) -> tuple[int, list[Group]]:
     groups = [
         Group(
             entry["label"],
-            [read_run(run, episodes, final) for run in expand_runs(entry["runs"], base)],
+            [
+                read_run(run, episodes, final, entry.get("policy", AGENT))
+                for run in expand_runs(entry["runs"], base)
+            ],
             entry.get("config", ""),
+            entry.get("policy", AGENT),
         )
         for entry in entries
     ]

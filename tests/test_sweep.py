@@ -73,6 +73,27 @@ def test_replace_table_rewrites_only_between_the_markers(tmp_path: Path) -> None
 # --- sweep files -----------------------------------------------------------------------------
 
 
+@pytest.mark.parametrize(
+    ("spec", "message"),
+    [
+        ({"groups": []}, "groups must be a non-empty list"),
+        ({"groups": [{"label": "a"}]}, "needs a label and runs"),
+        ({"groups": [{"label": "a", "runs": "r*", "seed": 1}]}, "accepts label, config"),
+        ({"groups": [{"label": "a", "runs": "r*", "policy": 3}]}, "policy must be a policy"),
+        (
+            {"final": "curve", "groups": [{"label": "a", "runs": "r*", "policy": "random"}]},
+            "needs final: evaluation",
+        ),
+        ({"episodes": 0, "groups": [{"label": "a", "runs": "r*"}]}, "positive integer"),
+    ],
+)
+def test_bad_results_specs_are_refused_naming_the_key(
+    tmp_path: Path, spec: dict, message: str
+) -> None:
+    with pytest.raises(ValueError, match=message):
+        results.load_spec(write(tmp_path / "spec.yaml", spec))
+
+
 def test_overrides_set_dotted_keys_without_touching_the_base() -> None:
     base = {"ppo": {"learning_rate": 1e-3}, "seed": 0}
     out = sweep.with_overrides(base, {"ppo.learning_rate": 1e-4, "policy.net_arch": [8], "seed": 3})
@@ -180,3 +201,25 @@ def test_evaluate_several_runs_reports_across_seeds(tmp_path: Path) -> None:
     # the IQM of two runs is their mean (both are the middle half)
     assert f"{np.mean(gaps):.2f}" in report
     assert (out / "learning_curves.png").stat().st_size > 10_000
+
+    # a results spec: the trained agents and, from the same evaluations, a baseline's row
+    spec = write(
+        tmp_path / "spec.yaml",
+        {
+            "episodes": 4,
+            "groups": [
+                {"label": "tiny", "config": "tiny.yaml", "runs": "tiny-s*"},
+                {"label": "equal k", "runs": "tiny-s*", "policy": "equal k (paper eq. 8)"},
+            ],
+        },
+    )
+    readme = tmp_path / "README.md"
+    readme.write_text(f"intro\n{results.BEGIN}\nold\n{results.END}\n")
+    argv = ["results", str(spec), "--out", str(tmp_path / "table"), "--readme", str(readme)]
+    assert cli.main(argv) == 0
+    with (runs[0] / "evaluation-4-scenes" / "comparison.csv").open() as file:
+        equal_k = next(r for r in csv.DictReader(file) if r["policy"] == "equal k (paper eq. 8)")
+    rows = {r.split("|")[1].strip(): r for r in readme.read_text().splitlines() if "|" in r}
+    assert f"{float(equal_k['mean_gap_deg']):.2f} [" in rows["equal k"]
+    assert rows["equal k"].rstrip(" |").endswith("none | none")  # a baseline has no training
+    assert f"{np.mean(gaps):.2f} [" in rows["tiny"] and "none" not in rows["tiny"]
