@@ -21,11 +21,13 @@ passes) run at >= 0.9x the rate without (issue 15): the renderer is built on the
 ``render()``, not at a reset; measured on the random environments, whose every reset is a new
 scene.
 
-**The limit of a step.** :func:`~grasp_env.envs.kernels.step_grip` is the arithmetic of one
+**The limit of a step.** :func:`~grasp_env.envs.kernels.grip_row` is the arithmetic of one
 env step: its floating-point operations are counted below from the kernel, and the rate the
 machine sustains on that code is measured by running it, compiled, over poses that stay in
 the cache (no Python, no memory traffic); that rate over the count is the most env-steps per
-second one core can compute. **The random scenes' bound.** Every pose of a new episode needs
+second one core can compute. The vector env splits its step's kernel across the cores it may
+use (:mod:`grasp_env.envs.vector`), so both limits are printed: one core's and that many
+cores'. **The random scenes' bound.** Every pose of a new episode needs
 the expert's certified optimum: the solves per env-step are counted while the random vector
 env runs, and the solver's rate on the same kind of batch (poses along trajectories, each
 starting from the previous optimum, both cores) is measured in the same round.
@@ -47,7 +49,8 @@ import numpy as np
 
 import grasp_env  # noqa: F401  (registers the environments)
 from grasp_env.envs import episodes
-from grasp_env.envs.kernels import step_grip
+from grasp_env.envs import vector as vector_env
+from grasp_env.envs.kernels import grip_row
 from grasp_env.envs.scenes import SceneSampler
 from grasp_env.mechanics import Grasp, contact_pairs
 
@@ -138,7 +141,7 @@ def resets(env_id: str, seconds: float) -> tuple[float, float]:
 
 
 def step_flops(n: int) -> int:
-    """Floating-point operations of one :func:`step_grip` (sqrt, division and atan counted as
+    """Floating-point operations of one :func:`grip_row` (sqrt, division and atan counted as
     one each), from the kernel's code: per pair 11 (k / w and k in newtons, then k u_ij added
     to one finger and taken from the other: 3 multiplications, 6 additions); per finger 26 (P
     in newtons 3, the cross product with the normal 9, its norm 6, the normal component 5, the
@@ -149,16 +152,17 @@ def step_flops(n: int) -> int:
 
 @numba.njit(nogil=True)
 def _cached_steps(forces, directions, normals, pairs, actions, weight, limit, repeats):
-    """step_grip over the same few poses ``repeats`` times (their data stays in the cache)."""
+    """The step's arithmetic (grip_row, as every environment runs it) over the same few poses
+    ``repeats`` times (their data stays in the cache), into rows of small outputs."""
     rows, m = forces.shape[0], directions.shape[1]
     n = forces.shape[1]
-    k, net, unit = np.empty(m), np.empty((n, 3)), np.empty((n, 3))
-    theta, margin = np.empty(n), np.empty(n)
+    k, net, unit = np.empty((rows, m)), np.empty((rows, n, 3)), np.empty((n, 3))
+    theta, margin = np.empty((rows, n)), np.empty((rows, n))
     total = 0.0
     for r in range(repeats):
         row = r % rows
-        _, reward = step_grip(
-            forces, directions, normals, pairs, row, actions[row], 2.0, weight, limit,
+        _, reward = grip_row(
+            forces, directions, normals, pairs, row, actions, row, 2.0, weight, limit,
             k, net, theta, margin, unit,
         )  # fmt: skip
         total += reward
@@ -324,14 +328,16 @@ def main() -> int:
             f"{name} resets: {median(f'{name} resets'):,.0f}/s; with render_mode='rgb_array'"
             f" {ratio:.3g}x that (target >= {RESET_TARGET:g}x)  {'ok' if ok else 'MISSED'}"
         )
+    cores = vector_env._THREADS
     for n in (3, 4):
         flops, limit = step_flops(n), median(f"step limit {n}")
-        key = "CubeGrasp-v0 vector" if n == 3 else "CubeGrasp4-v0 vector"
+        reached = median("CubeGrasp-v0 vector" if n == 3 else "CubeGrasp4-v0 vector")
         print(
-            f"step limit, {n} fingers: {flops} flops a step (step_grip, counted), the machine"
+            f"step limit, {n} fingers: {flops} flops a step (grip_row, counted), the machine"
             f" sustains {limit * flops / 1e9:.2f} Gflop/s on it (compiled, cached poses, one"
-            f" core): {limit:,.0f} steps/s; the vector env reaches {median(key) / limit:.3f}"
-            " of it"
+            f" core): {limit:,.0f} steps/s on one core, {cores * limit:,.0f} on the {cores}"
+            f" the vector step is split across; the vector env reaches {reached / limit:.3f} of"
+            f" the one-core limit, {reached / (cores * limit):.3f} of the {cores}-core one"
         )
     solves, solver = median("solves per env-step"), median("solver")
     bound = solver / solves

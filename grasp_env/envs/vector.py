@@ -43,15 +43,17 @@ _DEFAULT, _OPTION, _SLOT = 0, 1, 2
 #: very numbers of one call.
 _THREADS = max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else 1)
 _PARALLEL_FROM = 512  # fewer sub-environments are not worth the hand-off to a thread
-_executor: ThreadPoolExecutor | None = None
+_executor: tuple[int, ThreadPoolExecutor] | None = None  # (the process that made it, the pool)
 
 
 def _pool() -> ThreadPoolExecutor:
-    """The threads that step the other parts of a batch (the caller steps the first)."""
+    """The threads that step the other parts of a batch (the caller steps the first); a new
+    pool in a forked child, where the parent's threads do not exist."""
     global _executor
-    if _executor is None:
-        _executor = ThreadPoolExecutor(_THREADS - 1, thread_name_prefix="grasp-vector-step")
-    return _executor
+    if _executor is None or _executor[0] != os.getpid():
+        pool = ThreadPoolExecutor(_THREADS - 1, thread_name_prefix="grasp-vector-step")
+        _executor = (os.getpid(), pool)
+    return _executor[1]
 
 
 def _step_parts(
