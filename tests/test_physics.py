@@ -463,9 +463,12 @@ def test_a_finger_phased_out_ramps_to_zero_lifts_and_is_placed_again():
     assert np.all(np.diff(thumb[leaving]) < 0) and np.all(np.diff(thumb[joining]) > 0)
     assert thumb[(motion.pose >= 6) & (motion.pose <= 14)].max() < 1e-12
     touching = motion.contact[:, 3]
-    # Touching while it pushes; lifted once its force is spent (at pose 6), placed as it starts
-    # to push again (the first step after pose 14).
-    assert touching[leaving].all() and touching[joining].all()
+    # Touching while it pushes; lifted once its force is spent (near pose 6: the timing slows
+    # the last of the ramp, so the steps below released_force x w come before pose 6), placed
+    # as it starts to push again (after pose 14).
+    pushing = thumb > SETTINGS["released_force"]  # motion forces are in units of w
+    for ramp in (leaving, joining):
+        assert np.array_equal(touching[ramp], pushing[ramp]) and pushing[ramp].mean() > 0.5
     assert not touching[(motion.pose >= 6) & (motion.pose <= 14)].any()
     # The others hold on throughout: no finger slid, the object stayed put.
     assert report.drift.max() < SETTINGS["drift_threshold"]

@@ -2,12 +2,21 @@
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 
-from grasp_env.mechanics import Scene, Trajectory, scene_grasp, solve_minimax
+from grasp_env.mechanics import (
+    FOUR_FINGER_FACES,
+    Scene,
+    Trajectory,
+    friction_angles,
+    scene_grasp,
+    solve_minimax,
+)
 from grasp_env.physics import SETTINGS, TrajectoryChecker
-from grasp_env.physics.motion import plan_motion, plan_poses
+from grasp_env.physics.motion import path_settings, plan_motion, plan_poses
 from grasp_env.physics.simulation import PhysicsModel, simulate
 
 
@@ -80,3 +89,92 @@ def test_measured_rotations_are_quaternion_matrix_bit_for_bit():
     # The layout too: numpy may take another product kernel for another one.
     assert rotations.flags.c_contiguous
     np.testing.assert_array_equal(rotations @ [0.3, -0.2, 0.1], expected @ [0.3, -0.2, 0.1])
+
+
+def unloading_grip(inside_deg: float):
+    """Four fingers over the paper's first two poses (1 deg apart): the expert's grip, then one
+    that unloads finger 0 from 0.45 w to 0.03 w pointing 40 deg off its normal (the others
+    nearer theirs), with mu so that the run's largest friction angle is ``inside_deg`` inside
+    the limit (negative: outside). The base timing unloads it in 25 steps."""
+    scene = Scene.on_faces(FOUR_FINGER_FACES)
+    rotations = Trajectory().rotations()[:2]
+    grasp = scene_grasp(scene, rotations)
+    start = solve_minimax(grasp, 2 * scene.weight).k[0]
+    pairs = list(itertools.combinations(range(4), 2))
+    own = [p for p, pair in enumerate(pairs) if 0 in pair]
+    normal = grasp.normals[1, 0]
+    tangent = np.cross(normal, [0.3, 0.5, 0.8])
+    tangent /= np.linalg.norm(tangent)
+    angle = np.radians(40.0)
+    target = 0.03 * scene.weight * (np.cos(angle) * normal + np.sin(angle) * tangent)
+    rng = np.random.default_rng(0)
+    best = None
+    for _ in range(2000):  # the other fingers' scalars nearest their normals
+        k = np.zeros(6)
+        k[[p for p in range(6) if p not in own]] = rng.uniform(-1, 1, 3) * scene.weight
+        k[own] = np.linalg.solve(grasp.basis[1, own, 0].T, target - grasp.forces(k)[1, 0])
+        worst = friction_angles(grasp.forces(k)[1, 1:], grasp.normals[1, 1:]).max()
+        if best is None or worst < best[0]:
+            best = (worst, k)
+    forces = grasp.forces(np.stack([start, best[1]]))
+    motion = plan_motion(scene, rotations, forces, None, SETTINGS)
+    largest = motion.friction_angles(scene)[motion.settle_steps :].max()
+    limit = largest + np.radians(inside_deg)
+    return Scene.on_faces(FOUR_FINGER_FACES, mu=float(np.tan(limit))), rotations, forces
+
+
+def normal_rates(motion, scene):
+    """(N - 1, n) each finger's |dN/dt| / max(|P|, force_floor) between steps, per second,
+    where it touches at both."""
+    normal = np.einsum("knc,nc->kn", motion.forces, scene.normals)
+    size = np.linalg.norm(motion.forces, axis=-1)
+    size = np.maximum(np.minimum(size[1:], size[:-1]), SETTINGS["force_floor"])
+    rate = np.abs(np.diff(normal, axis=0)) / (SETTINGS["timestep"] * size)
+    return np.where(motion.contact[1:] & motion.contact[:-1], rate, 0.0)
+
+
+def test_the_timing_keeps_the_force_path_and_bounds_the_normal_forces_rate(paper):
+    # Without a turn the path is the straight line between the poses' forces: the timed steps
+    # lie on it, slowed where finger 0's force falls, and it reaches finger 0's last force.
+    scene, rotations, forces = unloading_grip(0.05)
+    still = np.repeat(rotations[1:], 2, 0)
+    ends = plan_motion(scene, still, forces, None, dict(SETTINGS, force_rate=np.inf))
+    timed = plan_motion(scene, still, forces, None, SETTINGS)
+    segment = (timed.pose > 0) & (timed.pose < 1)
+    s = timed.pose[segment][:, None, None]
+    pose_forces = ends.forces[[ends.settle_steps, -1]]
+    np.testing.assert_allclose(
+        timed.forces[segment], (1 - s) * pose_forces[0] + s * pose_forces[1], atol=1e-12
+    )
+    assert segment.sum() > 5 * ((ends.pose > 0) & (ends.pose < 1)).sum()
+    # The bound, at every step of the turning run where a finger touches at both ends.
+    motion = plan_motion(scene, rotations, forces, None, SETTINGS)
+    assert normal_rates(motion, scene).max() <= 1.05 * SETTINGS["force_rate"]
+    base = plan_motion(scene, rotations, forces, None, dict(SETTINGS, force_rate=np.inf))
+    assert normal_rates(base, scene).max() > 10 * SETTINGS["force_rate"]
+    # The same path: its largest friction angle is the densely sampled path's.
+    dense = plan_motion(scene, rotations, forces, None, path_settings(SETTINGS, 64))
+    for run in (motion, dense):
+        assert run.friction_angles(scene)[run.settle_steps :].max() == pytest.approx(
+            scene.friction_limit - np.radians(0.05), abs=np.radians(1e-3)
+        )
+    # A motion that is slow already is left alone: the paper's 31 poses keep their 2375 steps.
+    paper_scene, paper_rotations, paper_forces = paper
+    assert len(plan_motion(paper_scene, paper_rotations, paper_forces, None, SETTINGS)) == len(
+        plan_motion(paper_scene, paper_rotations, paper_forces, None,
+                    dict(SETTINGS, force_rate=np.inf))
+    )  # fmt: skip
+
+
+def test_an_unloading_finger_near_its_edge_holds_when_timed_and_one_outside_slips():
+    # Finger 0's force falls 70-fold towards 0.05 deg inside its cone: at the base timing the
+    # soft contact's normal force lags and the tip slides; timed by force_rate it holds. The
+    # same unloading 0.5 deg outside the cone slips either way.
+    inside = unloading_grip(0.05)
+    outside = unloading_grip(-0.5)
+    timed = TrajectoryChecker(inside[0]).check(*inside[1:])
+    assert timed.predicted_holds and timed.holds, timed.as_dict()
+    untimed = TrajectoryChecker(inside[0], force_rate=1e12).check(*inside[1:])
+    assert untimed.predicted_holds and not untimed.holds
+    crossing = TrajectoryChecker(outside[0]).check(*outside[1:])
+    assert not crossing.predicted_holds and not crossing.holds

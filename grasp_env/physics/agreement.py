@@ -45,7 +45,7 @@ from grasp_env.mechanics import (
     solve_minimax,
 )
 
-from .motion import plan_motion, released
+from .motion import path_settings, plan_motion, released
 from .rollout import RolloutReport, check_trajectories
 from .stability import SETTINGS, PhysicsReport, check_poses
 
@@ -302,12 +302,46 @@ class TrajectoryCase:
     trajectory: Trajectory | None = None  #: the trajectory, where it is one (for a policy)
 
 
+#: The perturbations are bisected on the force path sampled densely and uniformly (the
+#: run's steps are timed by the forces, so they are not affine in a force change), then
+#: polished on the run's own steps (:func:`_polished`).
+PATH_SETTINGS = path_settings(SETTINGS)
+
+
+def _polished(
+    scale: float, largest: Callable[[float], float], target: float, tries: int = 8
+) -> float:
+    """``scale`` refined by secant steps until the run's own largest friction angle,
+    ``largest(c)``, equals ``target`` radians (within 1e-10); the path's scale if they do not
+    converge (its margin is then the target to the path's sampling)."""
+    a, fa = scale, largest(scale) - target
+    b = scale * (1 + 1e-6) + 1e-9
+    fb = largest(b) - target
+    for _ in range(tries):
+        if abs(fa) <= 1e-10:
+            return a
+        if fb == fa:
+            break
+        a, fa, b, fb = a - fa * (a - b) / (fa - fb), 0.0, a, fa
+        fa = largest(a) - target
+    return a if abs(fa) <= 1e-10 else scale
+
+
 def _step_angles(scene: Scene, forces: np.ndarray, settle: int) -> float:
     """The largest friction angle of a loaded finger (not released) over a run's steps
     (``forces`` in units of w) after the settle."""
     loaded = ~released(forces, 1.0, SETTINGS["released_force"])
     angles = np.where(loaded, friction_angles(forces, scene.normals), 0.0)
     return float(angles[settle:].max())
+
+
+def _run_angle(
+    scene: Scene, rotations: np.ndarray, forces: np.ndarray, in_contact: np.ndarray | None
+) -> float:
+    """The largest friction angle of a loaded finger over the steps of the run of
+    ``forces`` (newtons), radians."""
+    motion = plan_motion(scene, rotations, forces, in_contact, SETTINGS)
+    return _step_angles(scene, motion.forces, motion.settle_steps)
 
 
 def perturbed_k(
@@ -325,7 +359,9 @@ def perturbed_k(
     largest friction angle over the continuous run's steps (the ones MuJoCo applies) equals
     ``target`` radians. None if no direction reaches it."""
     grasps = scene_grasp(scene, rotations)
-    base = plan_motion(scene, rotations, grasps.forces(k), None, SETTINGS)
+    if _run_angle(scene, rotations, grasps.forces(k), None) >= target:
+        return None
+    base = plan_motion(scene, rotations, grasps.forces(k), None, PATH_SETTINGS)
     if _step_angles(scene, base.forces, base.settle_steps) >= target:
         return None
     lo, hi = np.percentile(alphas_deg, [100 / 3, 200 / 3])
@@ -335,7 +371,7 @@ def perturbed_k(
         centre, width = rng.uniform(lo, hi), rng.uniform(2.0, 6.0)
         bump = np.exp(-(((alphas_deg - centre) / width) ** 2))[:, None] * direction
         # The steps' forces are affine in c (the interpolation is linear in the pose forces).
-        moved = plan_motion(scene, rotations, grasps.forces(k + bump), None, SETTINGS)
+        moved = plan_motion(scene, rotations, grasps.forces(k + bump), None, PATH_SETTINGS)
         change = moved.forces - base.forces
 
         def largest(c: float, base=base, change=change) -> float:
@@ -350,7 +386,13 @@ def perturbed_k(
             middle = (low + high) / 2
             low, high = (middle, high) if largest(middle) < target else (low, middle)
         if abs(largest(high) - target) <= 1e-9:  # not a jump (a finger becoming loaded)
-            return k + high * bump
+            pose_forces = grasps.forces(k)
+            pose_change = grasps.forces(k + bump) - pose_forces
+
+            def run(c: float, forces=pose_forces, change=pose_change) -> float:
+                return _run_angle(scene, rotations, forces + c * change, None)
+
+            return k + _polished(high, run, target) * bump
     return None
 
 
@@ -365,8 +407,8 @@ def _bisected_bump(
     """The scale c in [0, 4] of the force change ``bump`` (T, n, 3) at which the largest
     friction angle over the run's steps of ``forces`` + c ``bump`` equals ``target`` radians;
     None if c = 4 does not reach it or the angle jumps past it (a finger becoming loaded)."""
-    base = plan_motion(scene, rotations, forces, in_contact, SETTINGS)
-    moved = plan_motion(scene, rotations, forces + bump, in_contact, SETTINGS)
+    base = plan_motion(scene, rotations, forces, in_contact, PATH_SETTINGS)
+    moved = plan_motion(scene, rotations, forces + bump, in_contact, PATH_SETTINGS)
     change = moved.forces - base.forces  # the steps' forces are affine in c
 
     def largest(c: float) -> float:
@@ -378,7 +420,11 @@ def _bisected_bump(
     for _ in range(60):
         middle = (low + high) / 2
         low, high = (middle, high) if largest(middle) < target else (low, middle)
-    return high if abs(largest(high) - target) <= 1e-9 else None
+    if abs(largest(high) - target) > 1e-9:
+        return None
+    return _polished(
+        high, lambda c: _run_angle(scene, rotations, forces + c * bump, in_contact), target
+    )
 
 
 def _random_trajectory(index: int, rng: np.random.Generator) -> Trajectory:

@@ -25,6 +25,16 @@ every step, exactly as the analytic grasp does, and for the same finger set this
 interpolation of the interaction scalars k. Forces that do not balance the load at the poses do
 not at the steps between either (their residual is interpolated too).
 
+**The timing between poses** (:func:`warped_steps`). The base timing runs each segment's path
+coordinate s uniformly in time. Where a touching finger's normal force N_i would change faster
+than ``force_rate`` x max(|P_i|, ``force_floor``) per second, the segment is slowed there: its
+path is sampled ``FINE`` times per base step, each sample interval gets the time the bound
+needs (at least its base time), and the steps are spaced evenly in that clock. Only the timing
+changes: every step is a point of the same path P(s), so the forces judged (both verdicts)
+are the path's. MuJoCo's soft contact needs it: the tip's penetration follows its normal
+force, and a force that falls by a large fraction within a few contact time constants leaves
+the contact's normal force below the commanded one (docs/physics.md, "The motion").
+
 **Fingers in contact** (the hook for finger-phasing gaits): ``in_contact`` (T, n), default
 all. A finger leaving contact between t and t + 1 ramps its force to zero over the segment and
 is lifted at its end; a finger joining is placed at the segment's start and its force ramps up
@@ -119,6 +129,59 @@ def _axis_angle(q: np.ndarray) -> tuple[np.ndarray | None, float]:
     if sine < 1e-15:
         return None, 0.0
     return q[1:] / sine, angle
+
+
+#: Path samples per base step from which a segment's timing is computed.
+FINE = 8
+
+
+def warped_steps(
+    fine: np.ndarray,
+    forces: np.ndarray,
+    normals: np.ndarray,
+    touching: np.ndarray,
+    duration: float,
+    settings: dict[str, float],
+) -> np.ndarray:
+    """The path coordinates s in (0, 1] of a segment's steps: the base timing (``duration``
+    seconds, s uniform in time) slowed wherever a touching finger's normal force N_i would
+    change faster than ``force_rate`` x max(|P_i|, ``force_floor``) per second (|P_i| rather
+    than N_i: a finger pushing nearly along its face is far outside its cone anyway, and
+    must not stall the run). ``fine`` (K,)
+    are path coordinates from 0 to 1, ``forces`` (K, n, 3) the forces there (units of w),
+    ``normals`` (n, 3) the inward normals, ``touching`` (n,) the fingers in contact.
+
+    Only the timing changes: the steps are points of the same path (interpolated in s between
+    the fine samples), so the forces both verdicts judge are the path's. The soft contact
+    needs this: a tip's penetration follows its normal force, and a light tip moved fast
+    lags, so its contact's normal force falls below the commanded one (docs/physics.md)."""
+    normal = np.einsum("knc,nc->kn", forces, normals)
+    magnitude = np.linalg.norm(forces, axis=-1)
+    loaded = magnitude > settings["released_force"]
+    judged = touching & (loaded[:-1] | loaded[1:])  # (K - 1, n): touching in the interval
+    size = np.maximum(np.minimum(magnitude[:-1], magnitude[1:]), settings["force_floor"])
+    need = np.where(judged, np.abs(np.diff(normal, axis=0)) / (settings["force_rate"] * size), 0.0)
+    base = np.diff(fine) * duration
+    times = np.maximum(base, need.max(axis=1, initial=0.0))
+    clock = np.concatenate([[0.0], np.cumsum(times)])
+    steps = max(1, round(clock[-1] / settings["timestep"]))
+    s = np.interp(np.arange(1, steps + 1) * (clock[-1] / steps), clock, fine)
+    s[-1] = 1.0
+    return s
+
+
+def path_settings(settings: dict[str, float], density: int = 8) -> dict[str, float]:
+    """Settings whose run samples the same force path uniformly (no timing by the forces),
+    ``density`` times as finely as the base timing. The steps of a run timed by
+    :func:`warped_steps` are points of this path, so its steps' forces are affine in the
+    pose forces (as a bisection on a force change needs) and their largest friction angle is,
+    to the sampling, the timed run's."""
+    return dict(
+        settings,
+        time_per_degree=settings["time_per_degree"] * density,
+        min_segment_time=settings["min_segment_time"] * density,
+        force_rate=np.inf,
+    )
 
 
 def released(forces: np.ndarray, weight: float, released_force: float) -> np.ndarray:
@@ -242,61 +305,82 @@ def plan_motion(
     # The turns between poses: their quaternions at once, then each segment's duration.
     relative = np.swapaxes(rotations[:-1], -1, -2) @ rotations[1:]
     quaternions = _quaternion(relative) if n_poses > 1 else np.zeros((0, 4))
-    segments = []
+    turns, base_steps = [], []
     for t in range(n_poses - 1):
         axis, angle = _axis_angle(quaternions[t])
         duration = max(
             settings["min_segment_time"], np.degrees(angle) * settings["time_per_degree"]
         )
-        steps = max(1, round(duration / dt))
-        total += steps
-        if total > MAX_STEPS:
+        turns.append((axis, angle))
+        base_steps.append(max(1, round(duration / dt)))
+        if total + sum(base_steps) > MAX_STEPS:
             raise ValueError(
                 f"the run would take more than {MAX_STEPS} steps: lower time_per_degree,"
                 " min_segment_time, pose_hold_time or the number of poses"
             )
-        segments.append((axis, angle, np.arange(1, steps + 1) / steps))
-    # The orientations along every turning segment, and the load there, in one pass.
-    turning = [t for t, (axis, _, _) in enumerate(segments) if axis is not None]
-    if turning:
-        starts = np.concatenate([np.repeat(rotations[t : t + 1], len(segments[t][2]), 0)
-                                 for t in turning])  # fmt: skip
-        axes = np.concatenate([np.repeat(segments[t][0][None], len(segments[t][2]), 0)
-                               for t in turning])  # fmt: skip
-        angles = np.concatenate([segments[t][2] * segments[t][1] for t in turning])
-        turned_all = starts @ axis_angle_matrix(axes, angles)
-        load_all = _load(scene, turned_all)
-        bounds = np.cumsum([0] + [len(segments[t][2]) for t in turning])
-        along = {
-            t: (turned_all[a:b], load_all[a:b])
-            for t, a, b in zip(turning, bounds[:-1], bounds[1:], strict=True)
-        }
-    for t, (axis, _, s) in enumerate(segments):
-        hold_at(t, dwell)
-        steps = len(s)
-        if axis is None:
-            turned = np.repeat(rotations[t : t + 1], steps, 0)
-            load = _load(scene, turned)
-        else:
-            turned, load = along[t]
-        # The fingers that carry load at either end share the turning load; a finger released
-        # at both ends (or out of contact) keeps its own (tiny or zero) force, interpolated.
-        active = carrying[t] | carrying[t + 1]
-        step_forces = (1 - s)[:, None, None] * pose_forces[t] + s[:, None, None] * pose_forces[
-            t + 1
-        ]
-        if active.any():
-            ends = equilibrating(active, pose_load[t : t + 2])
-            rest = pose_forces[t : t + 2][:, active] - ends  # (2, |A|, 3), null space of G_A
-            step_forces[:, active] = (
-                equilibrating(active, load)
-                + (1 - s)[:, None, None] * rest[0]
-                + s[:, None, None] * rest[1]
+    active = [carrying[t] | carrying[t + 1] for t in range(n_poses - 1)]
+
+    def path(ss: list[np.ndarray]) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        """(orientations, load, forces) of every segment t at its path coordinates ss[t]: the
+        load turned exactly, the equilibrating part recomputed for it, the rest interpolated.
+        The fingers that carry load at either end share the turning load; a finger released
+        at both ends (or out of contact) keeps its own (tiny or zero) force, interpolated."""
+        turning = [t for t, (axis, _) in enumerate(turns) if axis is not None]
+        along = {}
+        if turning:
+            starts = np.concatenate([np.repeat(rotations[t : t + 1], len(ss[t]), 0)
+                                     for t in turning])  # fmt: skip
+            axes = np.concatenate([np.repeat(turns[t][0][None], len(ss[t]), 0)
+                                   for t in turning])  # fmt: skip
+            angles = np.concatenate([ss[t] * turns[t][1] for t in turning])
+            turned_all = starts @ axis_angle_matrix(axes, angles)
+            load_all = _load(scene, turned_all)
+            bounds = np.cumsum([0] + [len(ss[t]) for t in turning])
+            along = {
+                t: (turned_all[a:b], load_all[a:b])
+                for t, a, b in zip(turning, bounds[:-1], bounds[1:], strict=True)
+            }
+        out = []
+        for t, s in enumerate(ss):
+            if t in along:
+                turned, load = along[t]
+            else:
+                turned = np.repeat(rotations[t : t + 1], len(s), 0)
+                load = _load(scene, turned)
+            a = s[:, None, None]
+            step_forces = (1 - a) * pose_forces[t] + a * pose_forces[t + 1]
+            on = active[t]
+            if on.any():
+                ends = equilibrating(on, pose_load[t : t + 2])
+                rest = pose_forces[t : t + 2][:, on] - ends  # (2, |A|, 3), null space of G_A
+                step_forces[:, on] = (
+                    equilibrating(on, load) + (1 - a) * rest[0] + a * rest[1]
+                )  # fmt: skip
+            out.append((turned, load, step_forces))
+        return out
+
+    # The timing: the path sampled finely, then each segment's steps spaced so that no
+    # touching finger's normal force changes faster than force_rate x max(N, force_floor).
+    fine = [np.linspace(0.0, 1.0, FINE * n + 1) for n in base_steps]
+    segments = []
+    for t, (_, _, sampled) in enumerate(path(fine)):
+        touching = contact[t] | contact[t + 1]
+        s = warped_steps(fine[t], sampled, scene.normals, touching, base_steps[t] * dt, settings)
+        total += len(s)
+        if total > MAX_STEPS:
+            raise ValueError(
+                f"the run would take more than {MAX_STEPS} steps: lower time_per_degree,"
+                " min_segment_time, pose_hold_time, raise force_rate or lower the number"
+                " of poses"
             )
+        segments.append(s)
+    for t, (turned, load, step_forces) in enumerate(path(segments)):
+        hold_at(t, dwell)
+        steps = len(segments[t])
         parts["forces"].append(step_forces)
         parts["load"].append(load)
         parts["contact"].append(np.repeat((contact[t] | contact[t + 1])[None], steps, 0))
-        parts["pose"].append(t + s)
+        parts["pose"].append(t + segments[t])
         parts["rotations"].append(turned)
     hold_at(n_poses - 1, hold)
     steps = {name: np.concatenate(values) for name, values in parts.items()}

@@ -47,6 +47,10 @@ SETTINGS: dict[str, float] = {
     "pose_hold_time": 0.1,  #: rollout: seconds the grip dwells at each pose but the last
     "time_per_degree": 0.05,  #: rollout: seconds per degree the object turns between poses
     "min_segment_time": 0.05,  #: rollout: least seconds between two poses
+    #: rollout: a touching finger's normal force changes by at most force_rate x
+    #: max(|P|, force_floor) per second (segments slowed where needed; docs/physics.md)
+    "force_rate": 10.0,
+    "force_floor": 0.03,  #: rollout: the floor of that bound's |P|, in units of w
 }
 #: The contact's time constant (model.SOLREF) must span at least two steps.
 MAX_TIMESTEP = 0.0025
