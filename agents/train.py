@@ -274,12 +274,16 @@ def teach(
         logger.record("imitation/labelled_states", result.samples)
         logger.record("imitation/round", result.round)
         logger.record("imitation/round_seconds", result.seconds)
+        logger.record("imitation/validation_angle_deg", result.validation_angle_deg)
+        logger.record("imitation/kept", float(result.kept))
         metrics = evaluate_now("imitation", steps, logger, steps)
         save_round_data(run_dir, result.round, result.observations, result.labels, steps)
         save_model(model, imitation_checkpoint(run_dir, result.round))
         say(
             f"imitation round {result.round}: {result.samples} labelled states, "
-            f"loss {result.loss:.2e}, {result.seconds:.0f} s; held-out gap "
+            f"loss {result.loss:.2e}, {result.seconds:.0f} s, validation "
+            f"{result.validation_angle_deg:.2f} deg ({'kept' if result.kept else 'undone'}); "
+            f"held-out gap "
             f"{metrics['mean_gap_deg']:.2f} deg (p90 {metrics['p90_gap_deg']:.2f}), "
             f"success {metrics['success_rate']:.1%}"
         )

@@ -257,16 +257,29 @@ def test_interrupt_saves_and_resume_continues_the_step_count(tmp_path, monkeypat
     assert (run / "vecnormalize.pkl").is_file()
 
 
-def tensorboard_steps(folder: Path) -> dict[str, list[int]]:
-    """Every scalar's steps, read from the raw event files (as any reader sees them)."""
+def tensorboard_events(folder: Path) -> dict[str, list[tuple[int, float]]]:
+    """Every scalar's (step, value) pairs, read from the raw event files (as any reader sees
+    them)."""
     from tensorboard.backend.event_processing.event_file_loader import EventFileLoader
+    from tensorboard.util.tensor_util import make_ndarray
 
-    steps: dict[str, list[int]] = {}
+    events: dict[str, list[tuple[int, float]]] = {}
     for path in sorted(folder.glob("events.out.tfevents.*")):
         for event in EventFileLoader(str(path)).Load():
             for value in event.summary.value:
-                steps.setdefault(value.tag, []).append(event.step)
-    return steps
+                number = value.simple_value if value.HasField("simple_value") else None
+                if number is None:
+                    number = float(make_ndarray(value.tensor))
+                events.setdefault(value.tag, []).append((event.step, number))
+    return events
+
+
+def tensorboard_steps(folder: Path) -> dict[str, list[int]]:
+    return {tag: [s for s, _ in pairs] for tag, pairs in tensorboard_events(folder).items()}
+
+
+def tensorboard_scalars(folder: Path, tag: str) -> list[float]:
+    return [v for _, v in tensorboard_events(folder)[tag]]
 
 
 def test_a_damaged_newest_checkpoint_is_skipped(tmp_path, capsys):
@@ -419,6 +432,36 @@ def test_behaviour_cloning_and_dagger_learn_the_expert(tmp_path):
     initial, taught = float(rows[0]["mean_gap_deg"]), float(rows[-1]["mean_gap_deg"])
     assert taught < 1.0 < initial
     assert float(rows[-1]["success_rate"]) == 1.0
+
+
+def test_a_round_that_leaves_the_policy_worse_is_undone(tmp_path, monkeypatch, capsys):
+    """Keep-best on the validation set: a fit that wrecks the grip does not reach the model."""
+    import torch
+
+    import grasp_env_agents.imitation as imitation
+
+    fit, calls = imitation.fit, []
+
+    def second_fit_wrecks_the_actor(policy, *args, **kwargs):
+        calls.append(1)
+        loss = fit(policy, *args, **kwargs)
+        if len(calls) == 2:
+            with torch.no_grad():
+                policy.action_net.weight.normal_(0.0, 10.0)
+        return loss
+
+    monkeypatch.setattr(imitation, "fit", second_fit_wrecks_the_actor)
+    config = tiny(
+        total_timesteps=0,
+        imitation={"rounds": 3, "samples_per_round": 124, "epochs": 20, "n_envs": 4},
+    )
+    train(config, tmp_path / "run", progress_bar=False)
+    gaps = [float(r["mean_gap_deg"]) for r in curve(tmp_path / "run")]
+    assert gaps[2] == gaps[1]  # round 1 undone: round 0's policy, the same held-out scenes
+    out = capsys.readouterr().out
+    assert "round 0" in out and out.count("(undone)") == 1 and out.count("(kept)") == 2
+    kept = tensorboard_scalars(tmp_path / "run" / "tb" / "imitation", "imitation/kept")
+    assert kept == [1.0, 0.0, 1.0]
 
 
 # --- baselines -----------------------------------------------------------------------------
