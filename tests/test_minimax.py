@@ -236,6 +236,32 @@ def test_batched_equals_single() -> None:
     np.testing.assert_array_equal(per_pose.k, batch.k)
 
 
+def _solve_in_child(g: Grasp, k_max: float, out) -> None:
+    out.put(solve_minimax(g, k_max).k)
+
+
+def test_a_forked_child_solves_batches() -> None:
+    """SubprocVecEnv and Ray fork workers: a batch big enough for the solver's threads must be
+    solved in the child too (the parent's pool has no threads there)."""
+    import multiprocessing
+
+    rng = np.random.default_rng(6)
+    scene, _ = random_scene(rng, 3)
+    g = scene_grasp(scene, pose_rotation(PAPER_AXIS, np.deg2rad(np.linspace(-15, 15, 256))))
+    parent = solve_minimax(g, 2 * scene.weight).k  # the parent's pool now has its threads
+    context = multiprocessing.get_context("fork")
+    out = context.Queue()
+    child = context.Process(target=_solve_in_child, args=(g, 2 * scene.weight, out))
+    child.start()
+    try:
+        k = out.get(timeout=60)
+    finally:
+        child.join(10)
+        if child.is_alive():
+            child.kill()
+    np.testing.assert_array_equal(k, parent)
+
+
 @pytest.mark.parametrize(("n", "f_max"), [(3, None), (3, 12.0), (4, None)])
 def test_following_poses_reach_the_same_certified_optima(n: int, f_max: float | None) -> None:
     """Warm starts along trajectories change where the solver starts, not what it certifies;

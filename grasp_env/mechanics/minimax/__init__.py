@@ -64,14 +64,16 @@ from .driver import solve_batch
 _THREADS = max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else 1)
 _PARALLEL_FROM = 64  # smaller batches are not worth the hand-off to threads
 _CHUNKS_PER_THREAD = 4
-_executor: ThreadPoolExecutor | None = None
+_executor: tuple[int, ThreadPoolExecutor] | None = None  # (the process that made it, the pool)
 
 
 def _pool() -> ThreadPoolExecutor:
+    """The solver's threads; a new pool in a forked child (SubprocVecEnv, Ray workers), where
+    the parent's threads do not exist and a batch handed to them would never be solved."""
     global _executor
-    if _executor is None:
-        _executor = ThreadPoolExecutor(_THREADS, thread_name_prefix="minimax")
-    return _executor
+    if _executor is None or _executor[0] != os.getpid():
+        _executor = (os.getpid(), ThreadPoolExecutor(_THREADS, thread_name_prefix="minimax"))
+    return _executor[1]
 
 
 @dataclass(frozen=True)
