@@ -16,8 +16,10 @@ from __future__ import annotations
 import argparse
 import csv
 import time
+from dataclasses import dataclass
 from itertools import combinations
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -81,6 +83,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )  # fmt: skip
     parser.add_argument("--no-thumb", action="store_true", help="a hand without the thumb")
     parser.add_argument("--no-plots", action="store_true", help="write the CSV only")
+    parser.add_argument(
+        "--models", nargs="+", type=Path, default=[], metavar="MODEL",
+        help="trained agents (SB3 model files, e.g. rl-zoo3's, or grasp-env run directories)"
+        " to play on grasp_env/CubeGait-v0 beside the optimal and the greedy gait (the"
+        " default hand, sites and weight; --axis, --alpha-*, --mu, --cone, --k-max apply)",
+    )  # fmt: skip
 
 
 def _numbers(text: str) -> tuple[float, ...]:
@@ -180,6 +188,106 @@ def summary(solution: GaitSolution, seconds: float) -> list[str]:
         f" of certified minimax, and the dynamic programme)"
     )
     return lines
+
+
+def env_kwargs(args: argparse.Namespace) -> dict[str, Any]:
+    """``grasp_env/CubeGait-v0``'s keywords for the options (ValueError for options that
+    environment cannot take: it has the default hand, sites and weight)."""
+    add_arguments(parser := argparse.ArgumentParser())
+    defaults = parser.parse_args([])
+    fixed = ["weight", "offsets", "cg_offset", "finger_azimuths", "finger_elevation", "no_thumb"]
+    changed = [name for name in fixed if getattr(args, name) != getattr(defaults, name)]
+    if changed:
+        options = ", ".join("--" + name.replace("_", "-") for name in changed)
+        raise ValueError(
+            f"--models plays on grasp_env/CubeGait-v0, whose hand, sites and weight are the"
+            f" defaults: drop {options}"
+        )
+    trajectory = {
+        "axis": tuple(args.axis),
+        "alpha_start_deg": args.alpha_start,
+        "alpha_end_deg": args.alpha_end,
+        "alpha_step_deg": args.alpha_step,
+    }
+    kwargs: dict[str, Any] = {"trajectory": trajectory, "mu": args.mu, "cone_deg": args.cone}
+    if args.k_max is not None:
+        kwargs["k_max_ratio"] = args.k_max / args.weight
+    return kwargs
+
+
+@dataclass(frozen=True)
+class Episode:
+    """One deterministic episode of a gait policy: the poses it held (no slip, no drop), the
+    alpha where it ended early (None if it held to the end) and its worst margin (radians)
+    over the poses it held."""
+
+    held: int
+    ended_deg: float | None
+    worst: float
+
+
+def play(policy: Any, kwargs: dict[str, Any]) -> Episode:
+    """Plays ``policy.predict`` (deterministic) on ``grasp_env/CubeGait-v0`` with ``kwargs``;
+    the episode stops at the first slip or drop (the environment's default)."""
+    import gymnasium as gym
+
+    env = gym.make("grasp_env/CubeGait-v0", **kwargs)
+    space = getattr(getattr(policy, "model", None), "observation_space", env.observation_space)
+    if space.shape != env.observation_space.shape:
+        raise ValueError(
+            f"the model observes {space.shape}, grasp_env/CubeGait-v0"
+            f" {env.observation_space.shape}: not a gait agent"
+        )
+    obs, _ = env.reset(seed=0)
+    rewards, terminated, truncated, info = [], False, False, {}
+    while not (terminated or truncated):
+        action = policy.predict(obs, deterministic=True)[0]
+        obs, reward, terminated, truncated, info = env.step(action)
+        rewards.append(reward)
+    env.close()
+    # a slip or a drop ends the episode: its last pose is not held
+    held = np.asarray(rewards[:-1] if terminated else rewards)
+    ended = float(info["alpha_deg"]) if terminated else None
+    return Episode(len(held), ended, float(held.min()) if len(held) else -np.inf)
+
+
+def compare_models(args: argparse.Namespace) -> list[tuple[str, Episode]]:
+    """Prints the table of ``--models``: the optimal and greedy gaits and each trained agent,
+    and across the agents the IQM with its 95% bootstrap interval (rliable); returns its
+    rows."""
+    from rich.console import Console
+    from rich.table import Table
+
+    from grasp_env.envs.gait import GaitExpert, GreedyGait
+
+    from .models import load_agent
+
+    kwargs = env_kwargs(args)
+    rows = [("optimal gait (certified)", play(GaitExpert(**kwargs), kwargs))]
+    rows.append(("greedy gait", play(GreedyGait(**kwargs), kwargs)))
+    # rl-zoo3 saves every run as <env id>.zip in a folder named after the run
+    agents = [(f"{p.parent.name}/{p.name}", play(load_agent(p), kwargs)) for p in args.models]
+    table = Table(title="On grasp_env/CubeGait-v0 (deterministic, to the first slip or drop)")
+    for name in ("policy", "poses held", "ended at alpha (deg)", "worst margin held (deg)"):
+        table.add_column(name, justify="left" if name == "policy" else "right")
+    for name, episode in rows + agents:
+        table.add_row(
+            name,
+            str(episode.held),
+            "held to the end" if episode.ended_deg is None else f"{episode.ended_deg:g}",
+            f"{np.rad2deg(episode.worst):.3f}" if episode.held else "none held",
+        )
+    if len(agents) > 1:
+        from .results import iqm_interval
+
+        held = iqm_interval([e.held for _, e in agents])
+        worst = [np.rad2deg(e.worst) for _, e in agents if e.held]
+        table.add_row(
+            f"the {len(agents)} agents: IQM [95% CI]", held.format("{:.1f}"), "",
+            iqm_interval(worst).format("{:.3f}") if worst else "none held",
+        )  # fmt: skip
+    Console().print(table)
+    return rows + agents
 
 
 def write_csv(solution: GaitSolution, path: Path) -> None:
@@ -292,6 +400,8 @@ def plot(solution: GaitSolution, path: Path) -> None:
 
 def run(args: argparse.Namespace) -> int:
     scene, hand, trajectory = problem(args)
+    if args.models:
+        env_kwargs(args)  # refuse options the environment cannot take before solving
     start = time.perf_counter()
     solution = solve_gait(scene, hand, trajectory, args.k_max)
     seconds = time.perf_counter() - start
@@ -305,4 +415,6 @@ def run(args: argparse.Namespace) -> int:
         plot(solution, args.out / "gait.png")
         written.append("gait.png")
     print(f"wrote {', '.join(str(args.out / name) for name in written)}")
+    if args.models:
+        compare_models(args)
     return 0

@@ -454,6 +454,44 @@ def test_gait_command_refuses_bad_options(capsys):
     assert main(["gait", "--k-max", "-1", "--no-plots"]) == 2
 
 
+def test_gait_command_plays_models_beside_the_gaits(tmp_path, capsys):
+    """--models: each policy played on the environment, the optimal and greedy gaits' episodes
+    matching the dynamic programme's own figures."""
+    import argparse
+
+    import gymnasium as gym
+    from stable_baselines3 import PPO
+
+    from grasp_env_agents import gait as command
+    from grasp_env_agents.cli import main
+
+    model = PPO("MlpPolicy", gym.make(GAIT_ID), n_steps=64, batch_size=64, seed=0)
+    model.learn(64)
+    model.save(tmp_path / "agent.zip")
+    argv = ["--alpha-step", "10", "--no-plots", "--out", str(tmp_path / "gait")]
+    parser = argparse.ArgumentParser()
+    command.add_arguments(parser)
+    args = parser.parse_args([*argv, "--models", *[str(tmp_path / "agent.zip")] * 2])
+    rows = dict(command.compare_models(args))
+    solution = solve_gait(GaitScene(), Hand(), Trajectory(PAPER_TURN.axis, -90, 90, 10))
+    optimal, greedy = rows["optimal gait (certified)"], rows["greedy gait"]
+    assert optimal.held == 19 and optimal.ended_deg is None
+    assert abs(optimal.worst - solution.optimal.margin) < 1e-6  # float32 actions
+    dropped = np.flatnonzero(solution.greedy.sets < 0)
+    assert greedy.held == (dropped[0] if len(dropped) else 19)
+    agent = rows[f"{tmp_path.name}/agent.zip"]
+    assert 0 <= agent.held <= 19
+    printed = capsys.readouterr().out
+    assert "IQM" in printed  # two agents: the aggregate row
+
+    assert main(["gait", *argv, "--offsets", ",".join(["0"] * 12), "--models", "m.zip"]) == 2
+    assert "drop --offsets" in capsys.readouterr().err
+    grasp_model = PPO("MlpPolicy", gym.make("grasp_env/CubeGrasp-v0"), n_steps=64, batch_size=64)
+    grasp_model.save(tmp_path / "grasp.zip")
+    assert main(["gait", *argv, "--models", str(tmp_path / "grasp.zip")]) == 2
+    assert "not a gait agent" in capsys.readouterr().err
+
+
 # ------------------------------------------------------------------------ the environment
 
 GAIT_ID = "grasp_env/CubeGait-v0"
