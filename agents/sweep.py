@@ -323,7 +323,8 @@ def sweep(path: Path, out: Path, address: str | None = None, num_cpus: int | Non
         params = {k: v for k, v in result.config.items() if k != "seed"}
         label = ", ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}"
                           for k, v in sorted(params.items())) or "base config"  # fmt: skip
-        groups.setdefault(label, []).append(read_run(Path(result.metrics["run_dir"])))
+        run_dir = Path(result.metrics["run_dir"])
+        groups.setdefault(label, []).append(read_run(run_dir, spec["episodes"]))
     ordered = [Group(label, runs, str(spec["config"])) for label, runs in groups.items()]
     markdown = table(ordered, spec["episodes"])
     (out / "results.md").write_text(markdown + "\n")

@@ -144,7 +144,7 @@ def test_two_trial_sweep_on_a_local_ray_then_resumed(tmp_path: Path) -> None:
         tmp_path / "sweep.yaml",
         {
             "config": "tiny.yaml",
-            "episodes": 8,
+            "episodes": 4,  # not the runs' own eval_episodes: the report must use these
             "seeds": [0],
             "space": {"ppo.learning_rate": {"grid": [1e-4, 3e-4]}},
         },
@@ -160,9 +160,11 @@ def test_two_trial_sweep_on_a_local_ray_then_resumed(tmp_path: Path) -> None:
         assert sorted(p.name for p in (run / "checkpoints").glob("ppo_*_steps.zip"))
         config = yaml.safe_load((run / "config.yaml").read_text())
         rates.add(config["ppo"]["learning_rate"])
-        with (run / "evaluation-8-scenes" / "comparison.csv").open() as file:
+        with (run / "evaluation-4-scenes" / "comparison.csv").open() as file:
             agent = next(r for r in csv.DictReader(file) if r["policy"] == "trained agent")
-        assert int(agent["episodes"]) == 8
+        assert int(agent["episodes"]) == 4
+        (reported,) = [r for g in groups for r in g.runs if r.run_dir == run]
+        assert reported.metrics["mean_gap_deg"] == float(agent["mean_gap_deg"])
     assert rates == {1e-4, 3e-4}
     assert sorted(len(g.runs) for g in groups) == [1, 1]
     report = (out / "results.md").read_text()
