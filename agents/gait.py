@@ -251,6 +251,20 @@ def play(policy: Any, kwargs: dict[str, Any]) -> Episode:
     return Episode(len(held), ended, float(held.min()) if len(held) else -np.inf)
 
 
+def model_labels(paths: list[Path]) -> list[str]:
+    """The shortest endings of ``paths`` (at least folder/file) that tell them apart.
+
+    rl-zoo3 saves every run as <env id>.zip in a folder <env id>_<n>, numbered within its log
+    folder, so runs of several seeds differ only further up.
+    """
+    parts = [Path(p).parts for p in paths]
+    for n in range(2, max(map(len, parts), default=2) + 1):
+        labels = ["/".join(p[-n:]) for p in parts]
+        if len(set(labels)) == len(labels):
+            return labels
+    return [str(p) for p in paths]
+
+
 def compare_models(args: argparse.Namespace) -> list[tuple[str, Episode]]:
     """Prints the table of ``--models``: the optimal and greedy gaits and each trained agent,
     and across the agents the IQM with its 95% bootstrap interval (rliable); returns its
@@ -265,11 +279,16 @@ def compare_models(args: argparse.Namespace) -> list[tuple[str, Episode]]:
     kwargs = env_kwargs(args)
     rows = [("optimal gait (certified)", play(GaitExpert(**kwargs), kwargs))]
     rows.append(("greedy gait", play(GreedyGait(**kwargs), kwargs)))
-    # rl-zoo3 saves every run as <env id>.zip in a folder named after the run
-    agents = [(f"{p.parent.name}/{p.name}", play(load_agent(p), kwargs)) for p in args.models]
+    labels = model_labels(args.models)
+    agents = [
+        (label, play(load_agent(p), kwargs)) for label, p in zip(labels, args.models, strict=True)
+    ]
     table = Table(title="On grasp_env/CubeGait-v0 (deterministic, to the first slip or drop)")
     for name in ("policy", "poses held", "ended at alpha (deg)", "worst margin held (deg)"):
-        table.add_column(name, justify="left" if name == "policy" else "right")
+        left = name == "policy"
+        table.add_column(
+            name, justify="left" if left else "right", overflow="fold" if left else "ellipsis"
+        )
     for name, episode in rows + agents:
         table.add_row(
             name,

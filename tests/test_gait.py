@@ -4,6 +4,7 @@ the certificate, and the long trajectories that need phasing (issue 16)."""
 from __future__ import annotations
 
 from itertools import combinations, permutations
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -454,7 +455,7 @@ def test_gait_command_refuses_bad_options(capsys):
     assert main(["gait", "--k-max", "-1", "--no-plots"]) == 2
 
 
-def test_gait_command_plays_models_beside_the_gaits(tmp_path, capsys):
+def test_gait_command_plays_models_beside_the_gaits(tmp_path, capsys, monkeypatch):
     """--models: each policy played on the environment, the optimal and greedy gaits' episodes
     matching the dynamic programme's own figures."""
     import argparse
@@ -465,13 +466,17 @@ def test_gait_command_plays_models_beside_the_gaits(tmp_path, capsys):
     from grasp_env_agents import gait as command
     from grasp_env_agents.cli import main
 
+    monkeypatch.setenv("COLUMNS", "200")  # rich's width
     model = PPO("MlpPolicy", gym.make(GAIT_ID), n_steps=64, batch_size=64, seed=0)
     model.learn(64)
-    model.save(tmp_path / "agent.zip")
+    # as rl-zoo3 lays out two seeds' runs: the same folder and file names below each log folder
+    files = [tmp_path / f"seed{s}" / "ppo" / "CubeGait_1" / "agent.zip" for s in (0, 1)]
+    for file in files:
+        model.save(file)
     argv = ["--alpha-step", "10", "--no-plots", "--out", str(tmp_path / "gait")]
     parser = argparse.ArgumentParser()
     command.add_arguments(parser)
-    args = parser.parse_args([*argv, "--models", *[str(tmp_path / "agent.zip")] * 2])
+    args = parser.parse_args([*argv, "--models", *map(str, files)])
     rows = dict(command.compare_models(args))
     solution = solve_gait(GaitScene(), Hand(), Trajectory(PAPER_TURN.axis, -90, 90, 10))
     optimal, greedy = rows["optimal gait (certified)"], rows["greedy gait"]
@@ -479,10 +484,13 @@ def test_gait_command_plays_models_beside_the_gaits(tmp_path, capsys):
     assert abs(optimal.worst - solution.optimal.margin) < 1e-6  # float32 actions
     dropped = np.flatnonzero(solution.greedy.sets < 0)
     assert greedy.held == (dropped[0] if len(dropped) else 19)
-    agent = rows[f"{tmp_path.name}/agent.zip"]
-    assert 0 <= agent.held <= 19
+    labels = [f"seed{s}/ppo/CubeGait_1/agent.zip" for s in (0, 1)]
+    assert all(0 <= rows[label].held <= 19 for label in labels)
     printed = capsys.readouterr().out
     assert "IQM" in printed  # two agents: the aggregate row
+    assert all(label in printed for label in labels)  # whole, on a wide terminal
+    assert command.model_labels([Path("a/x.zip"), Path("b/x.zip")]) == ["a/x.zip", "b/x.zip"]
+    assert command.model_labels([Path("a/x.zip")] * 2) == ["a/x.zip"] * 2  # the same file twice
 
     assert main(["gait", *argv, "--offsets", ",".join(["0"] * 12), "--models", "m.zip"]) == 2
     assert "drop --offsets" in capsys.readouterr().err
