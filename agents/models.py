@@ -294,7 +294,10 @@ def load_agent(path: str | Path, algo: str = "ppo") -> TrainedAgent:
     """
     path = Path(path)
     model_file = path / "model.zip" if path.is_dir() else path
-    model = load_model(model_file, algo)
+    with warnings.catch_warnings():
+        # an agent only predicts: schedules skipped as code (rl-zoo3's lin_3e-4, say) do not matter
+        warnings.filterwarnings("ignore", "(?s).*are code in the file and were not loaded")
+        model = load_model(model_file, algo)
     normalizer = None
     statistics = model_file.parent / "vecnormalize.pkl"
     if statistics.is_file():

@@ -124,6 +124,12 @@ def test_a_payload_in_a_schedule_is_not_decoded(tmp_path):
     obs = observations()
     expected = saved.predict(obs, deterministic=True)[0]
     np.testing.assert_array_equal(model.predict(obs, deterministic=True)[0], expected)
+    # an agent loaded to play (evaluate, gait --models) does not need its schedules: no warning
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        agent = load_agent(path)
+    np.testing.assert_array_equal(agent.predict(obs, deterministic=True)[0], expected)
+    assert not marker.exists()
 
 
 def test_a_payload_in_vecnormalize_or_in_the_tensors_runs_nothing(tmp_path):
