@@ -78,7 +78,12 @@ class Estimate:
 
 def iqm_interval(values: Sequence[float], reps: int = BOOTSTRAP_REPS) -> Estimate:
     """IQM of per-run values and its 95% stratified-bootstrap interval (rliable)."""
-    from rliable import library, metrics
+    try:
+        from rliable import library, metrics
+    except ImportError:
+        raise ValueError(
+            'aggregates over runs need rliable: pip install "grasp-env[results]"'
+        ) from None
 
     scores = np.asarray(values, dtype=float).reshape(-1, 1)  # (runs, tasks = 1)
     if len(scores) == 0 or not np.all(np.isfinite(scores)):

@@ -60,6 +60,15 @@ def test_iqm_refuses_missing_or_nan_values() -> None:
         results.iqm_interval([])
 
 
+def test_iqm_without_rliable_names_the_extra(monkeypatch) -> None:
+    """A bare install (no `results` extra): a clear error, not a ModuleNotFoundError."""
+    import sys
+
+    monkeypatch.setitem(sys.modules, "rliable", None)  # import rliable then raises ImportError
+    with pytest.raises(ValueError, match=r"grasp-env\[results\]"):
+        results.iqm_interval([0.1, 0.2])
+
+
 def test_replace_table_rewrites_only_between_the_markers(tmp_path: Path) -> None:
     readme = tmp_path / "README.md"
     readme.write_text(f"intro\n{results.BEGIN}\nold table\n{results.END}\nafter\n")
