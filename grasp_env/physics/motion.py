@@ -53,6 +53,7 @@ its force has ramped above it.
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import numpy as np
@@ -136,38 +137,52 @@ FINE = 8
 
 
 def warped_steps(
-    fine: np.ndarray,
+    fine: list[np.ndarray],
     forces: np.ndarray,
     normals: np.ndarray,
     touching: np.ndarray,
-    duration: float,
+    durations: np.ndarray,
     settings: dict[str, float],
-) -> np.ndarray:
-    """The path coordinates s in (0, 1] of a segment's steps: the base timing (``duration``
+) -> list[np.ndarray]:
+    """The path coordinates s in (0, 1] of each segment's steps: the base timing (``duration``
     seconds, s uniform in time) slowed wherever a touching finger's normal force N_i would
     change faster than ``force_rate`` x max(|P_i|, ``force_floor``) per second (|P_i| rather
     than N_i: a finger pushing nearly along its face is far outside its cone anyway, and
-    must not stall the run). ``fine`` (K,)
-    are path coordinates from 0 to 1, ``forces`` (K, n, 3) the forces there (units of w),
-    ``normals`` (n, 3) the inward normals, ``touching`` (n,) the fingers in contact.
+    must not stall the run). ``fine`` holds each segment's path coordinates from 0 to 1,
+    ``forces`` (K, n, 3) the forces there (units of w), segment after segment, ``normals``
+    (n, 3) the inward normals, ``touching`` (S, n) each segment's fingers in contact,
+    ``durations`` (S,) their base times.
 
     Only the timing changes: the steps are points of the same path (interpolated in s between
     the fine samples), so the forces both verdicts judge are the path's. The soft contact
     needs this: a tip's penetration follows its normal force, and a light tip moved fast
     lags, so its contact's normal force falls below the commanded one (docs/physics.md)."""
-    normal = np.einsum("knc,nc->kn", forces, normals)
-    magnitude = np.linalg.norm(forces, axis=-1)
+    if not fine:
+        return []
+    lengths = np.array([len(x) for x in fine])
+    # Every segment at once, each row padded by repeating its last sample: the padding's
+    # intervals take no time, so each row's clock ends where its segment's does.
+    starts = np.cumsum(lengths) - lengths
+    rows = starts[:, None] + np.minimum(np.arange(lengths.max()), lengths[:, None] - 1)
+    normal = np.einsum("knc,nc->kn", forces, normals)[rows]
+    magnitude = np.linalg.norm(forces, axis=-1)[rows]
+    path = np.concatenate(fine)[rows]
     loaded = magnitude > settings["released_force"]
-    judged = touching & (loaded[:-1] | loaded[1:])  # (K - 1, n): touching in the interval
-    size = np.maximum(np.minimum(magnitude[:-1], magnitude[1:]), settings["force_floor"])
-    need = np.where(judged, np.abs(np.diff(normal, axis=0)) / (settings["force_rate"] * size), 0.0)
-    base = np.diff(fine) * duration
-    times = np.maximum(base, need.max(axis=1, initial=0.0))
-    clock = np.concatenate([[0.0], np.cumsum(times)])
-    steps = max(1, round(clock[-1] / settings["timestep"]))
-    s = np.interp(np.arange(1, steps + 1) * (clock[-1] / steps), clock, fine)
-    s[-1] = 1.0
-    return s
+    judged = touching[:, None] & (loaded[:, :-1] | loaded[:, 1:])  # in contact in the interval
+    size = np.maximum(np.minimum(magnitude[:, :-1], magnitude[:, 1:]), settings["force_floor"])
+    rate = np.abs(np.diff(normal, axis=1)) / (settings["force_rate"] * size)
+    need = np.where(judged, rate, 0.0)
+    base = np.diff(path, axis=1) * durations[:, None]
+    times = np.maximum(base, need.max(axis=2, initial=0.0))
+    clocks = np.concatenate([np.zeros((len(fine), 1)), np.cumsum(times, axis=1)], axis=1)
+    ends = clocks[:, -1]
+    steps = np.maximum(1, np.round(ends / settings["timestep"])).astype(int)
+    segments = []
+    for t, (x, clock) in enumerate(zip(fine, clocks, strict=True)):
+        s = np.interp(np.arange(1, steps[t] + 1) * (ends[t] / steps[t]), clock[: len(x)], x)
+        s[-1] = 1.0
+        segments.append(s)
+    return segments
 
 
 def path_settings(settings: dict[str, float], density: int = 8) -> dict[str, float]:
@@ -318,70 +333,69 @@ def plan_motion(
                 f"the run would take more than {MAX_STEPS} steps: lower time_per_degree,"
                 " min_segment_time, pose_hold_time or the number of poses"
             )
-    active = [carrying[t] | carrying[t + 1] for t in range(n_poses - 1)]
+    # Each segment's turn as an axis (zero for none) and angle, and its fingers sharing the load.
+    axes = np.array([np.zeros(3) if axis is None else axis for axis, _ in turns]).reshape(-1, 3)
+    angles = np.array([angle for _, angle in turns])
+    active = carrying[:-1] | carrying[1:]  # (T - 1, n)
+    # For each set A of load-sharing fingers: its segments, and the pose forces' parts in the
+    # null space of G_A (T, |A|, 3), interpolated along them.
+    shared = [
+        (key, np.flatnonzero((active == key).all(axis=1)),
+         pose_forces[:, key] - equilibrating(key, pose_load))
+        for key in np.unique(active, axis=0)
+        if key.any()
+    ]  # fmt: skip
 
-    def path(ss: list[np.ndarray]) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
-        """(orientations, load, forces) of every segment t at its path coordinates ss[t]: the
+    def path(ss: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(orientations, load, forces) of every segment t at its path coordinates ss[t], one
+        segment after another: the
         load turned exactly, the equilibrating part recomputed for it, the rest interpolated.
         The fingers that carry load at either end share the turning load; a finger released
-        at both ends (or out of contact) keeps its own (tiny or zero) force, interpolated."""
-        turning = [t for t, (axis, _) in enumerate(turns) if axis is not None]
-        along = {}
-        if turning:
-            starts = np.concatenate([np.repeat(rotations[t : t + 1], len(ss[t]), 0)
-                                     for t in turning])  # fmt: skip
-            axes = np.concatenate([np.repeat(turns[t][0][None], len(ss[t]), 0)
-                                   for t in turning])  # fmt: skip
-            angles = np.concatenate([ss[t] * turns[t][1] for t in turning])
-            turned_all = starts @ axis_angle_matrix(axes, angles)
-            load_all = _load(scene, turned_all)
-            bounds = np.cumsum([0] + [len(ss[t]) for t in turning])
-            along = {
-                t: (turned_all[a:b], load_all[a:b])
-                for t, a, b in zip(turning, bounds[:-1], bounds[1:], strict=True)
-            }
-        out = []
-        for t, s in enumerate(ss):
-            if t in along:
-                turned, load = along[t]
-            else:
-                turned = np.repeat(rotations[t : t + 1], len(s), 0)
-                load = _load(scene, turned)
-            a = s[:, None, None]
-            step_forces = (1 - a) * pose_forces[t] + a * pose_forces[t + 1]
-            on = active[t]
-            if on.any():
-                ends = equilibrating(on, pose_load[t : t + 2])
-                rest = pose_forces[t : t + 2][:, on] - ends  # (2, |A|, 3), null space of G_A
-                step_forces[:, on] = (
-                    equilibrating(on, load) + (1 - a) * rest[0] + a * rest[1]
-                )  # fmt: skip
-            out.append((turned, load, step_forces))
-        return out
+        at both ends (or out of contact) keeps its own (tiny or zero) force, interpolated.
+        Every segment's steps in one pass: the steps of segment ``seg`` at coordinate ``s``."""
+        seg = np.repeat(np.arange(len(ss)), [len(x) for x in ss])
+        s = np.concatenate(ss) if ss else np.zeros(0)
+        turned = rotations[seg]
+        turning = np.any(axes[seg] != 0.0, axis=1)
+        if turning.any():
+            turned[turning] = turned[turning] @ axis_angle_matrix(
+                axes[seg[turning]], s[turning] * angles[seg[turning]]
+            )
+        load = _load(scene, turned)
+        a = s[:, None, None]
+        step_forces = (1 - a) * pose_forces[seg] + a * pose_forces[seg + 1]
+        for key, segments, null in shared:
+            rows = np.flatnonzero(np.isin(seg, segments))
+            a_rows, seg_rows = a[rows], seg[rows]
+            step_forces[np.ix_(rows, np.flatnonzero(key))] = (
+                equilibrating(key, load[rows])
+                + (1 - a_rows) * null[seg_rows]
+                + a_rows * null[seg_rows + 1]
+            )
+        return turned, load, step_forces
 
     # The timing: the path sampled finely, then each segment's steps spaced so that no
     # touching finger's normal force changes faster than force_rate x max(N, force_floor).
     fine = [np.linspace(0.0, 1.0, FINE * n + 1) for n in base_steps]
-    segments = []
-    for t, (_, _, sampled) in enumerate(path(fine)):
-        touching = contact[t] | contact[t + 1]
-        s = warped_steps(fine[t], sampled, scene.normals, touching, base_steps[t] * dt, settings)
-        total += len(s)
-        if total > MAX_STEPS:
-            raise ValueError(
-                f"the run would take more than {MAX_STEPS} steps: lower time_per_degree,"
-                " min_segment_time, pose_hold_time, raise force_rate or lower the number"
-                " of poses"
-            )
-        segments.append(s)
-    for t, (turned, load, step_forces) in enumerate(path(segments)):
+    touching = contact[:-1] | contact[1:]
+    segments = warped_steps(
+        fine, path(fine)[2], scene.normals, touching, np.array(base_steps) * dt, settings
+    )
+    if total + sum(len(s) for s in segments) > MAX_STEPS:
+        raise ValueError(
+            f"the run would take more than {MAX_STEPS} steps: lower time_per_degree,"
+            " min_segment_time, pose_hold_time, raise force_rate or lower the number"
+            " of poses"
+        )
+    turned, load, step_forces = path(segments)
+    bounds = np.cumsum([0] + [len(s) for s in segments])
+    for t, (lo, hi) in enumerate(itertools.pairwise(bounds)):
         hold_at(t, dwell)
-        steps = len(segments[t])
-        parts["forces"].append(step_forces)
-        parts["load"].append(load)
-        parts["contact"].append(np.repeat((contact[t] | contact[t + 1])[None], steps, 0))
+        parts["forces"].append(step_forces[lo:hi])
+        parts["load"].append(load[lo:hi])
+        parts["contact"].append(np.repeat((contact[t] | contact[t + 1])[None], hi - lo, 0))
         parts["pose"].append(t + segments[t])
-        parts["rotations"].append(turned)
+        parts["rotations"].append(turned[lo:hi])
     hold_at(n_poses - 1, hold)
     steps = {name: np.concatenate(values) for name, values in parts.items()}
     steps["contact"] &= ~released(steps["forces"], 1.0, settings["released_force"])

@@ -165,7 +165,7 @@ class TrajectoryChecker(Checker):
 
     Args:
         scene: the grasp to simulate.
-        threads: rollout threads for :meth:`check_batch` (default: every available core).
+        threads: threads for :meth:`check_batch` (default: every available core).
         **settings: overrides of :data:`grasp_env.physics.SETTINGS`.
     """
 
@@ -190,13 +190,16 @@ class TrajectoryChecker(Checker):
         threads: int | None = None,
     ) -> list[RolloutReport]:
         """:meth:`check` of several (rotations, contact_forces, in_contact) grips, in parallel
-        on ``threads`` rollout threads (default: the checker's)."""
-        motions = [self.plan(*grip) for grip in grips]
-        traces = self._simulate(motions, threads)
-        return [
-            rollout_report(self.scene, m, t, self.settings)
-            for m, t in zip(motions, traces, strict=True)
-        ]
+        on ``threads`` threads (default: the checker's)."""
+
+        def reports(part: Sequence[tuple]) -> list[RolloutReport]:
+            motions = [self.plan(*grip) for grip in part]
+            return [
+                rollout_report(self.scene, m, t, self.settings)
+                for m, t in zip(motions, self._simulate(motions), strict=True)
+            ]
+
+        return self._in_parallel(reports, list(grips), threads)
 
 
 def check_trajectories(

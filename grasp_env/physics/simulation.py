@@ -1,5 +1,8 @@
-"""Running motions in MuJoCo, many at once: ``mujoco.rollout`` steps them in C on a thread pool
-(it releases the GIL), and the measurements are taken afterwards from the states of every step.
+"""Running motions in MuJoCo, many at once: ``mujoco.rollout`` steps them in C (it releases the
+GIL), and the measurements are taken afterwards from the states of every step. A batch is split
+into one contiguous part per thread (:func:`in_parallel`), and each part is planned, stepped
+and measured by its own thread: one part's Python then overlaps another's stepping, where a
+rollout thread pool alone would leave the cores idle while the Python plans and measures.
 
 A batch of runs steps in lockstep through chunks of steps. Chunks end where the settle ends (the
 settle runs on a copy of the model with a high friction coefficient) and where a finger is
@@ -20,7 +23,8 @@ from __future__ import annotations
 import itertools
 import os
 import threading
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import mujoco
@@ -43,7 +47,7 @@ _STATE = mujoco.mjtState.mjSTATE_FULLPHYSICS
 _CONTROL = mujoco.mjtState.mjSTATE_CTRL | mujoco.mjtState.mjSTATE_XFRC_APPLIED
 #: A batch steps at most this many (run x step) rows in one rollout call per chunk (to bound
 #: memory: about 30 MB of controls and states). Fewer, larger calls: fewer points where the
-#: rollout threads wait for each other and for the Python between chunks.
+#: threads wait for the Python between chunks.
 _ROWS_PER_BATCH = 60_000
 
 
@@ -55,16 +59,40 @@ def available_cores() -> int:
         return os.cpu_count() or 1
 
 
-_pools: dict[int, mujoco.rollout.Rollout] = {}
-_pools_lock = threading.Lock()
+_local = threading.local()  # each thread's rollout runner and MjData (MuJoCo's are not shared)
 
 
-def _pool(threads: int) -> mujoco.rollout.Rollout:
-    """A persistent rollout thread pool (0 threads: run on the calling thread)."""
-    with _pools_lock:
-        if threads not in _pools:
-            _pools[threads] = mujoco.rollout.Rollout(nthread=threads)
-        return _pools[threads]
+def _runner() -> mujoco.rollout.Rollout:
+    """This thread's rollout runner (no pool of its own: it steps on the calling thread)."""
+    if not hasattr(_local, "runner"):
+        _local.runner = mujoco.rollout.Rollout(nthread=0)
+    return _local.runner
+
+
+_executor: tuple[int, ThreadPoolExecutor] | None = None  # (the process that made it, the pool)
+
+
+def _threads_pool() -> ThreadPoolExecutor:
+    """The threads that simulate the parts of a batch; a new pool in a forked child."""
+    global _executor
+    if _executor is None or _executor[0] != os.getpid():
+        _executor = (os.getpid(), ThreadPoolExecutor(available_cores(), "grasp-physics"))
+    return _executor[1]
+
+
+def in_parallel(work: Callable[[Sequence], list], items: Sequence, threads: int) -> list:
+    """``work`` of ``threads`` contiguous parts of ``items``, each on its own thread, the
+    results in order. Each part plans, simulates and measures its runs by itself: MuJoCo's
+    stepping releases the GIL, so one part's Python overlaps another's stepping (a rollout
+    thread pool alone leaves the cores idle while the Python plans and measures). A run's
+    result does not depend on its part (see :func:`simulate`)."""
+    parts = max(1, min(int(threads), len(items)))
+    if int(threads) == 1:
+        return work(items)
+    bounds = np.linspace(0, len(items), parts + 1).astype(int)
+    pool = _threads_pool()
+    futures = [pool.submit(work, items[a:b]) for a, b in itertools.pairwise(bounds)]
+    return [result for future in futures for result in future.result()]
 
 
 class PhysicsModel:
@@ -107,14 +135,15 @@ class PhysicsModel:
         self.arms = self.contacts - self.cg  # about the centre of gravity, object at rest
         self.nu = 3 * n
         self.wrench_start = self.nu + 6 * self.object
-        self._data: list[mujoco.MjData] = []
+        self._data: dict[int, mujoco.MjData] = {}
         self._initial: dict[bytes, np.ndarray] = {}
 
-    def data(self, count: int) -> list[mujoco.MjData]:
-        """``count`` MjData of this model (one per rollout thread), kept for reuse."""
-        while len(self._data) < count:
-            self._data.append(mujoco.MjData(self.model))
-        return self._data[:count]
+    def data(self) -> mujoco.MjData:
+        """The calling thread's MjData of this model, kept for reuse."""
+        data = self._data.get(threading.get_ident())
+        if data is None:
+            data = self._data[threading.get_ident()] = mujoco.MjData(self.model)
+        return data
 
     def initial_state(self, contact: np.ndarray) -> np.ndarray:
         """The full physics state at rest: the object at the identity, centre of gravity at
@@ -131,7 +160,7 @@ class PhysicsModel:
         return state
 
     def _build_initial_state(self, contact: np.ndarray) -> np.ndarray:
-        data = self.data(1)[0]
+        data = self.data()
         mujoco.mj_resetData(self.model, data)
         data.qpos[:3] = -self.cg
         data.qpos[3] = 1.0
@@ -341,15 +370,25 @@ def simulate(
 ) -> list[Trace]:
     """Run each (model, motion) pair and measure it (see the module docstring).
 
-    ``threads`` (default: every available core) is the rollout thread pool's size. Runs share
+    ``threads`` (default: every available core) is the number of parts run at once. Runs share
     rollout calls with runs of the same model structure (:attr:`PhysicsModel.signature`),
     settle and steps where fingers move, and nothing else: so a run's result is the same alone
     or in any batch, on any number of threads (a chunk boundary restarts MuJoCo's solver warm
     start).
     """
+    return in_parallel(_simulate_serial, runs, check_threads(threads))
+
+
+def check_threads(threads: int | None) -> int:
+    """``threads`` (None: every available core), or a ValueError."""
     threads = available_cores() if threads is None else int(threads)
     if threads < 1:
         raise ValueError(f"threads must be >= 1, got {threads}")
+    return threads
+
+
+def _simulate_serial(runs: Sequence[tuple[PhysicsModel, Motion]]) -> list[Trace]:
+    """:func:`simulate` on the calling thread."""
     traces: list[Trace | None] = [None] * len(runs)
     groups: dict[tuple, list[int]] = {}
     moves = [_moves(motion) for _, motion in runs]
@@ -362,7 +401,7 @@ def simulate(
         per_batch = max(1, _ROWS_PER_BATCH // length)
         for start in range(0, len(which), per_batch):
             part = which[start : start + per_batch]
-            batch = _simulate_batch([runs[r] for r in part], [moves[r] for r in part], threads)
+            batch = _simulate_batch([runs[r] for r in part], [moves[r] for r in part])
             for r, trace in zip(part, batch, strict=True):
                 traces[r] = trace
     return traces  # type: ignore[return-value]
@@ -376,19 +415,21 @@ def simulate_cases(
     """Plan and :func:`simulate` (scene, rotations (T, 3, 3), forces (T, n, 3), in_contact)
     cases over many scenes at once, one model per scene (``settings`` already checked)."""
     physics: dict[int, PhysicsModel] = {}
-    runs = []
-    for scene, rotations, forces, contact in cases:
+    for scene, *_ in cases:
         if id(scene) not in physics:
             physics[id(scene)] = PhysicsModel(scene, settings["timestep"], settings["settle_mu"])
-        runs.append((physics[id(scene)], plan_motion(scene, rotations, forces, contact, settings)))
-    traces = simulate(runs, threads)
-    return [(motion, trace) for (_, motion), trace in zip(runs, traces, strict=True)]
+
+    def run(part: Sequence[tuple]) -> list[tuple[Motion, Trace]]:
+        motions = [plan_motion(scene, *grip, settings) for scene, *grip in part]
+        runs = [(physics[id(scene)], m) for (scene, *_), m in zip(part, motions, strict=True)]
+        return list(zip(motions, _simulate_serial(runs), strict=True))
+
+    return in_parallel(run, list(cases), check_threads(threads))
 
 
 def _simulate_batch(
     runs: list[tuple[PhysicsModel, Motion]],
     moves: list[tuple[np.ndarray, np.ndarray]],
-    threads: int,
 ) -> list[Trace]:
     """One batch of runs that share their model structure, settle and finger moves (their
     :func:`_moves`)."""
@@ -420,9 +461,7 @@ def _simulate_batch(
             )[0]
             controls[r, steps:] = controls[r, steps - 1]
     state = np.stack([p._initial_state(motion.contact[0]) for p, motion in runs])
-    nthread = min(threads, count)
-    pool = _pool(nthread if nthread > 1 else 0)
-    data = physics0.data(max(1, nthread))
+    runner, data = _runner(), [physics0.data()]
     settle_models = [p.settle_model for p in physics]
     models = [p.model for p in physics]
     chunks = []
@@ -433,7 +472,7 @@ def _simulate_batch(
         # Inputs are laid out as mujoco.rollout wants them (contiguous float64, one model and
         # initial state per run, the output allocated here), so its checks are skipped.
         states = np.empty((count, b - a, physics0.nstate))
-        pool.rollout(
+        runner.rollout(
             settle_models if a < settle else models,
             data,
             state,
@@ -467,4 +506,4 @@ def _simulate_batch(
     return traces  # type: ignore[return-value]
 
 
-__all__ = ["PhysicsModel", "Trace", "available_cores", "simulate"]
+__all__ = ["PhysicsModel", "Trace", "available_cores", "in_parallel", "simulate"]

@@ -13,13 +13,14 @@ A finger whose commanded force is at most ``released_force`` x w (an optimum tha
 carries no load: its tip is lifted off the face (its small force acts on the object directly),
 it is reported as released and not judged, so it is not a lost hold.
 
-Checks of many poses run in parallel (``check_batch``): ``mujoco.rollout`` steps them on a
-thread pool, and the verdicts do not depend on the number of threads.
+Checks of many poses run in parallel (``check_batch``): each thread plans, steps
+(``mujoco.rollout``) and measures its part of the batch, and the verdicts do not depend on the
+number of threads.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -29,7 +30,7 @@ from grasp_env.mechanics import Scene
 
 from .model import check_forces, check_rotations
 from .motion import Motion, plan_poses
-from .simulation import PhysicsModel, Trace, simulate, simulate_cases
+from .simulation import PhysicsModel, Trace, check_threads, in_parallel, simulate, simulate_cases
 
 # Defaults of the check and of the continuous rollout (docs/physics.md), all overridable as
 # StabilityChecker and TrajectoryChecker keywords. Lengths are in units of the box's largest
@@ -150,7 +151,7 @@ def pose_report(
 
 class Checker:
     """What the pose checker and the trajectory checker share: the scene's model, the
-    settings and the rollout threads."""
+    settings and the threads."""
 
     def __init__(self, scene: Scene, threads: int | None = None, **settings: float) -> None:
         if not isinstance(scene, Scene):
@@ -166,11 +167,19 @@ class Checker:
         """Release the models (the checker is unusable afterwards)."""
         self.physics = None
 
-    def _simulate(self, motions: list[Motion], threads: int | None) -> list[Trace]:
+    def _in_parallel(
+        self, report: Callable[[Sequence], list], items: Sequence, threads: int | None
+    ) -> list:
+        """``report`` of parts of ``items`` on ``threads`` threads (default: the checker's)."""
         if self.physics is None:
             raise ValueError(f"this {type(self).__name__} is closed")
-        runs = [(self.physics, motion) for motion in motions]
-        return simulate(runs, self.threads if threads is None else threads)
+        return in_parallel(
+            report, items, check_threads(self.threads if threads is None else threads)
+        )
+
+    def _simulate(self, motions: Sequence[Motion]) -> list[Trace]:
+        """The runs of ``motions`` on the calling thread."""
+        return simulate([(self.physics, motion) for motion in motions], threads=1)
 
 
 class StabilityChecker(Checker):
@@ -178,7 +187,7 @@ class StabilityChecker(Checker):
 
     Args:
         scene: the grasp to simulate.
-        threads: rollout threads for :meth:`check_batch` (default: every available core).
+        threads: threads for :meth:`check_batch` (default: every available core).
         **settings: overrides of :data:`SETTINGS` (positive finite numbers).
     """
 
@@ -212,7 +221,7 @@ class StabilityChecker(Checker):
         threads: int | None = None,
     ) -> list[PhysicsReport]:
         """:meth:`check` of B poses at once, (B, 3, 3) and (B, n, 3) (and (B, n)), in parallel
-        on ``threads`` rollout threads (default: the checker's)."""
+        on ``threads`` threads (default: the checker's)."""
         rotations = check_rotations(rotations)
         forces = check_forces(contact_forces, self.scene.n_contacts, (len(rotations),))
         return self._check(rotations, forces, in_contact, threads)
@@ -226,11 +235,14 @@ class StabilityChecker(Checker):
     ) -> list[PhysicsReport]:
         """:meth:`check_batch` of validated rotations and forces (validated once, here)."""
         motions = plan_poses(self.scene, rotations, forces, in_contact, self.settings, checked=True)
-        traces = self._simulate(motions, threads)
-        return [
-            pose_report(self.scene, m, t, self.settings)
-            for m, t in zip(motions, traces, strict=True)
-        ]
+
+        def reports(part: Sequence[Motion]) -> list[PhysicsReport]:
+            return [
+                pose_report(self.scene, m, t, self.settings)
+                for m, t in zip(part, self._simulate(part), strict=True)
+            ]
+
+        return self._in_parallel(reports, motions, threads)
 
 
 def check_poses(
