@@ -32,7 +32,7 @@ from stable_baselines3.common.torch_layers import MlpExtractor
 
 from grasp_env.envs.validation import DEFAULT_K_MAX_RATIO
 
-from .features import GraspFeatures, object_frame_grasp
+from .features import GraspFeatures, max_friction_angle, object_frame_grasp
 
 #: Least-squares solves per action: equal weights, then two re-weighted by 1 / |P_i|.
 SOLVES = 3
@@ -51,13 +51,27 @@ def force_directions(tilts: torch.Tensor, normals: torch.Tensor) -> torch.Tensor
     return directions / torch.linalg.vector_norm(directions, dim=-1, keepdim=True)
 
 
-def grip_along(directions: torch.Tensor, forces: torch.Tensor, basis: torch.Tensor) -> torch.Tensor:
+def grip_along(
+    directions: torch.Tensor,
+    forces: torch.Tensor,
+    basis: torch.Tensor,
+    normals: torch.Tensor,
+    k_max: float,
+) -> torch.Tensor:
     """The k (B, m) whose finger forces F_i + sum k_ij e_ij best point along ``directions``.
+
+    Of the :data:`SOLVES` least-squares solves it returns the one whose grip, clipped to the
+    box |k_ij| <= k_max as the environment clips it, has the smallest largest friction angle:
+    where the directions are inconsistent, re-weighting by 1 / |P_i| can drive a nearly
+    released finger through zero to a pull (the residual across d_i is blind to the sign),
+    and an earlier solve is then the better grip.
 
     Args:
         directions: unit directions d_i (B, n, 3).
         forces: equilibrating forces F_i (B, n, 3), in units of w.
         basis: the interaction basis e_ij (B, m, n, 3) in the same frame.
+        normals: the contact normals n_i (B, n, 3) in the same frame.
+        k_max: the action box (k_max / w).
     """
     dtype = forces.dtype
     directions, forces, basis = directions.double(), forces.double(), basis.double()
@@ -66,6 +80,7 @@ def grip_along(directions: torch.Tensor, forces: torch.Tensor, basis: torch.Tens
     projected = across @ per_finger  # the components of P_i - F_i across d_i
     weights = forces.new_ones(forces.shape[:2])
     m = basis.shape[1]
+    solves = []
     for _ in range(SOLVES):
         weighted = weights[..., None, None] ** 2 * projected.transpose(-1, -2)
         normal_matrix = (weighted @ projected).sum(1)  # across is a projector: A^T A = B^T M B
@@ -76,7 +91,18 @@ def grip_along(directions: torch.Tensor, forces: torch.Tensor, basis: torch.Tens
         ]
         net = forces + torch.einsum("bq,bqnc->bnc", k, basis)
         weights = 1.0 / torch.linalg.vector_norm(net.detach(), dim=-1).clamp_min(MIN_FORCE)
-    return k.to(dtype)
+        solves.append(k)
+    grips = torch.stack(solves, 1)  # (B, SOLVES, m)
+    with torch.no_grad():
+        angles = max_friction_angle(
+            (grips / k_max).flatten(0, 1),
+            forces.repeat_interleave(SOLVES, 0),
+            basis.repeat_interleave(SOLVES, 0),
+            normals.double().repeat_interleave(SOLVES, 0),
+            k_max,
+        ).reshape(-1, SOLVES)
+    best = angles.argmin(1)
+    return grips[torch.arange(len(grips)), best].to(dtype)
 
 
 class ForceDirectionHead(torch.nn.Module):
@@ -93,7 +119,7 @@ class ForceDirectionHead(torch.nn.Module):
         hidden, features = latent[:, : self.hidden_dim], latent[:, self.hidden_dim :]
         forces, basis, normals = object_frame_grasp(features, self.n_contacts)
         directions = force_directions(self.tilts(hidden).reshape(normals.shape), normals)
-        return grip_along(directions, forces, basis) / self.k_max_ratio
+        return grip_along(directions, forces, basis, normals, self.k_max_ratio) / self.k_max_ratio
 
 
 class _LatentWithFeatures(MlpExtractor):

@@ -11,14 +11,15 @@ import yaml
 from stable_baselines3 import SAC, TD3
 from stable_baselines3.common.logger import Logger
 
+from grasp_env_agents import policy as policy_module
 from grasp_env_agents.algorithms import (
     ForceDirectionSACPolicy,
     ForceDirectionTD3Policy,
     WarmCriticPPO,
 )
 from grasp_env_agents.envs import make_vec_env
-from grasp_env_agents.features import GraspFeatures, object_frame_grasp
-from grasp_env_agents.policy import ForceDirectionPolicy, grip_along
+from grasp_env_agents.features import GraspFeatures, max_friction_angle, object_frame_grasp
+from grasp_env_agents.policy import ForceDirectionPolicy, force_directions, grip_along
 
 ENV_ID = "grasp_env/CubeGraspRandom-v0"
 K_MAX_RATIO = 2.0
@@ -80,7 +81,28 @@ def squeeze_grip(obs: np.ndarray) -> np.ndarray:
     """The pure squeeze: every finger's force along its normal, as closely as k allows."""
     features = GraspFeatures(env_space(obs))(torch.as_tensor(obs))
     forces, basis, normals = object_frame_grasp(features, 3)
-    return (grip_along(normals, forces, basis) / K_MAX_RATIO).numpy()
+    return (grip_along(normals, forces, basis, normals, K_MAX_RATIO) / K_MAX_RATIO).numpy()
+
+
+def test_grip_along_returns_the_best_of_its_solves(env, monkeypatch) -> None:
+    """Where the directions are inconsistent, re-weighting can turn a nearly released finger
+    into a pull: the head keeps whichever least-squares solve grips best."""
+    rng = np.random.default_rng(0)
+    obs = np.concatenate([env.reset() for _ in range(64)])  # 256 random scenes
+    features = GraspFeatures(env_space(obs))(torch.as_tensor(obs))
+    forces, basis, normals = object_frame_grasp(features, 3)
+    tilts = torch.as_tensor(rng.normal(scale=0.5, size=normals.shape), dtype=normals.dtype)
+    directions = force_directions(tilts, normals)
+
+    def largest_angle(solves: int) -> np.ndarray:
+        monkeypatch.setattr(policy_module, "SOLVES", solves)
+        k = grip_along(directions, forces, basis, normals, K_MAX_RATIO)
+        return max_friction_angle(k / K_MAX_RATIO, forces, basis, normals, K_MAX_RATIO).numpy()
+
+    best = largest_angle(3)
+    for solves in (1, 2):
+        assert np.all(best <= largest_angle(solves) + 1e-6)
+    assert np.any(best < largest_angle(1) - 1e-3)  # re-weighting does help some scenes
 
 
 def env_space(obs: np.ndarray):
