@@ -374,12 +374,34 @@ def plan_motion(
             )
         return turned, load, step_forces
 
+    def path_forces(ss: list[np.ndarray]) -> np.ndarray:
+        """The forces of :func:`path` (to rounding), cheaply: along segment t they are
+        C_t^T (cos phi, 1 - cos phi, sin phi, 1 - s, s) with phi = s x the segment's turn,
+        since the load turns as x @ R(phi) = cos phi x + (1 - cos phi) (k . x) k
+        - sin phi (k x x) (the transpose of eq. 5) and the equilibrating part is linear in it."""
+        turned = pose_load[:-1].reshape(-1, 2, 3)  # the load's force and torque, per segment
+        along = np.einsum("sc,sjc->sj", axes, turned)[..., None] * axes[:, None]
+        across = -np.cross(axes[:, None], turned)
+        terms = np.zeros((len(ss), 5, n, 3))
+        terms[:, 3], terms[:, 4] = pose_forces[:-1], pose_forces[1:]
+        for key, segments, null in shared:
+            rows, cols = segments[:, None], np.flatnonzero(key)[None]
+            for j, load in enumerate((turned, along, across)):
+                terms[rows, j, cols] = equilibrating(key, load[segments].reshape(-1, 6))
+            terms[rows, 3, cols], terms[rows, 4, cols] = null[segments], null[segments + 1]
+        out = []
+        for t, s in enumerate(ss):
+            phi = s * angles[t]
+            q = np.stack([np.cos(phi), 1.0 - np.cos(phi), np.sin(phi), 1.0 - s, s], axis=1)
+            out.append((q @ terms[t].reshape(5, -1)).reshape(len(s), n, 3))
+        return np.concatenate(out) if out else np.zeros((0, n, 3))
+
     # The timing: the path sampled finely, then each segment's steps spaced so that no
     # touching finger's normal force changes faster than force_rate x max(N, force_floor).
     fine = [np.linspace(0.0, 1.0, FINE * n + 1) for n in base_steps]
     touching = contact[:-1] | contact[1:]
     segments = warped_steps(
-        fine, path(fine)[2], scene.normals, touching, np.array(base_steps) * dt, settings
+        fine, path_forces(fine), scene.normals, touching, np.array(base_steps) * dt, settings
     )
     if total + sum(len(s) for s in segments) > MAX_STEPS:
         raise ValueError(
