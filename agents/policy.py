@@ -14,7 +14,11 @@ network's output). The mean action is the grip whose forces P_i(k) = F_i + sum k
 d_i, (I - d_i d_i^T) P_i(k) = 0, two equations per finger and linear in k. Each finger's
 equations are weighted by 1 / |P_i| (re-weighted from the previous solve, starting from equal
 weights), so that a residual measures the angle between P_i and d_i: the finger that nearly
-lets go is then matched in angle as closely as the others. The directions the expert's grip
+lets go is then matched in angle as closely as the others. Of the solves the head returns
+the one whose grip grips best (the smallest largest friction angle, the grip clipped to the
+action box): the residual across d_i is blind to a force's sign, and where the directions are
+inconsistent re-weighting can drive a nearly released finger through zero to a pull. The
+choice is not differentiated; the gradient flows through the chosen solve. The directions the expert's grip
 gives are consistent (some k realises all of them), and the least squares returns that k
 exactly, so nothing is lost in what the head can express; the solve is differentiable, so
 behaviour cloning, the max-friction-angle loss and PPO train the network through it.
