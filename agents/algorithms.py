@@ -35,15 +35,21 @@ from stable_baselines3.sac.policies import SACPolicy
 from stable_baselines3.td3.policies import Actor as TD3Actor
 from stable_baselines3.td3.policies import TD3Policy
 
+from grasp_env.envs.observation import ObservationLayout
 from grasp_env.envs.validation import DEFAULT_K_MAX_RATIO
 
 if TYPE_CHECKING:
     from .config import TrainConfig
-from .features import GraspFeatures
+from .features import GraspFeatures, grasp_tensors, max_friction_angle
+from .imitation import mean_action
 from .policy import ForceDirectionHead, ForceDirectionPolicy
 
 #: Hidden activations by config name (policy.activation).
 ACTIVATIONS = {"tanh": torch.nn.Tanh, "relu": torch.nn.ReLU, "silu": torch.nn.SiLU}
+
+#: How closely the mean-action baseline's reward function must reproduce the collected rewards
+#: (radians; float32 observations reproduce them to about 1e-5).
+REWARD_TOLERANCE = 1e-4
 
 #: The SAC head's mean is atanh of the least-squares action, clamped this far inside (-1, 1).
 ATANH_EDGE = 1.0 - 1e-4
@@ -51,15 +57,69 @@ ATANH_EDGE = 1.0 - 1e-4
 
 class WarmCriticPPO(PPO):
     """SB3's PPO whose actor (network, head and log std) stays fixed for the first
-    ``critic_warmup`` rollouts while the critic fits the value of the current policy.
+    ``critic_warmup`` rollouts while the critic fits the value of the current policy; with
+    ``baseline="mean_action"``, advantages measured against the reward of the policy's own
+    mean action instead of the critic's value.
 
     The warm-up is counted in PPO's own steps (``num_timesteps``), which a checkpoint keeps: a
     resumed run does not warm up again.
+
+    The mean-action baseline (self-critical, as in self-critical sequence training): with
+    gamma = 0 an action's advantage is r(s, a) - b(s) for any b that does not depend on a, and
+    the grasp environments' reward, the pose's min friction-angle margin, is a known function
+    of the observation and the action. So b(s) = r(s, mean action) is computed exactly, where
+    a critic estimates V(s) with an error (about 0.3 rad, docs/rl.md) a hundred times the
+    reward change the exploration noise makes. Each rollout checks that the same function
+    reproduces the rewards it collected, so another reward (a wrapper, a normalisation) is an
+    error, not a wrong baseline.
     """
 
-    def __init__(self, *args: Any, critic_warmup: int = 0, **kwargs: Any) -> None:
+    def __init__(
+        self,
+        *args: Any,
+        critic_warmup: int = 0,
+        baseline: str = "critic",
+        k_max_ratio: float = DEFAULT_K_MAX_RATIO,
+        **kwargs: Any,
+    ) -> None:
+        if baseline not in ("critic", "mean_action"):
+            raise ValueError(f"baseline must be 'critic' or 'mean_action', got {baseline!r}")
         self.critic_warmup = critic_warmup
+        self.baseline = baseline
+        self.k_max_ratio = k_max_ratio  # the environment's action scale, for the baseline
         super().__init__(*args, **kwargs)
+
+    def collect_rollouts(
+        self, env: VecEnv, callback: Any, rollout_buffer: Any, n_rollout_steps: int
+    ) -> bool:
+        collected = super().collect_rollouts(env, callback, rollout_buffer, n_rollout_steps)
+        if collected and self.baseline == "mean_action":
+            self._mean_action_advantages(rollout_buffer)
+        return collected
+
+    def _mean_action_advantages(self, buffer: Any) -> None:
+        """Advantages r - r(s, mean action) and returns r (gamma = 0) of a collected rollout."""
+        size = buffer.observations.shape[-1]
+        obs = torch.as_tensor(buffer.observations.reshape(-1, size))
+        layout = ObservationLayout.from_size(size)
+        forces, basis, normals, _ = (t.double() for t in grasp_tensors(obs, layout))
+        limit = obs[:, layout.friction_limit].double()
+        actions = torch.as_tensor(buffer.actions.reshape(len(obs), -1)).double()
+        with torch.no_grad():
+            mean = mean_action(self.policy, obs.to(self.device)).double().cpu()
+            baseline = limit - max_friction_angle(mean, forces, basis, normals, self.k_max_ratio)
+            played = limit - max_friction_angle(actions, forces, basis, normals, self.k_max_ratio)
+        rewards = buffer.rewards.reshape(-1)
+        error = float(np.max(np.abs(played.numpy() - rewards)))
+        if not error <= REWARD_TOLERANCE:
+            raise ValueError(
+                "ppo.baseline: mean_action needs the reward to be the pose's min friction-angle"
+                f" margin computed from the observation; the collected rewards differ from it by"
+                f" up to {error:.3g} rad (over {REWARD_TOLERANCE}): use ppo.baseline: critic"
+            )
+        buffer.values = baseline.numpy().reshape(buffer.values.shape).astype(np.float32)
+        buffer.advantages = (buffer.rewards - buffer.values).astype(np.float32)
+        buffer.returns = buffer.rewards.copy()
 
     def train(self) -> None:
         # train() follows the collection of a rollout: num_timesteps counts it already
@@ -199,6 +259,8 @@ def new_model(config: TrainConfig, env: VecEnv) -> BaseAlgorithm:
             ForceDirectionPolicy if directions else "MlpPolicy",
             env,
             critic_warmup=ppo.critic_warmup,
+            baseline=ppo.baseline,
+            k_max_ratio=config.k_max_ratio,
             # SB3's own class, not a lambda: a model file then holds a reference, not code
             learning_rate=(
                 LinearSchedule(ppo.learning_rate, 0.0, 1.0)

@@ -141,6 +141,11 @@ class PPOConfig(_Section):
         critic_warmup: rollouts during which only the critic learns (the actor, its head and
             log std fixed), so that the first actor updates follow the advantages of a fitted
             critic (:class:`grasp_env_agents.algorithms.WarmCriticPPO`).
+        baseline: what an action's advantage is measured against: ``critic``, PPO's learned
+            value V(s), or ``mean_action``, the reward of the policy's own mean action at the
+            same pose, computed exactly from the observation (a self-critical baseline; needs
+            gamma = 0, where the advantage is r(s, a) - b(s), and the grasp environments'
+            reward, the min friction-angle margin; the critic is still fitted, and unused).
         use_sde: generalised state-dependent exploration (gSDE) instead of a fixed Gaussian.
         sde_sample_freq: with gSDE, steps between new noise matrices (-1: once per rollout).
     """
@@ -158,6 +163,7 @@ class PPOConfig(_Section):
     max_grad_norm: _range(Float, 0.0, 1e6, low_open=True) = 0.5
     target_kl: _range(Float, 0.0, 10.0, low_open=True) | None = None
     critic_warmup: _range(Int, 0, 1 << 20) = 0
+    baseline: Literal["critic", "mean_action"] = "critic"
     use_sde: StrictBool = False
     sde_sample_freq: _range(Int, -1, 1 << 20) = -1
 
@@ -315,6 +321,16 @@ class TrainConfig(_Section):
             raise ValueError(
                 "policy.output: force_directions needs policy.features: grasp (the head solves "
                 f"for k in the grasp's object frame), got features: {self.policy.features}"
+            )
+        if self.ppo.baseline == "mean_action" and self.ppo.gamma != 0.0:
+            raise ValueError(
+                "ppo.baseline: mean_action is exact for gamma = 0 (each pose a bandit), got"
+                f" ppo.gamma: {self.ppo.gamma}; use baseline: critic"
+            )
+        if self.ppo.baseline == "mean_action" and self.env_id == "grasp_env/CubeGait-v0":
+            raise ValueError(
+                "ppo.baseline: mean_action needs the reward to be the pose's friction-angle"
+                " margin; grasp_env/CubeGait-v0's is not (use baseline: critic)"
             )
         if self.policy.features == "grasp" and self.normalize:
             raise ValueError(

@@ -18,10 +18,11 @@ lets go is then matched in angle as closely as the others. Of the solves the hea
 the one whose grip grips best (the smallest largest friction angle, the grip clipped to the
 action box): the residual across d_i is blind to a force's sign, and where the directions are
 inconsistent re-weighting can drive a nearly released finger through zero to a pull. The
-choice is not differentiated; the gradient flows through the chosen solve. The directions the expert's grip
-gives are consistent (some k realises all of them), and the least squares returns that k
-exactly, so nothing is lost in what the head can express; the solve is differentiable, so
-behaviour cloning, the max-friction-angle loss and PPO train the network through it.
+choice is not differentiated; the gradient flows through the chosen solve. The directions
+the expert's grip gives are consistent (some k realises all of them), and the least squares
+returns that k exactly, so nothing is lost in what the head can express; the solve is
+differentiable, so behaviour cloning, the max-friction-angle loss and PPO train the network
+through it.
 """
 
 from __future__ import annotations

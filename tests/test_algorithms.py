@@ -84,6 +84,40 @@ def squeeze_grip(obs: np.ndarray) -> np.ndarray:
     return (grip_along(normals, forces, basis, normals, K_MAX_RATIO) / K_MAX_RATIO).numpy()
 
 
+def self_critical_ppo(env, k_max_ratio: float = K_MAX_RATIO) -> WarmCriticPPO:
+    # learning_rate 0: the policy after learn() is the one that collected the rollout
+    return quiet(
+        WarmCriticPPO(
+            ForceDirectionPolicy, env, learning_rate=0.0, n_steps=16, batch_size=32,
+            n_epochs=1, gamma=0.0, seed=0, device="cpu", baseline="mean_action",
+            k_max_ratio=k_max_ratio,
+            policy_kwargs={"net_arch": [16], "k_max_ratio": K_MAX_RATIO, "log_std_init": -4.0},
+        )
+    )  # fmt: skip
+
+
+def test_the_mean_action_baseline_is_the_reward_of_the_policys_mean_action(env) -> None:
+    model = self_critical_ppo(env)
+    model.learn(16 * env.num_envs)
+    buffer = model.rollout_buffer  # flattened by train(): (steps x envs, ...)
+    obs = torch.as_tensor(buffer.observations)
+    with torch.no_grad():
+        features = model.policy.extract_features(obs, model.policy.pi_features_extractor)
+        mean = model.policy.action_net(model.policy.mlp_extractor.forward_actor(features))
+    forces, basis, normals = (t.double() for t in object_frame_grasp(features, 3))
+    limit = features[:, -1].double()  # GraspFeatures ends with the friction limit
+    expected = limit - max_friction_angle(mean.double(), forces, basis, normals, K_MAX_RATIO)
+    np.testing.assert_allclose(buffer.values[:, 0], expected.numpy(), atol=1e-5)
+    rewards = buffer.returns[:, 0]  # gamma = 0: the return is the reward itself
+    np.testing.assert_allclose(buffer.advantages[:, 0], rewards - buffer.values[:, 0], atol=1e-6)
+
+
+def test_the_mean_action_baseline_refuses_rewards_it_does_not_reproduce(env) -> None:
+    model = self_critical_ppo(env, k_max_ratio=1.0)  # the environment's actions are scaled by 2
+    with pytest.raises(ValueError, match="collected rewards differ"):
+        model.learn(16 * env.num_envs)
+
+
 def test_grip_along_returns_the_best_of_its_solves(env, monkeypatch) -> None:
     """Where the directions are inconsistent, re-weighting can turn a nearly released finger
     into a pull: the head keeps whichever least-squares solve grips best."""
@@ -180,6 +214,12 @@ TINY = {
         ({"algo": "sac", "ppo": {"n_steps": 8}}, "ppo: the section is for algo: ppo"),
         ({"algo": "td3", "offpolicy": {"ent_coef": 0.1}}, "offpolicy.ent_coef is SAC's"),
         ({"algo": "sac", "offpolicy": {"action_noise": 0.1}}, "offpolicy.action_noise is TD3's"),
+        ({"ppo": {"baseline": "zero"}}, "baseline"),
+        ({"ppo": {"baseline": "mean_action", "gamma": 0.9}}, "exact for gamma = 0"),
+        (
+            {"env_id": "grasp_env/CubeGait-v0", "ppo": {"baseline": "mean_action"}},
+            "CubeGait-v0's is not",
+        ),
     ],
 )
 def test_algo_keys_are_checked(change: dict, message: str) -> None:
