@@ -9,9 +9,7 @@ per-episode precomputation and the step kernel.
 from __future__ import annotations
 
 import itertools
-import os
 from collections.abc import Mapping, Sequence
-from concurrent.futures import ThreadPoolExecutor
 from numbers import Integral
 from typing import Any
 
@@ -21,6 +19,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from ..mechanics import Scene, contact_pairs
+from ..mechanics.threads import available_cores, thread_pool
 from .cube_grasp import CubeGraspEnv, CubeGraspRandomEnv, _CubeGraspEnv, action_array
 from .episodes import Episode, EpisodeBatch, build_episodes, sample_episodes
 from .kernels import step_batch
@@ -41,19 +40,8 @@ _DEFAULT, _OPTION, _SLOT = 0, 1, 2
 #: Threads a step's kernel is split across (the cores this process may use): step_batch releases
 #: the GIL and each sub-environment's row depends on its own inputs alone, so the parts are the
 #: very numbers of one call.
-_THREADS = max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else 1)
+_THREADS = available_cores()
 _PARALLEL_FROM = 512  # fewer sub-environments are not worth the hand-off to a thread
-_executor: tuple[int, ThreadPoolExecutor] | None = None  # (the process that made it, the pool)
-
-
-def _pool() -> ThreadPoolExecutor:
-    """The threads that step the other parts of a batch (the caller steps the first); a new
-    pool in a forked child, where the parent's threads do not exist."""
-    global _executor
-    if _executor is None or _executor[0] != os.getpid():
-        pool = ThreadPoolExecutor(_THREADS - 1, thread_name_prefix="grasp-vector-step")
-        _executor = (os.getpid(), pool)
-    return _executor[1]
 
 
 def _step_parts(
@@ -77,7 +65,10 @@ def _step_parts(
         )  # fmt: skip
 
     bounds = [count * p // parts for p in range(parts + 1)]
-    others = [_pool().submit(part, lo, hi) for lo, hi in itertools.pairwise(bounds[1:])]
+    others = [
+        thread_pool("grasp-vector-step", _THREADS - 1).submit(part, lo, hi)
+        for lo, hi in itertools.pairwise(bounds[1:])
+    ]
     part(bounds[0], bounds[1])
     for other in others:
         other.result()

@@ -21,10 +21,8 @@ measurements of the runs of one length are taken in one vectorised pass.
 from __future__ import annotations
 
 import itertools
-import os
 import threading
 from collections.abc import Callable, Sequence
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import mujoco
@@ -33,6 +31,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from grasp_env.mechanics import Scene, quaternion_matrix
+from grasp_env.mechanics.threads import available_cores, thread_pool
 
 from .model import (
     build_mjcf,
@@ -51,14 +50,6 @@ _CONTROL = mujoco.mjtState.mjSTATE_CTRL | mujoco.mjtState.mjSTATE_XFRC_APPLIED
 _ROWS_PER_BATCH = 60_000
 
 
-def available_cores() -> int:
-    """The cores this process may run on."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # not Linux
-        return os.cpu_count() or 1
-
-
 _local = threading.local()  # each thread's rollout runner and MjData (MuJoCo's are not shared)
 
 
@@ -67,17 +58,6 @@ def _runner() -> mujoco.rollout.Rollout:
     if not hasattr(_local, "runner"):
         _local.runner = mujoco.rollout.Rollout(nthread=0)
     return _local.runner
-
-
-_executor: tuple[int, ThreadPoolExecutor] | None = None  # (the process that made it, the pool)
-
-
-def _threads_pool() -> ThreadPoolExecutor:
-    """The threads that simulate the parts of a batch; a new pool in a forked child."""
-    global _executor
-    if _executor is None or _executor[0] != os.getpid():
-        _executor = (os.getpid(), ThreadPoolExecutor(available_cores(), "grasp-physics"))
-    return _executor[1]
 
 
 def in_parallel(work: Callable[[Sequence], list], items: Sequence, threads: int) -> list:
@@ -90,7 +70,7 @@ def in_parallel(work: Callable[[Sequence], list], items: Sequence, threads: int)
     if int(threads) == 1:
         return work(items)
     bounds = np.linspace(0, len(items), parts + 1).astype(int)
-    pool = _threads_pool()
+    pool = thread_pool("grasp-physics", available_cores())
     futures = [pool.submit(work, items[a:b]) for a, b in itertools.pairwise(bounds)]
     return [result for future in futures for result in future.result()]
 

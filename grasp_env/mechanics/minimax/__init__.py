@@ -47,33 +47,22 @@ from __future__ import annotations
 
 import itertools
 import math
-import os
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from ..forces import Grasp, n_pairs
+from ..threads import available_cores, thread_pool
 from . import codes
 from .codes import Path, Status
 
 __all__ = ["MinimaxResult", "Path", "Status", "solve_minimax"]
 from .driver import solve_batch
 
-_THREADS = max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else 1)
+_THREADS = available_cores()
 _PARALLEL_FROM = 64  # smaller batches are not worth the hand-off to threads
 _CHUNKS_PER_THREAD = 4
-_executor: tuple[int, ThreadPoolExecutor] | None = None  # (the process that made it, the pool)
-
-
-def _pool() -> ThreadPoolExecutor:
-    """The solver's threads; a new pool in a forked child (SubprocVecEnv, Ray workers), where
-    the parent's threads do not exist and a batch handed to them would never be solved."""
-    global _executor
-    if _executor is None or _executor[0] != os.getpid():
-        _executor = (os.getpid(), ThreadPoolExecutor(_THREADS, thread_name_prefix="minimax"))
-    return _executor[1]
 
 
 @dataclass(frozen=True)
@@ -278,7 +267,8 @@ def solve_minimax(
         bounds = np.unique(heads[np.searchsorted(heads, even)])
         bounds = np.unique(np.append(0, bounds))
         chunks = [
-            _pool().submit(solve_batch, *arrays, lo, hi) for lo, hi in itertools.pairwise(bounds)
+            thread_pool("minimax", _THREADS).submit(solve_batch, *arrays, lo, hi)
+            for lo, hi in itertools.pairwise(bounds)
         ]
         for chunk in chunks:
             chunk.result()
