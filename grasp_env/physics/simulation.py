@@ -67,7 +67,7 @@ def in_parallel(work: Callable[[Sequence], list], items: Sequence, threads: int)
     thread pool alone leaves the cores idle while the Python plans and measures). A run's
     result does not depend on its part (see :func:`simulate`)."""
     parts = max(1, min(int(threads), len(items)))
-    if int(threads) == 1:
+    if parts == 1:
         return work(items)
     bounds = np.linspace(0, len(items), parts + 1).astype(int)
     pool = thread_pool("grasp-physics", available_cores())
