@@ -578,14 +578,15 @@ def test_force_directions_of_the_experts_grip_give_back_that_grip():
     obs = np.concatenate([o for o, _, _ in random_env_steps(steps=10)])
     k_star = MinimaxExpert(2.0).actions(obs).astype(float) * 2.0
     extractor = GraspFeatures(gym.spaces.Box(-np.inf, np.inf, (obs.shape[1],), np.float32))
-    forces, basis, _ = object_frame_grasp(extractor(torch.as_tensor(obs)).double(), 3)
+    forces, basis, normals = object_frame_grasp(extractor(torch.as_tensor(obs)).double(), 3)
     net = forces + torch.einsum("bq,bqnc->bnc", torch.as_tensor(k_star), basis)
     directions = net / torch.linalg.vector_norm(net, dim=-1, keepdim=True)
-    k = grip_along(directions, forces, basis).numpy()
+    k = grip_along(directions, forces, basis, normals, 2.0).numpy()
     assert np.abs(k - k_star).max() < 1e-5
     # and tilting one direction moves the grip: the solve is not just returning a constant
     directions[:, 0] = torch.nn.functional.normalize(directions[:, 0] + 0.05, dim=-1)
-    assert np.abs(grip_along(directions, forces, basis).numpy() - k_star).max() > 1e-2
+    tilted = grip_along(directions, forces, basis, normals, 2.0).numpy()
+    assert np.abs(tilted - k_star).max() > 1e-2
 
 
 def test_force_direction_policy_learns_the_expert_and_reloads(tmp_path):
@@ -604,7 +605,7 @@ def test_force_direction_policy_learns_the_expert_and_reloads(tmp_path):
         },
         imitation={
             "rounds": 1,
-            "samples_per_round": 10000,
+            "samples_per_round": 20000,
             "epochs": 40,
             "batch_size": 256,
             "learning_rate": 3e-3,
