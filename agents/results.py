@@ -200,14 +200,23 @@ def read_curve(path: Path) -> list[dict[str, float]]:
         ]
 
 
-def expand_runs(runs: str | Sequence[str], base: Path) -> list[Path]:
-    """Finished run directories (with a model.zip) from a glob or a list (relative to
-    ``base``), sorted."""
+def expand_runs(runs: str | Sequence[str], base: Path, episodes: int | None = None) -> list[Path]:
+    """Run directories from a glob or a list (relative to ``base``), sorted: finished runs
+    (with a model.zip), and run records, runs kept without their model, checkpoints and logs
+    (``docs/records``: the config, the learning curve and the evaluation on ``episodes``
+    scenes, all a results table needs)."""
+
+    def usable(run: Path) -> bool:
+        if (run / "model.zip").is_file():
+            return True
+        evaluated = episodes is not None and (evaluation_dir(run, episodes) / "comparison.csv")
+        return bool(evaluated) and evaluated.is_file() and (run / "learning_curve.csv").is_file()
+
     patterns = [runs] if isinstance(runs, str) else list(runs)
     found: list[Path] = []
     for pattern in patterns:
         full = pattern if Path(pattern).is_absolute() else str(base / pattern)
-        found += [Path(p) for p in sorted(glob.glob(full)) if (Path(p) / "model.zip").is_file()]
+        found += [Path(p) for p in sorted(glob.glob(full)) if usable(Path(p))]
     if not found:
         raise ValueError(f"no run directories match {patterns} (relative to {base})")
     return found
@@ -366,7 +375,7 @@ def build_groups(spec: Path) -> tuple[int, list[Group]]:
             entry["label"],
             [
                 read_run(run, episodes, final, entry.get("policy", AGENT))
-                for run in expand_runs(entry["runs"], base)
+                for run in expand_runs(entry["runs"], base, episodes)
             ],
             entry.get("config", ""),
             entry.get("policy", AGENT),

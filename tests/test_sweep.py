@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -234,3 +235,16 @@ def test_evaluate_several_runs_reports_across_seeds(tmp_path: Path) -> None:
     assert f"{float(equal_k['mean_gap_deg']):.2f} [" in rows["equal k"]
     assert rows["equal k"].rstrip(" |").endswith("none | none")  # a baseline has no training
     assert f"{np.mean(gaps):.2f} [" in rows["tiny"] and "none" not in rows["tiny"]
+
+    # run records (docs/records): the runs without models, checkpoints and logs give the same
+    # table; a run with neither a model nor that evaluation is no run
+    table = readme.read_text()
+    for run in runs:
+        (run / "model.zip").unlink()
+        shutil.rmtree(run / "checkpoints")
+        shutil.rmtree(run / "tb")
+    readme.write_text(f"intro\n{results.BEGIN}\nold\n{results.END}\n")
+    assert cli.main(argv) == 0
+    assert readme.read_text() == table
+    shutil.rmtree(runs[1] / "evaluation-4-scenes")
+    assert results.expand_runs("tiny-s*", tmp_path, 4) == [runs[0]]
