@@ -21,7 +21,11 @@ class BuildPy(build_py):
         if self.editable_mode or self.dry_run:
             return
         env = {key: value for key, value in os.environ.items() if key != "NUMBA_CACHE_DIR"}
-        env["PYTHONPATH"] = os.path.abspath(self.build_lib)
+        # the build tree first, then what the build runs on: pip's isolated build environment
+        # reaches a child process through PYTHONPATH (numpy and numba live there, not in the
+        # interpreter's own site-packages when installing into a fresh venv)
+        paths = [os.path.abspath(self.build_lib), os.environ.get("PYTHONPATH", "")]
+        env["PYTHONPATH"] = os.pathsep.join(path for path in paths if path)
         self.announce("compiling the minimax solver into the wheel's numba cache", level=2)
         subprocess.run(
             [sys.executable, "-m", "grasp_env.mechanics.minimax.warm"],
