@@ -133,6 +133,30 @@ def test_bad_sweep_files_are_refused_naming_the_key(
         sweep.load_sweep(path)
 
 
+STUDIES = Path(__file__).parent.parent / "configs" / "studies"
+
+
+@pytest.mark.parametrize("path", sorted(STUDIES.glob("*-seeds.yaml")), ids=lambda p: p.name)
+def test_the_shipped_studies_load(path: Path) -> None:
+    """Every study behind the README's table is a valid sweep of a valid config."""
+    study = sweep.load_sweep(path)
+    sweep.check_space(study)
+    assert study["seeds"] == [0, 1, 2, 3, 4]
+
+
+def test_the_readme_spec_names_a_study_for_each_group() -> None:
+    """The README's spec reads each trained group's records from its study's output."""
+    episodes, final, groups = results.load_spec(STUDIES / "readme.yaml")
+    assert (episodes, final) == (2048, "evaluation")
+    for group in groups:
+        study = group["runs"].split("/")[-3]  # ../../docs/records/<study>/runs/*
+        assert (STUDIES / f"{study}.yaml").is_file(), group["label"]
+        if "config" in group:
+            assert sweep.load_sweep(STUDIES / f"{study}.yaml")["config"].endswith(
+                Path(group["config"]).name
+            )
+
+
 def test_a_key_the_config_refuses_fails_before_any_trial(tmp_path: Path) -> None:
     write(tmp_path / "tiny.yaml", TINY)
     path = write(
