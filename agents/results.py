@@ -34,6 +34,7 @@ from __future__ import annotations
 import argparse
 import csv
 import glob
+import os
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -454,6 +455,12 @@ def write_csv(groups: Sequence[Group], path: Path) -> None:
         for group in groups:
             for r in group.runs:
                 writer.writerow(
-                    {"group": group.label, "run": str(r.run_dir), "seed": r.seed, **r.metrics,
+                    {"group": group.label, "run": _relative(r.run_dir, path.parent),
+                     "seed": r.seed, **r.metrics,
                      "wall_minutes": r.wall_minutes, "cpu_minutes": r.cpu_minutes}
                 )  # fmt: skip
+
+
+def _relative(run_dir: Path, folder: Path) -> str:
+    """A run's path as seen from ``folder`` (a results file names its runs portably)."""
+    return os.path.relpath(Path(run_dir).resolve(), Path(folder).resolve())
