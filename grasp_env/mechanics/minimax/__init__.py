@@ -75,7 +75,9 @@ class MinimaxResult:
         max_angle: (...) max_i angles, the optimum (attained by k).
         lower_bound: (...) certified lower bound: no k in the box has a smaller max angle.
             Within 1e-9 rad of ``max_angle``, except with status NOT_PUSHING, where pi/2
-            certifies that no k keeps every finger below 90 deg (within f_max, if given).
+            certifies that no k keeps every finger below 90 deg (within f_max, if given),
+            and in rare degenerate four-finger scenes (docs/solver.md, "Known failure"),
+            where ``gap`` says how far it is.
         status: (...) :class:`Status` codes (int8). NOT_PUSHING also covers an f_max that no
             k in the box can meet; k then exceeds it least, and its angles may be < 90 deg.
     """
