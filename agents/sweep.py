@@ -318,20 +318,28 @@ def sweep(path: Path, out: Path, address: str | None = None, num_cpus: int | Non
     errors = [result.error for result in grid if result.error is not None]
     if errors:
         raise ValueError(f"{len(errors)} trial(s) failed; the first: {errors[0]}")
+    searched = [k for k, v in spec["space"].items() if isinstance(v, Mapping)]
     groups: dict[str, list[Any]] = {}
-    for result in grid:
-        params = {k: v for k, v in result.config.items() if k != "seed"}
+    for result in grid:  # one group per point of the search (the seeds and fixed keys pooled)
+        params = {k: v for k, v in result.config.items() if k in searched}
         label = ", ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}"
                           for k, v in sorted(params.items())) or "base config"  # fmt: skip
         run_dir = Path(result.metrics["run_dir"])
         groups.setdefault(label, []).append(read_run(run_dir, spec["episodes"]))
-    ordered = [Group(label, runs, str(spec["config"])) for label, runs in groups.items()]
+    ordered = [Group(label, runs, _shown(spec["config"])) for label, runs in groups.items()]
     markdown = table(ordered, spec["episodes"])
     (out / "results.md").write_text(markdown + "\n")
     write_csv(ordered, out / "results.csv")
     plot_curves(ordered, out / "learning_curves.png")
     print(markdown)
     return ordered
+
+
+def _shown(config: str) -> str:
+    """The config's path as the report shows it: from the working directory if it lies under
+    it (``configs/default.yaml``), else its file name (never the machine's absolute path)."""
+    relative = os.path.relpath(config)
+    return Path(config).name if relative.startswith("..") else relative
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -180,7 +180,7 @@ def test_two_trial_sweep_on_a_local_ray_then_resumed(tmp_path: Path) -> None:
             "config": "tiny.yaml",
             "episodes": 4,  # not the runs' own eval_episodes: the report must use these
             "seeds": [0],
-            "space": {"ppo.learning_rate": {"grid": [1e-4, 3e-4]}},
+            "space": {"ppo.learning_rate": {"grid": [1e-4, 3e-4]}, "torch_threads": 1},
         },
     )
     out = tmp_path / "out"
@@ -203,6 +203,9 @@ def test_two_trial_sweep_on_a_local_ray_then_resumed(tmp_path: Path) -> None:
     assert sorted(len(g.runs) for g in groups) == [1, 1]
     report = (out / "results.md").read_text()
     assert "ppo.learning_rate=0.0001" in report and "ppo.learning_rate=0.0003" in report
+    # grouped by the searched key alone, the config named without the machine's path
+    assert "torch_threads" not in report and str(tmp_path) not in report
+    assert "| `tiny.yaml` |" in report
     assert (out / "learning_curves.png").stat().st_size > 10_000
 
     # the same command again restores the finished experiment: nothing is trained again
