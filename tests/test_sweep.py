@@ -157,6 +157,17 @@ def test_the_readme_spec_names_a_study_for_each_group() -> None:
             )
 
 
+@pytest.mark.slow
+def test_the_readme_table_is_what_the_kept_records_give() -> None:
+    """The README's results table is regenerated from docs/records, never typed: five seeds a
+    group, and the command's table equals the README's."""
+    episodes, groups = results.build_groups(STUDIES / "readme.yaml")
+    assert [len(group.runs) for group in groups] == [5] * len(groups)
+    readme = (STUDIES.parents[1] / "README.md").read_text()
+    kept = readme.split(results.BEGIN, 1)[1].split(results.END, 1)[0]
+    assert kept.strip() == results.table(groups, episodes)
+
+
 def test_a_key_the_config_refuses_fails_before_any_trial(tmp_path: Path) -> None:
     write(tmp_path / "tiny.yaml", TINY)
     path = write(
