@@ -318,7 +318,7 @@ def sweep(path: Path, out: Path, address: str | None = None, num_cpus: int | Non
     errors = [result.error for result in grid if result.error is not None]
     if errors:
         raise ValueError(f"{len(errors)} trial(s) failed; the first: {errors[0]}")
-    searched = [k for k, v in spec["space"].items() if isinstance(v, Mapping)]
+    searched = [k for k, v in spec["space"].items() if isinstance(v, Mapping) and k != "seed"]
     groups: dict[str, list[Any]] = {}
     for result in grid:  # one group per point of the search (the seeds and fixed keys pooled)
         params = {k: v for k, v in result.config.items() if k in searched}
