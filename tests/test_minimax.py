@@ -237,8 +237,15 @@ def test_degenerate_four_finger_optima_are_certified(offsets, weight, alpha) -> 
 
 
 def test_where_the_certificate_fails_the_grip_is_still_the_references(references) -> None:
-    """The second uncertified scene: its gap is reported (not hidden), its lower bound still
-    holds, and its grip is cvxpy's optimum."""
+    """The second uncertified scene: its gap is reported (not hidden), its grip is cvxpy's
+    bisection's, and the gap is the convex relaxation's. Fingers 2 and 3 face each other
+    through the centre of gravity, so releasing fingers 0 and 1 *exactly* (P = 0, the
+    cones' apex) leaves a two-finger pinch at a smaller angle; the certificate bounds that
+    relaxation, so its bound cannot pass the pinch, while no grip in between has those
+    fingers pushing at all (the cone problem's solutions there have exactly zero force,
+    which the reference's slack test, s* <= 0, reads as infeasible at s* ~ 1e-14)."""
+    import cvxpy as cp
+
     offsets, weight, alpha = UNCERTIFIED_SCENES[1]
     _, g = hypothesis_scene(4, offsets, [0.0, 0.0, 0.0], weight, alpha)
     result = solve_minimax(g, 2.0)
@@ -246,7 +253,37 @@ def test_where_the_certificate_fails_the_grip_is_still_the_references(references
     reference = references[(4, False)].solve(g.equilibrating, g.basis, g.normals, 2.0)
     assert reference.upper - reference.lower < 1e-9  # cvxpy brackets this one tightly
     assert abs(result.max_angle - reference.upper) < 1e-9
-    assert result.lower_bound <= reference.lower
+
+    def feasible(t: float, released: tuple[int, ...]) -> np.ndarray | None:
+        """A k in the box with P_i = 0 for the released fingers, the others within t."""
+        k = cp.Variable(6)
+        constraints = [cp.abs(k) <= 2.0]
+        for i in range(4):
+            force = g.equilibrating[i] + g.basis[:, i, :].T @ k
+            normal = g.normals[i] @ force
+            if i in released:
+                constraints.append(force == 0)
+            else:
+                constraints.append(cp.norm(force - normal * g.normals[i]) <= np.tan(t) * normal)
+        problem = cp.Problem(cp.Minimize(0), constraints)
+        problem.solve(solver=cp.CLARABEL)
+        return k.value if problem.status == cp.OPTIMAL else None
+
+    pinch = np.deg2rad(13.28)  # fingers 2 and 3 alone: 13.27 deg (cvxpy bisection)
+    assert feasible(pinch, released=(0, 1)) is not None
+    assert feasible(np.deg2rad(13.26), released=(0, 1)) is None
+    assert result.lower_bound <= pinch < result.max_angle - np.deg2rad(3)
+    # between the pinch and the grip, fingers 0 and 1 can push with no force at all
+    k = cp.Variable(6)
+    t = np.deg2rad(15.0)
+    forces = [g.equilibrating[i] + g.basis[:, i, :].T @ k for i in range(4)]
+    normals = [g.normals[i] @ forces[i] for i in range(4)]
+    cones = [
+        cp.norm(forces[i] - normals[i] * g.normals[i]) <= np.tan(t) * normals[i] for i in range(4)
+    ]
+    most = cp.Problem(cp.Maximize(normals[0] + normals[1]), [cp.abs(k) <= 2.0, *cones])
+    most.solve(solver=cp.CLARABEL)
+    assert most.status == cp.OPTIMAL and most.value < 1e-6  # (3.4 just above the grip)
 
 
 def test_batched_equals_single() -> None:
