@@ -63,6 +63,8 @@ from .driver import solve_batch
 _THREADS = available_cores()
 _PARALLEL_FROM = 64  # smaller batches are not worth the hand-off to threads
 _CHUNKS_PER_THREAD = 4
+#: ``follows`` of one grasp: read by the kernel, never written, so shared between calls
+_NO_FOLLOWS = np.zeros(1, dtype=bool)
 
 
 @dataclass(frozen=True)
@@ -109,6 +111,11 @@ def _positive_limit(name: str, value: ArrayLike, batch: tuple[int, ...]) -> np.n
         raise ValueError(f"{name} must be finite and > 0 (newtons), got {np.unique(array)[:5]}")
     # a kernel array: a read-only one would make numba compile the whole solver again
     return _kernel_array(array.reshape(-1))
+
+
+def _scalar(value: ArrayLike | None) -> bool:
+    """Whether value is one number (or None), cheaply for Python and numpy floats."""
+    return value is None or isinstance(value, float | int) or np.ndim(value) == 0
 
 
 def _positive_number(name: str, value: ArrayLike) -> float:
@@ -211,8 +218,9 @@ def solve_minimax(
             f"grasp basis must be (..., {m}, {n}, 3) and normals (..., {n}, 3), "
             f"got {E.shape} and {N.shape}"
         )
-    if F.ndim == 2 and E.ndim == 3 and N.ndim == 2 and np.ndim(k_max) == 0 and np.ndim(f_max) == 0:
-        # one grasp: the lean path (numpy's per-call costs would dominate the kernel's)
+    if F.ndim == 2 and E.ndim == 3 and N.ndim == 2 and _scalar(k_max) and _scalar(f_max):
+        # one grasp: the lean path (numpy's per-call costs, a microsecond each for np.ndim
+        # or a reduction, would dominate the kernel's)
         k_lim = _positive_number("k_max", k_max)
         f_lim = math.inf if f_max is None else _positive_number("f_max", f_max)
         k = np.empty((1, m))
@@ -231,13 +239,14 @@ def solve_minimax(
             lower,
             status,
             path,
-            np.zeros(1, dtype=bool),
+            _NO_FOLLOWS,
             0,
             1,
         )
         if path[0] < 0:
             raise _refused(path, F[None], N[None], np.array([k_lim]), np.array([f_lim]))
-        return MinimaxResult(k[0], angles[0], angles[0].max(), lower[0], status[0])
+        largest = np.float64(max(angles[0].tolist()))
+        return MinimaxResult(k[0], angles[0], largest, lower[0], status[0])
     try:
         batch = np.broadcast_shapes(F.shape[:-2], N.shape[:-2], E.shape[:-3])
     except ValueError:
