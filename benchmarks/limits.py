@@ -293,6 +293,8 @@ class Interpreter:
             k,
             theta,
             k,
+            k,
+            False,
             False,
         )
         return np.array(k, dtype=float), float(lower), int(status), int(path)
