@@ -106,7 +106,11 @@ def _broadcast(name: str, array: np.ndarray, batch: tuple[int, ...]) -> np.ndarr
 
 
 def _positive_limit(name: str, value: ArrayLike, batch: tuple[int, ...]) -> np.ndarray:
-    array = _broadcast(name, np.asarray(value, dtype=float), batch)
+    try:
+        numbers = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be finite and > 0 (newtons), got {value!r}") from None
+    array = _broadcast(name, numbers, batch)
     if not np.all(np.isfinite(array)) or np.any(array <= 0):
         raise ValueError(f"{name} must be finite and > 0 (newtons), got {np.unique(array)[:5]}")
     # a kernel array: a read-only one would make numba compile the whole solver again
@@ -119,9 +123,12 @@ def _scalar(value: ArrayLike | None) -> bool:
 
 
 def _positive_number(name: str, value: ArrayLike) -> float:
-    number = float(value)
+    try:
+        number = float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        number = math.nan
     if not (math.isfinite(number) and number > 0):
-        raise ValueError(f"{name} must be finite and > 0 (newtons), got {number}")
+        raise ValueError(f"{name} must be finite and > 0 (newtons), got {value!r}")
     return number
 
 
