@@ -662,6 +662,9 @@ def test_gait_env_other_trajectory_and_bad_keywords():
         ({"mu": True}, "mu"),
         ({"start": (0, 0, 1, 2, -1)}, "no state"),
         ({"trajectory": {"axis": (0, 0, 0)}}, "axis"),
+        ({"trajectory": "x"}, "trajectory must be a mapping"),
+        ({"start": "x"}, "start must be a site"),
+        ({"start": 3}, "start must be a site"),
         ({"terminate_on_slip": 1}, "terminate_on_slip"),
         ({"cone_deg": 10.0}, "no gait"),
     ]:

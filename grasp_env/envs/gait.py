@@ -556,12 +556,22 @@ def _task(
     k_max_ratio: float,
     start: Sequence[int] | None,
 ) -> GaitTask:
-    spec = {**PAPER_TURN_SPEC, **(dict(trajectory) if trajectory is not None else {})}
+    if trajectory is not None and not isinstance(trajectory, Mapping):
+        raise ValueError(
+            f"trajectory must be a mapping with the keys {TRAJECTORY_KEYS}, got {trajectory!r}"
+        )
+    spec = {**PAPER_TURN_SPEC, **(trajectory or {})}
     trajectory = check_trajectory(spec)
     mu = check_number("mu", mu, *MU_RANGE)
     cone_deg = check_number("cone_deg", cone_deg, 0.0, 180.0, open_low=True, open_high=True)
     k_max_ratio = check_k_max_ratio(k_max_ratio)
-    start = None if start is None else tuple(int(s) for s in start)
+    if start is not None:
+        try:
+            start = tuple(int(s) for s in start)
+        except (TypeError, ValueError):
+            raise ValueError(
+                f"start must be a site (0-5, or -1 for none) for each finger, got {start!r}"
+            ) from None
     return gait_task(trajectory, mu, cone_deg, k_max_ratio, start)
 
 
