@@ -56,6 +56,9 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as error:  # bad input: a clear message, not a traceback
         print(f"grasp-env {args.command}: error: {error}", file=sys.stderr)
         return 2
+    except OSError as error:  # a path it cannot read or write (the message names it)
+        print(f"grasp-env {args.command}: error: {error}", file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":

@@ -161,6 +161,10 @@ def run(args: argparse.Namespace) -> int:
         if args.agreement:
             raise ValueError("--video writes the rollout: use it without --agreement")
         _imageio()  # before the rollout: say at once if the writer is missing
+        try:  # before the rollout: say at once if the file cannot be written
+            args.video.open("ab").close()
+        except OSError as error:
+            raise ValueError(f"--video {args.video}: cannot write it ({error.strerror})") from None
         args.trajectory = True
     args.out.mkdir(parents=True, exist_ok=True)
     if args.agreement:

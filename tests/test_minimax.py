@@ -425,7 +425,7 @@ def test_bad_normals(normal: tuple[float, float, float]) -> None:
 def test_bad_k_max(k_max: float) -> None:
     for rotation in (START_ROTATION, np.stack([START_ROTATION] * 2)):  # one grasp, a batch
         g = scene_grasp(Scene(), rotation)
-        with pytest.raises(ValueError, match="k_max must (be finite and > 0|broadcast)"):
+        with pytest.raises(ValueError, match=r"k_max must (be finite and > 0|broadcast)"):
             solve_minimax(g, k_max)
 
 

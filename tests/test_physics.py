@@ -630,6 +630,18 @@ def test_verify_refuses_scenes_outside_the_trajectory_study(tmp_path, capsys):
     assert "--scenes must be >= 1" in capsys.readouterr().err
 
 
+def test_verify_and_gait_say_which_path_they_cannot_write(tmp_path, capsys):
+    missing = tmp_path / "no" / "such"
+    assert main(["verify", "--video", str(missing / "x.mp4"), "--out", str(tmp_path)]) == 2
+    assert f"--video {missing / 'x.mp4'}: cannot write it" in capsys.readouterr().err
+    blocked = tmp_path / "a-file"
+    blocked.write_text("")
+    assert main(["gait", "--out", str(blocked / "out")]) == 1
+    assert f"grasp-env gait: error: [Errno 20] Not a directory: '{blocked / 'out'}'" in (
+        capsys.readouterr().err
+    )
+
+
 def test_verify_states_the_current_settings():
     from grasp_env_agents import verify
 
