@@ -399,7 +399,7 @@ def solve_batch(F, E, N, K, f, k, theta, lower, status, path, follows, start, st
         near = follows[b] and b > start and path[b - 1] >= 0 and status[b - 1] != NOT_PUSHING
         secant = near and follows[b - 1] and b - 1 > start and path[b - 2] >= 0
         secant = secant and status[b - 2] != NOT_PUSHING
-        before = k[max(b - 1, 0)], k[max(b - 2, 0)]
+        k_near, k_before = k[max(b - 1, 0)], k[max(b - 2, 0)]
         lower[b], status[b], path[b] = solve_one(
-            F[b], E[b], N[b], K[b], f[b], k[b], theta[b], before[0], before[1], near, secant
+            F[b], E[b], N[b], K[b], f[b], k[b], theta[b], k_near, k_before, near, secant
         )
