@@ -284,18 +284,9 @@ class Interpreter:
         n, m = F.shape[0], E.shape[0]
         k = counted_array(np.zeros(m))
         theta = counted_array(np.zeros(n))
+        grasp = counted_array(F), counted_array(E), counted_array(N)
         lower, status, path = self.kernel("solve_one")(
-            counted_array(F),
-            counted_array(E),
-            counted_array(N),
-            Counted(k_max),
-            Counted(f_max),
-            k,
-            theta,
-            k,
-            k,
-            False,
-            False,
+            *grasp, Counted(k_max), Counted(f_max), k, theta, k, k, False, False, *grasp
         )
         return np.array(k, dtype=float), float(lower), int(status), int(path)
 
