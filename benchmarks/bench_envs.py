@@ -49,10 +49,10 @@ import numpy as np
 
 import grasp_env  # noqa: F401  (registers the environments)
 from grasp_env.envs import episodes
-from grasp_env.envs import vector as vector_env
 from grasp_env.envs.kernels import grip_row
 from grasp_env.envs.scenes import SceneSampler
 from grasp_env.mechanics import Grasp, contact_pairs
+from grasp_env.mechanics.threads import available_cores
 
 NUM_ENVS = 4096
 #: Environments whose resets are timed with and without render_mode="rgb_array", and the target.
@@ -328,7 +328,7 @@ def main() -> int:
             f"{name} resets: {median(f'{name} resets'):,.0f}/s; with render_mode='rgb_array'"
             f" {ratio:.3g}x that (target >= {RESET_TARGET:g}x)  {'ok' if ok else 'MISSED'}"
         )
-    cores = vector_env._THREADS
+    cores = available_cores()
     for n in (3, 4):
         flops, limit = step_flops(n), median(f"step limit {n}")
         reached = median("CubeGrasp-v0 vector" if n == 3 else "CubeGrasp4-v0 vector")

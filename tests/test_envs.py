@@ -514,6 +514,36 @@ def test_vector_env_equals_single_envs(env_id):
     assert restarts >= count  # every sub-environment has at least one 31-step episode ended
 
 
+@pytest.mark.parametrize(
+    ("env_id", "module"),
+    [
+        ("grasp_env/CubeGraspRandom-v0", "grasp_env.envs.vector"),
+        ("grasp_env/CubeGait-v0", "grasp_env.envs.gait"),
+    ],
+)
+def test_vector_step_split_across_cores_equals_one_call(env_id, module, monkeypatch):
+    """Large batches are stepped in parts, one a core: the very numbers of one kernel call."""
+    import importlib
+
+    count = 600  # above the split threshold, not a multiple of the cores
+    runs = []
+    for parallel_from in (512, count + 1):
+        monkeypatch.setattr(importlib.import_module(module), "_PARALLEL_FROM", parallel_from)
+        venv = gym.make_vec(
+            env_id, num_envs=count, vectorization_mode="vector_entry_point",
+            terminate_on_slip=False,
+        )  # fmt: skip
+        venv.action_space.seed(3)
+        steps = [venv.reset(seed=1)[0]]
+        for _ in range(40):
+            obs, reward, terminated, truncated, info = venv.step(venv.action_space.sample())
+            steps.append((obs, reward, terminated, truncated, info["theta"], info["k"]))
+        runs.append(steps)
+    for one_part, parts in zip(*runs, strict=True):
+        for a, b in zip(one_part, parts, strict=True):
+            np.testing.assert_array_equal(a, b)
+
+
 def test_vector_env_same_step_autoreset():
     count = 4
     venv = gym.make_vec(

@@ -284,3 +284,12 @@ def test_scene_defaults_are_the_papers():
     np.testing.assert_allclose(scene.normals, np.eye(3))
     assert scene.weight == 5.0
     assert scene.friction_limit == pytest.approx(math.atan(0.5))
+
+
+def test_in_parts_covers_the_batch_in_order():
+    from grasp_env.mechanics.threads import available_cores, in_parts
+
+    for count, smallest in ((7, 8), (1001, 8), (0, 1), (1, 1)):
+        parts = in_parts("test-parts", count, lambda lo, hi: list(range(lo, hi)), smallest)
+        assert len(parts) == (1 if count < smallest else available_cores())
+        assert [i for part in parts for i in part] == list(range(count))

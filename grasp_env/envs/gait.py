@@ -37,6 +37,7 @@ from ..mechanics import (
     solve_gait,
 )
 from ..mechanics.gait import MIN_LOADED, GaitStates, gait_states
+from ..mechanics.threads import in_parts
 from .kernels import evaluate_grips
 from .scenes import TRAJECTORY_KEYS, check_trajectory
 from .validation import (
@@ -54,6 +55,9 @@ from .validation import (
 #: The paper's axis over [-90, 90] deg in 1 deg steps, as the ``trajectory`` keyword's mapping.
 PAPER_TURN_SPEC = {key: getattr(PAPER_TURN, key) for key in TRAJECTORY_KEYS}
 _SQRT3 = float(np.sqrt(3.0))
+#: From this many sub-environments the step's kernel is split across the cores (as the vector
+#: envs' step: it releases the GIL and each row depends on its own inputs alone).
+_PARALLEL_FROM = 512
 
 
 # ------------------------------------------------------------------------------- the task
@@ -426,9 +430,14 @@ def _step(
     an action is not finite."""
     B, F, P = len(xs), task.n_fingers, task.n_pairs
     floats, ints, flags, obs = _buffers(task, B)
-    if not _step_kernel(
-        xs, ts, actions, *task.kernel_arrays, terminate_on_slip, floats, ints, flags, obs
-    ):
+
+    def part(lo: int, hi: int) -> bool:
+        return _step_kernel(
+            xs[lo:hi], ts[lo:hi], actions[lo:hi], *task.kernel_arrays, terminate_on_slip,
+            floats[lo:hi], ints[lo:hi], flags[lo:hi], obs[lo:hi],
+        )  # fmt: skip
+
+    if not all(in_parts("grasp-gait-step", B, part, _PARALLEL_FROM)):
         rows = np.flatnonzero(flags[:, 3]).tolist()
         raise ValueError(f"actions must be finite numbers; rows {rows} are not")
     return {

@@ -8,7 +8,6 @@ per-episode precomputation and the step kernel.
 
 from __future__ import annotations
 
-import itertools
 from collections.abc import Mapping, Sequence
 from numbers import Integral
 from typing import Any
@@ -19,7 +18,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from ..mechanics import Scene, contact_pairs
-from ..mechanics.threads import available_cores, thread_pool
+from ..mechanics.threads import in_parts
 from .cube_grasp import CubeGraspEnv, CubeGraspRandomEnv, _CubeGraspEnv, action_array
 from .episodes import Episode, EpisodeBatch, build_episodes, sample_episodes
 from .kernels import step_batch
@@ -37,11 +36,10 @@ _STORED = (  # in step_batch's order
 MAX_STORE_ROWS = 1 << 23
 # Where a sub-environment's episode lives in the store.
 _DEFAULT, _OPTION, _SLOT = 0, 1, 2
-#: Threads a step's kernel is split across (the cores this process may use): step_batch releases
-#: the GIL and each sub-environment's row depends on its own inputs alone, so the parts are the
-#: very numbers of one call.
-_THREADS = available_cores()
-_PARALLEL_FROM = 512  # fewer sub-environments are not worth the hand-off to a thread
+#: From this many sub-environments a step's kernel is split across the cores this process may
+#: use (step_batch releases the GIL and each row depends on its own inputs alone); fewer are
+#: not worth the hand-off to a thread.
+_PARALLEL_FROM = 512
 
 
 def _step_parts(
@@ -55,8 +53,6 @@ def _step_parts(
     """:func:`step_batch` over contiguous parts of the batch, one a thread (the caller's the
     first): ``stored`` the store's arrays and the pairs, ``per_env`` the weights and limits,
     ``outputs`` step_batch's."""
-    count = len(rows)
-    parts = _THREADS if count >= _PARALLEL_FROM else 1
 
     def part(lo: int, hi: int) -> None:
         step_batch(
@@ -64,14 +60,7 @@ def _step_parts(
             *(x[lo:hi] for x in per_env), *(out[lo:hi] for out in outputs),
         )  # fmt: skip
 
-    bounds = [count * p // parts for p in range(parts + 1)]
-    others = [
-        thread_pool("grasp-vector-step", _THREADS - 1).submit(part, lo, hi)
-        for lo, hi in itertools.pairwise(bounds[1:])
-    ]
-    part(bounds[0], bounds[1])
-    for other in others:
-        other.result()
+    in_parts("grasp-vector-step", len(rows), part, _PARALLEL_FROM)
 
 
 def _padded(episode: Episode) -> dict[str, np.ndarray]:
