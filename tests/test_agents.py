@@ -304,7 +304,6 @@ def test_a_damaged_newest_checkpoint_is_skipped(tmp_path, capsys):
 def test_sigkill_then_resume_logs_every_step_once(tmp_path):
     """A run killed (SIGKILL) between checkpoints and resumed: TensorBoard, the learning curve
     and SB3's evaluation log hold each step once, and the run reaches its steps."""
-    import os
     import signal
     import subprocess
     import sys
@@ -314,8 +313,7 @@ def test_sigkill_then_resume_logs_every_step_once(tmp_path):
     path, run = tmp_path / "config.yaml", tmp_path / "run"
     save_config(config, path)
     command = [sys.executable, "-m", "grasp_env_agents.cli", "train", "--config", str(path)]
-    env = {**os.environ, "SB3_LOGDIR": str(tmp_path / "sb3")}
-    process = subprocess.Popen([*command, "--run-dir", str(run)], env=env, cwd=tmp_path)
+    process = subprocess.Popen([*command, "--run-dir", str(run)], cwd=tmp_path)
     try:
         # kill once the run has logged steps after its latest checkpoint
         deadline = time.monotonic() + 600
