@@ -426,8 +426,8 @@ def _step(
     """Step a batch of states ``xs`` (B,) at poses ``ts`` with ``actions`` (B, P + M): the
     next states (-1: dropped), rewards, terminations, observations and the info arrays, as
     views of three fresh buffers (one kernel call with few arguments: the single environment
-    pays numba's per-argument dispatch on every step); a ValueError (and nothing changed) if
-    an action is not finite."""
+    pays numba's per-argument dispatch on every step; a large batch is one call a core, on
+    contiguous parts); a ValueError (and nothing changed) if an action is not finite."""
     B, F, P = len(xs), task.n_fingers, task.n_pairs
     floats, ints, flags, obs = _buffers(task, B)
 
