@@ -1,6 +1,7 @@
 """The numpy mechanics core: rotations, scenes, trajectory, forces (docs/design.md, "Mechanics")."""
 
 import math
+import time
 
 import numpy as np
 import pytest
@@ -287,9 +288,20 @@ def test_scene_defaults_are_the_papers():
 
 
 def test_in_parts_covers_the_batch_in_order():
-    from grasp_env.mechanics.threads import available_cores, in_parts
+    from grasp_env.mechanics.threads import in_parts
 
-    for count, smallest in ((7, 8), (1001, 8), (0, 1), (1, 1)):
-        parts = in_parts("test-parts", count, lambda lo, hi: list(range(lo, hi)), smallest)
-        assert len(parts) == (1 if count < smallest else available_cores())
-        assert [i for part in parts for i in part] == list(range(count))
+    for count, parts in ((7, 1), (1001, 2), (1001, 3), (0, 2), (2, 5)):
+        done = in_parts("test-parts", count, lambda lo, hi: list(range(lo, hi)), parts)
+        assert len(done) == max(1, min(parts, count))
+        assert [i for part in done for i in part] == list(range(count))
+    finished = []
+
+    def part(lo: int, hi: int) -> None:
+        if lo == 0:
+            raise RuntimeError("the first part fails")
+        time.sleep(0.05)
+        finished.append(lo)
+
+    with pytest.raises(RuntimeError, match="first part fails"):
+        in_parts("test-parts", 10, part, 2)
+    assert finished == [5]  # the other part ran to its end before the error came back

@@ -37,7 +37,7 @@ from ..mechanics import (
     solve_gait,
 )
 from ..mechanics.gait import MIN_LOADED, GaitStates, gait_states
-from ..mechanics.threads import in_parts
+from ..mechanics.threads import available_cores, in_parts
 from .kernels import evaluate_grips
 from .scenes import TRAJECTORY_KEYS, check_trajectory
 from .validation import (
@@ -437,7 +437,8 @@ def _step(
             floats[lo:hi], ints[lo:hi], flags[lo:hi], obs[lo:hi],
         )  # fmt: skip
 
-    if not all(in_parts("grasp-gait-step", B, part, _PARALLEL_FROM)):
+    parts = available_cores() if B >= _PARALLEL_FROM else 1
+    if not all(in_parts("grasp-gait-step", B, part, parts)):
         rows = np.flatnonzero(flags[:, 3]).tolist()
         raise ValueError(f"actions must be finite numbers; rows {rows} are not")
     return {

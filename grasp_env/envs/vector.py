@@ -18,7 +18,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from ..mechanics import Scene, contact_pairs
-from ..mechanics.threads import in_parts
+from ..mechanics.threads import available_cores, in_parts
 from .cube_grasp import CubeGraspEnv, CubeGraspRandomEnv, _CubeGraspEnv, action_array
 from .episodes import Episode, EpisodeBatch, build_episodes, sample_episodes
 from .kernels import step_batch
@@ -60,7 +60,8 @@ def _step_parts(
             *(x[lo:hi] for x in per_env), *(out[lo:hi] for out in outputs),
         )  # fmt: skip
 
-    in_parts("grasp-vector-step", len(rows), part, _PARALLEL_FROM)
+    count = len(rows)
+    in_parts("grasp-vector-step", count, part, available_cores() if count >= _PARALLEL_FROM else 1)
 
 
 def _padded(episode: Episode) -> dict[str, np.ndarray]:

@@ -7,7 +7,7 @@ import itertools
 import os
 import threading
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor, wait
 from typing import TypeVar
 
 _T = TypeVar("_T")
@@ -36,17 +36,20 @@ def thread_pool(name: str, size: int) -> ThreadPoolExecutor:
         return made[1]
 
 
-def in_parts(name: str, count: int, part: Callable[[int, int], _T], smallest: int) -> list[_T]:
-    """``part(lo, hi)`` over contiguous parts of ``range(count)``, one per available core (the
-    caller runs the first, the pool ``name`` the others); one part if ``count < smallest``.
-    For a batch kernel that releases the GIL and whose rows depend on their own inputs alone,
-    so that the parts are the very numbers of one call. Returns the parts' results in order."""
-    if count < smallest:
+def in_parts(name: str, count: int, part: Callable[[int, int], _T], parts: int) -> list[_T]:
+    """``part(lo, hi)`` over ``parts`` contiguous parts of ``range(count)`` (at most ``count``,
+    at least one), the results in order: the calling thread runs the first part, the pool
+    ``name`` the others. For work that releases the GIL (compiled kernels, MuJoCo's stepping)
+    and whose items depend on their own inputs alone, so that the parts are the very numbers
+    of one call."""
+    parts = max(1, min(parts, count))
+    if parts == 1:
         return [part(0, count)]
-    cores = available_cores()
-    bounds = [count * p // cores for p in range(cores + 1)]
-    others = [
-        thread_pool(name, cores - 1).submit(part, lo, hi)
-        for lo, hi in itertools.pairwise(bounds[1:])
-    ]
-    return [part(bounds[0], bounds[1]), *(other.result() for other in others)]
+    bounds = [count * p // parts for p in range(parts + 1)]
+    pool = thread_pool(name, max(1, available_cores() - 1))
+    others = [pool.submit(part, lo, hi) for lo, hi in itertools.pairwise(bounds[1:])]
+    try:
+        first = part(bounds[0], bounds[1])
+    finally:  # the other parts write into the caller's arrays: never leave them running
+        wait(others)
+    return [first, *(other.result() for other in others)]

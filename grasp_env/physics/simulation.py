@@ -31,7 +31,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from grasp_env.mechanics import Scene, quaternion_matrix
-from grasp_env.mechanics.threads import available_cores, thread_pool
+from grasp_env.mechanics.threads import available_cores, in_parts
 
 from .model import (
     build_mjcf,
@@ -66,13 +66,8 @@ def in_parallel(work: Callable[[Sequence], list], items: Sequence, threads: int)
     stepping releases the GIL, so one part's Python overlaps another's stepping (a rollout
     thread pool alone leaves the cores idle while the Python plans and measures). A run's
     result does not depend on its part (see :func:`simulate`)."""
-    parts = max(1, min(int(threads), len(items)))
-    if parts == 1:
-        return work(items)
-    bounds = np.linspace(0, len(items), parts + 1).astype(int)
-    pool = thread_pool("grasp-physics", available_cores())
-    futures = [pool.submit(work, items[a:b]) for a, b in itertools.pairwise(bounds)]
-    return [result for future in futures for result in future.result()]
+    parts = in_parts("grasp-physics", len(items), lambda lo, hi: work(items[lo:hi]), threads)
+    return [result for part in parts for result in part]
 
 
 class PhysicsModel:
