@@ -665,6 +665,12 @@ def test_gait_env_other_trajectory_and_bad_keywords():
         ({"trajectory": "x"}, "trajectory must be a mapping"),
         ({"start": "x"}, "start must be a site"),
         ({"start": 3}, "start must be a site"),
+        ({"start": (True, -1, 3, 4, -1)}, "start must be a site"),  # not converted to site 1
+        ({"start": (2.7, -1, 3, 4, -1)}, "start must be a site"),
+        ({"start": ("2", "-1", "3", "4", "-1")}, "start must be a site"),
+        ({"start": (np.inf, -1, 3, 4, -1)}, "start must be a site"),
+        ({"start": (2**70, -1, 3, 4, -1)}, "start must be a site"),
+        ({"start": (5, -1, 3, 4, -1)}, r"out of reach .*\(0, 5\)"),  # finger 0 cannot push on +z
         ({"terminate_on_slip": 1}, "terminate_on_slip"),
         ({"cone_deg": 10.0}, "no gait"),
     ]:
@@ -677,6 +683,23 @@ def test_gait_env_other_trajectory_and_bad_keywords():
         env.step(np.zeros(P))
     with pytest.raises(ValueError, match="finite"):
         env.step(np.full(env.action_space.shape, np.nan, np.float32))
+    rewards = []
+    for dtype in (np.float16, np.float32, np.longdouble):  # the grasp envs' dtypes too
+        env.reset()
+        rewards.append(env.step(np.full(env.action_space.shape, 0.25, dtype))[1])
+    assert rewards[0] == rewards[1] == rewards[2]
+
+
+def test_gait_env_through_sb3_make_vec_env():
+    """SB3's make_vec_env asks for render_mode="rgb_array" and makes the env without it on a
+    TypeError: the gait environment, which has no render modes, must say so by one."""
+    from stable_baselines3.common.env_util import make_vec_env
+
+    envs = make_vec_env(GAIT_ID, n_envs=2, seed=0)
+    single = make_gait()
+    np.testing.assert_array_equal(envs.reset()[0], single.reset(seed=0)[0])
+    with pytest.raises(TypeError, match="no render modes"):
+        make_gait(render_mode="rgb_array")
 
 
 def test_gait_env_pickles():

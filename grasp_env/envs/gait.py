@@ -55,6 +55,7 @@ from .validation import (
 #: The paper's axis over [-90, 90] deg in 1 deg steps, as the ``trajectory`` keyword's mapping.
 PAPER_TURN_SPEC = {key: getattr(PAPER_TURN, key) for key in TRAJECTORY_KEYS}
 _SQRT3 = float(np.sqrt(3.0))
+_KERNEL_DTYPES = (np.dtype(np.float64), np.dtype(np.float32))  # the step kernel's compiled types
 #: From this many sub-environments the step's kernel is split across the cores (as the vector
 #: envs' step: it releases the GIL and each row depends on its own inputs alone).
 _PARALLEL_FROM = 512
@@ -199,6 +200,14 @@ def gait_task(
     F, N = table.n_fingers, table.n_sites
     X, M = len(table.states), table.n_moves
     if solution.optimal.margin == -np.inf:
+        if first is not None:
+            reach = solution.reach[0]
+            away = [(f, int(s)) for f, s in enumerate(first) if s >= 0 and not reach[f, s]]
+            if away:
+                raise ValueError(
+                    f"start {list(start)}: at the first pose these (finger, site) pairs are out of"
+                    f" reach (cone_deg={cone_deg}): {away}"
+                )
         raise ValueError(
             "no gait keeps three fingers on sites within reach along this trajectory"
             f" (cone_deg={cone_deg}); widen the cone or shorten the trajectory"
@@ -474,10 +483,10 @@ _INFO = ("refused", "lost", "move", "theta", "loaded", "k", "contact_forces", "s
 
 def _check_actions(actions: Any, shape: tuple[int, ...]) -> np.ndarray:
     if type(actions) is np.ndarray and actions.dtype.kind == "f" and actions.shape == shape:
-        array = actions
-    else:
-        array = check_array("action", actions, shape)
-    return array  # finiteness: checked by the step kernel
+        if actions.dtype in _KERNEL_DTYPES and actions.flags.c_contiguous:
+            return actions  # finiteness: checked by the step kernel
+        return np.ascontiguousarray(actions, dtype=np.float64)  # float16, longdouble
+    return check_array("action", actions, shape)
 
 
 # ------------------------------------------------------------------------- the policies
@@ -576,12 +585,15 @@ def _task(
     cone_deg = check_number("cone_deg", cone_deg, 0.0, 180.0, open_low=True, open_high=True)
     k_max_ratio = check_k_max_ratio(k_max_ratio)
     if start is not None:
-        try:
-            start = tuple(int(s) for s in start)
-        except (TypeError, ValueError):
+        sites = isinstance(start, Sequence | np.ndarray) and not isinstance(start, str | bytes)
+        if not sites or not all(
+            isinstance(s, Integral) and not isinstance(s, bool | np.bool_) and -1 <= s < 1 << 31
+            for s in start
+        ):
             raise ValueError(
                 f"start must be a site (0-5, or -1 for none) for each finger, got {start!r}"
-            ) from None
+            )
+        start = tuple(int(s) for s in start)
     return gait_task(trajectory, mu, cone_deg, k_max_ratio, start)
 
 
@@ -705,8 +717,8 @@ class CubeGaitEnv(gym.Env[np.ndarray, np.ndarray]):
         start: Sequence[int] | None = None,
         render_mode: str | None = None,
     ) -> None:
-        if render_mode is not None:
-            raise ValueError(f"the gait environment has no render modes, got {render_mode!r}")
+        if render_mode is not None:  # a TypeError: SB3's make_vec_env then makes it without
+            raise TypeError(f"the gait environment has no render modes, got {render_mode!r}")
         self.render_mode = None
         self.task = _task(trajectory, mu, cone_deg, k_max_ratio, start)
         self.terminate_on_slip = check_bool("terminate_on_slip", terminate_on_slip)
