@@ -160,6 +160,8 @@ def run(args: argparse.Namespace) -> int:
     if args.video is not None:
         if args.agreement:
             raise ValueError("--video writes the rollout: use it without --agreement")
+        if args.video.suffix.lower() != ".mp4":  # the container ffmpeg writes is chosen by it
+            raise ValueError(f"--video {args.video}: the video is an MP4, name it FILE.mp4")
         _imageio()  # before the rollout: say at once if the writer is missing
         try:  # before the rollout: say at once if the file cannot be written
             args.video.open("ab").close()

@@ -249,6 +249,10 @@ def test_vector_env_scene_option_and_errors():
     assert not info["physics_trajectory"]["holds"].any()
     assert [len(p) for p in info["physics_trajectory"]["pose_holds"]] == [4, 4]
     venv.close()
+    venv.close()  # twice is fine; stepping or resetting a closed one is not
+    for use in (lambda: venv.step(zero), lambda: venv.reset(seed=0)):
+        with pytest.raises(RuntimeError, match="is closed"):
+            use()
     with pytest.raises(ValueError, match='physics must be "mujoco"'):
         CubeGraspMujocoVectorEnv(num_envs=2, physics=None)
     with pytest.raises(ValueError, match="render_mode"):

@@ -634,6 +634,9 @@ def test_verify_and_gait_say_which_path_they_cannot_write(tmp_path, capsys):
     missing = tmp_path / "no" / "such"
     assert main(["verify", "--video", str(missing / "x.mp4"), "--out", str(tmp_path)]) == 2
     assert f"--video {missing / 'x.mp4'}: cannot write it" in capsys.readouterr().err
+    assert main(["verify", "--video", str(tmp_path / "x.txt"), "--out", str(tmp_path)]) == 2
+    assert "the video is an MP4, name it FILE.mp4" in capsys.readouterr().err
+    assert not (tmp_path / "x.txt").exists()  # refused before anything is written
     blocked = tmp_path / "a-file"
     blocked.write_text("")
     assert main(["gait", "--out", str(blocked / "out")]) == 1

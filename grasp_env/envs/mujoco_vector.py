@@ -115,7 +115,12 @@ class _MujocoVectorEnv(_CubeGraspVectorEnv):
             self._option = (episode, StabilityChecker(episode.scene))
         return self._option[1]
 
+    def _check_open(self) -> None:
+        if self.closed:  # its MuJoCo checkers are freed
+            raise RuntimeError(f"this {type(self).__name__} is closed: make a new one")
+
     def _start(self, envs: np.ndarray, scene: Mapping[str, Any] | None) -> None:
+        self._check_open()
         super()._start(envs, scene)
         if len(envs) == 0:
             return
@@ -182,6 +187,7 @@ class _MujocoVectorEnv(_CubeGraspVectorEnv):
         self, actions: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
         """Step every sub-environment, then check their forces in MuJoCo (see the class)."""
+        self._check_open()
         mode, terminate = self.autoreset_mode, self.terminate_on_slip
         # The batched step, as NEXT_STEP without termination: the resets wait for MuJoCo.
         self.autoreset_mode, self.terminate_on_slip = AutoresetMode.NEXT_STEP, False
