@@ -283,3 +283,20 @@ def test_vector_env_scene_options_and_gymnasium_wrappers():
     _, _, _, _, info = venv.step(actions)  # sub-environment 1 starts a drawn scene
     assert info["_physics"].tolist() == [True, False]
     venv.close()
+
+
+def test_k_max_ratio_stays_within_what_the_contact_carries():
+    """With physics the grip's largest squeeze is 40 w a pair: at it, an equal squeeze deep
+    inside every cone holds in MuJoCo (four fingers, forces near 105 w); above it the single
+    and the vector envs refuse to be made."""
+    env = make("grasp_env/CubeGrasp4Mujoco-v0", k_max_ratio=40.0, scene={"mu": 1000.0, **SHORT})
+    env.reset(seed=0)
+    _, reward, terminated, _, info = env.step(np.ones(env.action_space.shape, np.float32))
+    assert reward > np.deg2rad(60) and info["physics"]["holds"] and not terminated
+    env.close()
+    for build in (
+        lambda: make("grasp_env/CubeGraspMujoco-v0", k_max_ratio=40.5),
+        lambda: make_vec("grasp_env/CubeGraspRandomMujoco-v0", 2, k_max_ratio=100.0),
+    ):
+        with pytest.raises(ValueError, match=r"\(with physics='mujoco'\).*\[0.001, 40\]"):
+            build()

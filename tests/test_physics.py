@@ -253,6 +253,27 @@ def test_bad_settings_raise_clear_errors():
         StabilityChecker(Scene()).check_batch(START_ROTATION[None], np.zeros((1, 3, 3)), threads=0)
 
 
+def test_forces_up_to_the_contacts_limit_are_judged_and_larger_ones_refused():
+    """MuJoCo's soft contact sinks a tip pressed much harder than MAX_FORCE through the face
+    (a grip deep inside its cones then 'slips' metres): the checker holds to the limit and
+    refuses beyond it, naming the finger."""
+    from grasp_env.physics.model import MAX_FORCE
+
+    scene = Scene(mu=1000.0)  # every cone 89.9 deg wide: an equal squeeze holds at any size
+    grasp = scene_grasp(scene, START_ROTATION)
+    squeeze = grasp.basis.sum(axis=0)  # P_i - F_i for k = 1 N on every pair
+    per_newton = np.linalg.norm(squeeze, axis=-1).max() / scene.weight  # |F_i| is about 1 w
+    checker = StabilityChecker(scene)
+    try:
+        near = grasp.equilibrating + squeeze * (0.97 * MAX_FORCE / per_newton)
+        assert checker.check(START_ROTATION, near).holds
+        beyond = grasp.equilibrating + squeeze * (1.05 * MAX_FORCE / per_newton)
+        with pytest.raises(ValueError, match=r"finger \d's force at pose 0 is 15\d\.?\d* w"):
+            checker.check(START_ROTATION, beyond)
+    finally:
+        checker.close()
+
+
 def test_closed_checker_refuses_to_check():
     checker = StabilityChecker(Scene())
     checker.close()

@@ -27,6 +27,7 @@ from .validation import (
     check_bool,
     check_k_max_ratio,
     check_margin,
+    check_mujoco_k_max_ratio,
     check_seed,
 )
 
@@ -73,6 +74,8 @@ class _CubeGraspEnv(gym.Env[np.ndarray, np.ndarray]):
         check_physics(physics, render_mode, self.metadata["render_modes"])
         self.faces = check_faces(faces)
         self.k_max_ratio = check_k_max_ratio(k_max_ratio)
+        if physics is not None:
+            check_mujoco_k_max_ratio(k_max_ratio)
         self.terminate_on_slip = check_bool("terminate_on_slip", terminate_on_slip)
         self.physics = physics
         self.render_mode = render_mode
@@ -315,7 +318,8 @@ _DOC_COMMON_ARGS = """\
     - `physics` (default None): "mujoco" checks every step's forces in MuJoCo
       (`grasp_env.physics.StabilityChecker`, a few ms a step) and terminates on its verdict;
       at the episode's end it carries the episode's grips through one continuous rollout
-      (`grasp_env.physics.TrajectoryChecker`, `info["physics_trajectory"]`).
+      (`grasp_env.physics.TrajectoryChecker`, `info["physics_trajectory"]`); `k_max_ratio`
+      is then at most 40 (MuJoCo's contact carries at most 150 w a finger faithfully).
     - `render_mode`: None, "rgb_array" or "human" (MuJoCo view of the grasp).
 """
 

@@ -25,7 +25,7 @@ from .episodes import Episode
 from .kernels import pose_geometry
 from .observation import ObservationLayout
 from .scenes import EDGE, SceneBatch
-from .validation import check_bool
+from .validation import DEFAULT_K_MAX_RATIO, check_bool, check_mujoco_k_max_ratio
 from .vector import CubeGraspRandomVectorEnv, CubeGraspVectorEnv, _CubeGraspVectorEnv
 
 
@@ -85,6 +85,7 @@ class _MujocoVectorEnv(_CubeGraspVectorEnv):
     ) -> None:
         if physics != "mujoco":
             raise ValueError(f'physics must be "mujoco" for this vector env, got {physics!r}')
+        check_mujoco_k_max_ratio(kwargs.get("k_max_ratio", DEFAULT_K_MAX_RATIO))
         terminate = check_bool("terminate_on_slip", terminate_on_slip)
         # The batched step runs without analytic termination: MuJoCo's verdict terminates.
         super().__init__(num_envs, autoreset_mode, terminate_on_slip=False, **kwargs)

@@ -23,6 +23,9 @@ DEFAULT_K_MAX_RATIO = 2.0
 WEIGHT_RANGE = (1e-6, 1e6)  # N
 MU_RANGE = (1e-3, 1e3)  # theta_lim from 0.057 deg to 89.94 deg
 K_MAX_RATIO_RANGE = (1e-3, 1e3)  # k_max / w
+#: k_max / w with physics="mujoco": a finger's force is at most |F_i| + 3 k_max (four fingers),
+#: which then stays below the MuJoCo contact's grasp_env.physics.model.MAX_FORCE (150 w).
+MUJOCO_K_MAX_RATIO_RANGE = (1e-3, 40.0)
 ALPHA_RANGE_DEG = (-180.0, 180.0)
 #: The most poses a trajectory may have (a full turn in steps of 0.036 deg; each pose costs a
 #: minimax solve when its episode starts).
@@ -106,6 +109,12 @@ def check_margin(value: Any) -> float:
 def check_k_max_ratio(value: Any) -> float:
     """``k_max_ratio`` = k_max / w in :data:`K_MAX_RATIO_RANGE`."""
     return check_number("k_max_ratio", value, *K_MAX_RATIO_RANGE)
+
+
+def check_mujoco_k_max_ratio(value: Any) -> float:
+    """``k_max_ratio`` of an environment checked in MuJoCo, in :data:`MUJOCO_K_MAX_RATIO_RANGE`."""
+    low, high = MUJOCO_K_MAX_RATIO_RANGE
+    return check_number("k_max_ratio (with physics='mujoco')", value, low, high)
 
 
 def check_array(name: str, value: Any, shape: tuple[int, ...]) -> np.ndarray:

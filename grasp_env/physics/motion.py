@@ -62,7 +62,14 @@ from numpy.typing import ArrayLike
 from grasp_env.mechanics import Scene, axis_angle_matrix, friction_angles, grasp_matrix
 from grasp_env.mechanics import matrix_quaternion as _quaternion
 
-from .model import check_forces, check_rotations, length_unit, model_cg, model_contacts
+from .model import (
+    MAX_FORCE,
+    check_forces,
+    check_rotations,
+    length_unit,
+    model_cg,
+    model_contacts,
+)
 
 #: Largest number of simulation steps of one run (a guard against a mistyped setting).
 MAX_STEPS = 2_000_000
@@ -208,8 +215,16 @@ def _check_contact(
     scene: Scene, forces: np.ndarray, in_contact: ArrayLike | None, settings: dict[str, float]
 ) -> np.ndarray:
     """``in_contact`` (T, n) for ``forces`` (T, n, 3) (None: every finger), or a ValueError:
-    a finger out of contact must carry no force."""
+    a finger out of contact must carry no force, and none more than :data:`MAX_FORCE` w."""
     n_poses, n = forces.shape[:2]
+    magnitudes = np.linalg.norm(forces, axis=-1) / scene.weight
+    if np.any(magnitudes > MAX_FORCE):
+        t, i = np.argwhere(magnitudes > MAX_FORCE)[0]
+        raise ValueError(
+            f"finger {i}'s force at pose {t} is {magnitudes[t, i]:.4g} w: the MuJoCo contact"
+            f" carries at most {MAX_FORCE:g} w a finger faithfully (a tip pressed harder sinks"
+            " through the face)"
+        )
     if in_contact is None:
         return np.ones((n_poses, n), dtype=bool)
     contact = np.asarray(in_contact)
