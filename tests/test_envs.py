@@ -562,6 +562,28 @@ def test_vector_step_split_across_cores_equals_one_call(env_id, module, monkeypa
             np.testing.assert_array_equal(a, b)
 
 
+def test_vector_env_resets_in_chunks_the_same_episodes(monkeypatch):
+    """Random episodes are drawn for a chunk of sub-environments at a time (bounding a large
+    reset's memory): the episodes, observations and rewards are those of one chunk."""
+    import grasp_env.envs.vector as vector
+
+    runs = []
+    for chunk in (vector._RESET_CHUNK, 3):
+        monkeypatch.setattr(vector, "_RESET_CHUNK", chunk)
+        venv = gym.make_vec(
+            "grasp_env/CubeGraspRandom-v0", num_envs=7, vectorization_mode="vector_entry_point"
+        )
+        venv.action_space.seed(0)
+        steps = [venv.reset(seed=5)[0]]
+        for _ in range(40):  # autoresets in the chunks too
+            obs, reward, terminated, truncated, _ = venv.step(venv.action_space.sample())
+            steps.append((obs, reward, terminated, truncated))
+        runs.append(steps)
+    for one, chunked in zip(*runs, strict=True):
+        for a, b in zip(one, chunked, strict=True):
+            np.testing.assert_array_equal(a, b)
+
+
 def test_vector_env_same_step_autoreset():
     count = 4
     venv = gym.make_vec(

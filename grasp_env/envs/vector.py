@@ -34,6 +34,10 @@ _STORED = (  # in step_batch's order
 #: The most pose rows the store of a vector environment may hold (about 3 GB with three
 #: fingers, 4.6 GB with four): num_envs x (longest trajectory + 1) for random scenes.
 MAX_STORE_ROWS = 1 << 23
+#: Random episodes are drawn for at most this many sub-environments at a time (each draws from
+#: its own generator, so the episodes do not depend on it): it bounds the memory a reset of
+#: many sub-environments needs besides the store.
+_RESET_CHUNK = 8192
 # Where a sub-environment's episode lives in the store.
 _DEFAULT, _OPTION, _SLOT = 0, 1, 2
 #: From this many sub-environments a step's kernel is split across the cores this process may
@@ -242,21 +246,22 @@ class _CubeGraspVectorEnv(VectorEnv):
             self._weight[envs] = episode.weight
             self._limit[envs] = episode.limit
             self._scenes[envs] = None
-        else:
-            batch = sample_episodes(
-                [self._rng(e) for e in envs],
-                template.sampler,
-                template.k_max_ratio,
-                template.min_expert_margin,
-            )
-            store.write(envs, batch)
-            starts = batch.starts
-            self._where[envs] = _SLOT
-            self._length[envs] = batch.scenes.length
-            self._weight[envs] = batch.scenes.weight
-            self._limit[envs] = batch.poses.limit[starts]
-            for j, e in enumerate(envs):
-                self._scenes[e] = (batch.scenes, j)
+        else:  # in chunks: a chunk's episodes are built (several times their size) then stored
+            for first in range(0, len(envs), _RESET_CHUNK):
+                chunk = envs[first : first + _RESET_CHUNK]
+                batch = sample_episodes(
+                    [self._rng(e) for e in chunk],
+                    template.sampler,
+                    template.k_max_ratio,
+                    template.min_expert_margin,
+                )
+                store.write(chunk, batch)
+                self._where[chunk] = _SLOT
+                self._length[chunk] = batch.scenes.length
+                self._weight[chunk] = batch.scenes.weight
+                self._limit[chunk] = batch.poses.limit[batch.starts]
+                for j, e in enumerate(chunk):
+                    self._scenes[e] = (batch.scenes, j)
         self._base = store.bases(self._where)
         self._t[envs] = 0
 
