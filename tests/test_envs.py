@@ -630,7 +630,9 @@ def test_vector_env_bad_input():
     np.testing.assert_array_equal(info["alpha_deg"], [-15.0, -15.0, -15.0])
     with pytest.raises(ValueError, match="unknown scene key 'mass'"):
         venv.reset(options={"scene": {"mass": 1}})
-    with pytest.raises(ValueError, match="physics nor render_mode"):
+    with pytest.raises(
+        ValueError, match=r"physics nor render_mode: for physics make the \.\.\.Mujoco"
+    ):
         gym.make_vec(
             "grasp_env/CubeGrasp-v0", num_envs=2, vectorization_mode="vector_entry_point",
             physics="mujoco",
@@ -771,6 +773,9 @@ def test_expert_bad_input_raises():
         expert.predict(np.zeros((2, 2, 32), np.float32))
     with pytest.raises(ValueError, match="k_max_ratio"):
         MinimaxExpert(k_max_ratio=-1.0)
+    for size, m in ((32, 3), (38, 6)):  # an empty batch is answered, not refused
+        actions, _ = expert.predict(np.zeros((0, size), np.float32))
+        assert actions.shape == (0, m) and actions.dtype == np.float32
 
 
 def test_step_kernel_matches_the_mechanics():

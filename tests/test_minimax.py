@@ -438,6 +438,9 @@ def test_bad_f_max(f_max: float) -> None:
 
 def test_bad_shapes_and_values() -> None:
     g = scene_grasp(Scene(), Trajectory().rotations())
+    for not_a_grasp in (None, Scene(), {"equilibrating": g.equilibrating}):
+        with pytest.raises(ValueError, match=r"grasp must be a Grasp \(from scene_grasp\)"):
+            solve_minimax(not_a_grasp, 10.0)  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="must broadcast to the grasp's batch shape"):
         solve_minimax(g, np.ones(5))
     with pytest.raises(ValueError, match="follows must be boolean"):

@@ -111,6 +111,6 @@ def check_observations(obs: np.ndarray, layout: ObservationLayout) -> None:
             f"observation {outside[0]} lies outside the observation space (a normalised"
             " observation? the expert needs the environment's own)"
         )
-    normals = obs[:, layout.normals].reshape(len(obs), -1, 3)
+    normals = obs[:, layout.normals].reshape(len(obs), layout.n_contacts, 3)
     if np.any(np.abs(np.linalg.norm(normals, axis=-1) - 1.0) > 1e-3):
         raise ValueError("observation's contact normals must be unit vectors")

@@ -184,8 +184,9 @@ class _CubeGraspVectorEnv(VectorEnv):
             raise ValueError(f"autoreset_mode must be one of {[m.value for m in _MODES]}")
         if kwargs.get("physics") is not None or kwargs.get("render_mode") is not None:
             raise ValueError(
-                "the batched vector env supports neither physics nor render_mode; use"
-                ' gym.make_vec(..., vectorization_mode="sync") for those'
+                "this batched vector env takes neither physics nor render_mode: for physics make"
+                " the ...Mujoco-v0 id (its vector env checks in MuJoCo), for render_mode use"
+                ' gym.make_vec(..., vectorization_mode="sync")'
             )
         self.num_envs = num_envs
         self.autoreset_mode = mode

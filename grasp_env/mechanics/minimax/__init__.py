@@ -214,6 +214,8 @@ def solve_minimax(
     friction angles depend on k_max / s and f_max / s only, and the solver works in units
     of s, so every weight in that range gives the same angles).
     """
+    if not isinstance(grasp, Grasp):
+        raise ValueError(f"grasp must be a Grasp (from scene_grasp), got {type(grasp).__name__}")
     F = np.asarray(grasp.equilibrating, dtype=float)
     E = np.asarray(grasp.basis, dtype=float)
     N = np.asarray(grasp.normals, dtype=float)
