@@ -135,11 +135,21 @@ def test_trajectory_about_another_axis_starts_at_r0():
         ({"alpha_start_deg": 5, "alpha_end_deg": -5}, "alpha_end_deg"),
         ({"alpha_end_deg": float("nan")}, "finite"),
         ({"alpha_end_deg": 400}, "180"),
+        ({"alpha_step_deg": 1e-9}, "at most 10000 poses, but 30 deg in steps of 1e-09 deg"),
     ],
 )
 def test_bad_trajectory(kwargs, match):
     with pytest.raises(ValueError, match=match):
         Trajectory(**kwargs)
+
+
+def test_the_longest_trajectory_has_max_poses():
+    from grasp_env.mechanics.trajectory import MAX_POSES
+
+    turn = {"alpha_start_deg": -180, "alpha_end_deg": 180}
+    assert len(Trajectory(**turn, alpha_step_deg=360 / (MAX_POSES - 1))) == MAX_POSES
+    with pytest.raises(ValueError, match=r"make 10,001: raise alpha_step_deg"):
+        Trajectory(**turn, alpha_step_deg=360 / MAX_POSES)
 
 
 # --- forces -------------------------------------------------------------------------------

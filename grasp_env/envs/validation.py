@@ -14,6 +14,9 @@ from typing import Any
 
 import numpy as np
 
+# re-exported: the environments' pose cap is the trajectories' (each pose a solve at a reset)
+from ..mechanics.trajectory import MAX_POSES as MAX_POSES
+
 #: Default action scale of the environments: k_max = 2 w.
 DEFAULT_K_MAX_RATIO = 2.0
 
@@ -27,9 +30,6 @@ K_MAX_RATIO_RANGE = (1e-3, 1e3)  # k_max / w
 #: which then stays below the MuJoCo contact's grasp_env.physics.model.MAX_FORCE (150 w).
 MUJOCO_K_MAX_RATIO_RANGE = (1e-3, 40.0)
 ALPHA_RANGE_DEG = (-180.0, 180.0)
-#: The most poses a trajectory may have (a full turn in steps of 0.036 deg; each pose costs a
-#: minimax solve when its episode starts).
-MAX_POSES = 10_000
 #: The most sub-environments a vector environment may have.
 MAX_ENVS = 1 << 20
 

@@ -17,6 +17,10 @@ PHI = float(np.arccos(1.0 / np.sqrt(3.0)))
 START_ROTATION = axis_angle_matrix(PAPER_AXIS, PHI)
 
 
+#: The most poses a trajectory may have (a full turn in steps of 0.036 deg).
+MAX_POSES = 10_000
+
+
 @dataclass(frozen=True)
 class Trajectory:
     """Rotation about the world-frame ``axis`` by alpha, from the start pose (alpha = 0).
@@ -47,6 +51,13 @@ class Trajectory:
             )
         if abs(self.alpha_start_deg) > 180 or abs(self.alpha_end_deg) > 180:
             raise ValueError("trajectory alphas must lie in [-180, 180] deg")
+        span = self.alpha_end_deg - self.alpha_start_deg
+        poses = np.floor(span / self.alpha_step_deg + 1e-9) + 1  # as alphas_deg counts them
+        if poses > MAX_POSES:  # each pose is a solve, a MuJoCo check, a frame
+            raise ValueError(
+                f"a trajectory may have at most {MAX_POSES} poses, but {span:g} deg in steps of"
+                f" {self.alpha_step_deg:g} deg make {poses:,.0f}: raise alpha_step_deg"
+            )
 
     @property
     def alphas_deg(self) -> np.ndarray:
