@@ -9,6 +9,7 @@ threads do not disturb the next one's timings.
 from __future__ import annotations
 
 import argparse
+import math
 import subprocess
 import sys
 from importlib import resources
@@ -41,8 +42,8 @@ def run(args: argparse.Namespace) -> int:
     unknown = sorted(set(names) - set(available()))
     if unknown:
         raise ValueError(f"unknown benchmark(s) {unknown}; available: {available()}")
-    if args.seconds is not None and not args.seconds > 0:
-        raise ValueError(f"--seconds must be > 0, got {args.seconds}")
+    if args.seconds is not None and not 0 < args.seconds < math.inf:
+        raise ValueError(f"--seconds must be a finite number > 0, got {args.seconds}")
     extra = [] if args.seconds is None else ["--seconds", str(args.seconds)]
     status = 0
     for name in names:

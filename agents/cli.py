@@ -39,8 +39,12 @@ def main(argv: list[str] | None = None) -> int:
         # help is %-formatted by argparse, description is not
         command = sub.add_parser(name, help=summary.replace("%", "%%"), description=summary)
         if name == chosen:
-            with status(f"grasp-env {name}: loading its libraries"):
-                module = importlib.import_module(f".{name}", __package__)
+            try:
+                with status(f"grasp-env {name}: loading its libraries"):
+                    module = importlib.import_module(f".{name}", __package__)
+            except KeyboardInterrupt:  # Ctrl-C while torch and friends load
+                print("interrupted", file=sys.stderr)
+                return 130
             module.add_arguments(command)
             command.set_defaults(run=module.run)
     args = parser.parse_args(argv)

@@ -124,3 +124,11 @@ def test_limit_refuses_an_unknown_mode():
     limit = limits.Limit(grasps, k_max, solve_minimax(grasps[0], k_max[0]).k)
     with pytest.raises(ValueError, match=r"single.*batched"):
         limit.measure("threads", 0.01)
+
+
+@pytest.mark.parametrize("value", ["0", "-1", "nan", "inf"])
+def test_bench_refuses_seconds_that_are_not_a_finite_positive_time(value, capsys):
+    from grasp_env_agents.cli import main
+
+    assert main(["bench", "solver", "--seconds", value]) == 2
+    assert "--seconds must be a finite number > 0" in capsys.readouterr().err

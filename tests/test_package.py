@@ -111,3 +111,16 @@ def test_every_command_has_help():
         with pytest.raises(SystemExit) as done:
             cli.main([*argv, "--help"])
         assert done.value.code == 0, argv
+
+
+def test_ctrl_c_while_a_command_loads_exits_130(monkeypatch, capsys):
+    """Ctrl-C during the seconds a command spends importing torch and SB3: a line, no
+    traceback."""
+    from grasp_env_agents import cli
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli.importlib, "import_module", interrupted)
+    assert cli.main(["train"]) == 130
+    assert capsys.readouterr().err.strip().endswith("interrupted")
