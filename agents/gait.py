@@ -85,7 +85,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-plots", action="store_true", help="write the CSV only")
     parser.add_argument(
         "--models", nargs="+", type=Path, default=[], metavar="MODEL",
-        help="trained agents (SB3 model files, e.g. rl-zoo3's, or grasp-env run directories)"
+        help="trained agents (SB3 model files, e.g. rl-zoo3's)"
         " to play on grasp_env/CubeGait-v0 beside the optimal and the greedy gait (the"
         " default hand, sites and weight; --axis, --alpha-*, --mu, --cone, --k-max apply)",
     )  # fmt: skip

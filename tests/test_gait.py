@@ -749,3 +749,19 @@ def test_certified_gait_holds_in_mujoco():
     )
     assert report.predicted_holds and report.holds, report.as_dict()
     assert abs(report.margin_deg - np.rad2deg(gait.margins[window].min())) < 0.01
+
+
+def test_gait_env_through_the_sb3_adapter_and_not_grasp_env_train():
+    """SB3VecEnv drives the gait's vector env (PPO learns on it); grasp-env train, whose runs
+    are evaluated on held-out grasp scenes, refuses it and says where it trains."""
+    from stable_baselines3 import PPO
+
+    from grasp_env.envs.sb3 import SB3VecEnv
+    from grasp_env_agents.config import config_from_dict
+
+    venv = SB3VecEnv(GAIT_ID, num_envs=4)
+    venv.seed(0)
+    np.testing.assert_array_equal(venv.reset()[0], make_gait().reset(seed=0)[0])
+    PPO("MlpPolicy", venv, n_steps=16, batch_size=64, n_epochs=1, seed=0).learn(64)
+    with pytest.raises(ValueError, match="trains with rl-zoo3"):
+        config_from_dict({"env_id": GAIT_ID, "total_timesteps": 64})

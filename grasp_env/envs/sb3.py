@@ -28,6 +28,7 @@ from stable_baselines3.common.vec_env.base_vec_env import (
     VecEnvStepReturn,
 )
 
+from .gait import CubeGaitVectorEnv
 from .validation import check_seed
 from .vector import _CubeGraspVectorEnv
 
@@ -42,7 +43,9 @@ class SB3VecEnv(VecEnv):
         **kwargs: keywords of the environment (with an id).
     """
 
-    def __init__(self, env: str | _CubeGraspVectorEnv, num_envs: int = 1, **kwargs: Any) -> None:
+    def __init__(
+        self, env: str | _CubeGraspVectorEnv | CubeGaitVectorEnv, num_envs: int = 1, **kwargs: Any
+    ) -> None:
         if isinstance(env, str):
             env = gym.make_vec(
                 env,
@@ -53,7 +56,7 @@ class SB3VecEnv(VecEnv):
             )
         elif kwargs:
             raise ValueError("keywords are for an environment id, not for an existing env")
-        if not isinstance(getattr(env, "unwrapped", None), _CubeGraspVectorEnv):
+        if not isinstance(getattr(env, "unwrapped", None), _CubeGraspVectorEnv | CubeGaitVectorEnv):
             raise ValueError(f"expected a grasp_env vector environment, got {env!r}")
         if env.metadata.get("autoreset_mode") != AutoresetMode.SAME_STEP:
             raise ValueError("the vector environment must use AutoresetMode.SAME_STEP")
