@@ -74,7 +74,6 @@ LOGGED = ("mean_gap_deg", "p90_gap_deg", "worst_gap_deg", "success_rate", "mean_
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--config",
-        default="default",
         metavar="NAME|PATH",
         help=f"a shipped config by name ({', '.join(shipped_configs())}) or the path of a"
         " YAML config (default: default)",
@@ -102,12 +101,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     overrides = {} if args.total_timesteps is None else {"total_timesteps": args.total_timesteps}
     if args.resume is not None:
+        if args.config is not None or args.run_dir is not None:
+            raise ValueError(
+                "--resume continues a run with its own config.yaml in its own directory:"
+                " give it without --config and --run-dir"
+            )
         run_dir = args.resume
         if not (run_dir / "config.yaml").is_file():
             raise ValueError(f"--resume {str(run_dir)!r}: not a run directory (no config.yaml)")
         config = load_config(run_dir / "config.yaml", overrides)
     else:
-        path = config_path(args.config)
+        path = config_path(args.config or "default")
         config = load_config(path, overrides)
         stamp = time.strftime("%Y%m%d-%H%M%S")
         run_dir = args.run_dir or Path("runs") / f"{path.stem}-{stamp}"
@@ -142,9 +146,13 @@ def train(
     if resume:
         imitation_steps = last_steps(run_dir / "learning_curve.csv", "imitation")
         start = find_start(run_dir, config.normalize, imitation_steps, config.algo)
+        if config.total_timesteps < start.model_steps:
+            raise ValueError(
+                f"total_timesteps {config.total_timesteps:,} is below the {start.model_steps:,}"
+                f" {config.algo.upper()} steps {run_dir} has done: give more to extend it"
+            )
         say(f"resume: from {start.checkpoint or 'the beginning (no intact checkpoint)'}")
     run_dir.mkdir(parents=True, exist_ok=True)
-    save_config(config, run_dir / "config.yaml")
 
     # 1. Seeding: torch, numpy, random; few threads (the machine is shared, numbers repeatable).
     torch.set_num_threads(config.torch_threads)
@@ -152,6 +160,8 @@ def train(
 
     with status("building the environments and the model"):
         env, eval_env, model = build(config, start, run_dir)
+    # written once the run can start: a config that fails to build leaves no run to --resume
+    save_config(config, run_dir / "config.yaml")
     held_out = find_held_out(eval_env)
     # a resumed run drops what the killed one logged after its checkpoint
     kept = start.env_steps if start.checkpoint is not None else None

@@ -399,10 +399,22 @@ def test_same_seed_same_first_evaluation(tmp_path):
     assert first_ppo_evaluation(8, "c") != first
 
 
-def test_a_run_directory_is_not_overwritten(tmp_path):
-    train(tiny(total_timesteps=64), tmp_path / "run", progress_bar=False)
+def test_a_run_directory_is_not_overwritten(tmp_path, capsys):
+    run = tmp_path / "run"
+    # a config that cannot build its environments leaves no run behind to block the retry
+    with pytest.raises(ValueError, match="env_kwargs for grasp_env/CubeGrasp-v0"):
+        train(tiny(env_kwargs={"bogus": 3}), run, progress_bar=False)
+    assert not (run / "config.yaml").exists()
+    train(tiny(total_timesteps=64), run, progress_bar=False)
     with pytest.raises(ValueError, match="already holds a run; use --resume"):
-        train(tiny(total_timesteps=64), tmp_path / "run", progress_bar=False)
+        train(tiny(total_timesteps=64), run, progress_bar=False)
+    # --resume takes the run's own config and directory, and cannot shorten the run
+    assert cli.main(["train", "--resume", str(run), "--config", "dagger"]) == 2
+    assert "give it without --config and --run-dir" in capsys.readouterr().err
+    before = (run / "config.yaml").read_text()
+    assert cli.main(["train", "--resume", str(run), "--total-timesteps", "32"]) == 2
+    assert "total_timesteps 32 is below the 64 PPO steps" in capsys.readouterr().err
+    assert (run / "config.yaml").read_text() == before  # the run's record stands
 
 
 # --- the expert as teacher -----------------------------------------------------------------
