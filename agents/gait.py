@@ -37,6 +37,7 @@ from grasp_env.mechanics import (
 )
 from grasp_env.mechanics.gait import GAIT_CG_OFFSET, site_sets
 
+from .progress import status
 from .scene_args import floats
 
 HELP = "when to phase fingers out and in: the certified optimal gait along a long rotation"
@@ -422,7 +423,10 @@ def run(args: argparse.Namespace) -> int:
     if args.models:
         env_kwargs(args)  # refuse options the environment cannot take before solving
     start = time.perf_counter()
-    solution = solve_gait(scene, hand, trajectory, args.k_max)
+    with status(
+        f"the certified minimax of every site set at {len(trajectory):,} poses, then the gait"
+    ):
+        solution = solve_gait(scene, hand, trajectory, args.k_max)
     seconds = time.perf_counter() - start
     print_gait(solution, solution.optimal, "Optimal gait (certified)")
     for line in summary(solution, seconds):
