@@ -12,7 +12,7 @@ One run, top to bottom (:func:`train`):
    minimax expert into the same policy network (:mod:`grasp_env_agents.imitation`), each round
    evaluated, logged and checkpointed;
 5. the algorithm for ``total_timesteps`` environment steps with evaluation and checkpoint
-   callbacks; Ctrl-C saves a checkpoint before stopping;
+   callbacks; Ctrl-C (or SIGTERM, from `grasp-env train`) saves a checkpoint before stopping;
 6. save the model, the learning curve (CSV and PNG) and print the comparison with the expert
    and the baselines (:mod:`grasp_env_agents.evaluate`).
 
@@ -25,10 +25,11 @@ evaluation log), ``learning_curve.csv`` and ``.png`` (:mod:`grasp_env_agents.cur
 from __future__ import annotations
 
 import argparse
+import signal
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
@@ -115,12 +116,21 @@ def run(args: argparse.Namespace) -> int:
         config = load_config(path, overrides)
         stamp = time.strftime("%Y%m%d-%H%M%S")
         run_dir = args.run_dir or Path("runs") / f"{path.stem}-{stamp}"
-    train(config, run_dir, resume=args.resume is not None)
+    # A batch scheduler, a container or `kill` stop a run by SIGTERM: save it as on Ctrl-C.
+    previous = signal.signal(signal.SIGTERM, _interrupt)
+    try:
+        train(config, run_dir, resume=args.resume is not None)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
     with status("loading the evaluation"):
         from .evaluate import evaluate_run
 
     print(evaluate_run(run_dir).markdown)
     return 0
+
+
+def _interrupt(signum: int, frame: Any) -> None:
+    raise KeyboardInterrupt
 
 
 # --- one training run ----------------------------------------------------------------------

@@ -300,6 +300,36 @@ def test_a_damaged_newest_checkpoint_is_skipped(tmp_path, capsys):
         assert len(steps) == len(set(steps)), tag
 
 
+def test_sigterm_saves_the_run_as_ctrl_c_does(tmp_path):
+    """SIGTERM (a scheduler's or a container's stop) saves a checkpoint at the step reached and
+    says how to resume, as Ctrl-C does; exit status 130."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    config = tiny(total_timesteps=1 << 20, eval_freq=0, checkpoint_freq=0)
+    path, run = tmp_path / "config.yaml", tmp_path / "run"
+    save_config(config, path)
+    command = [sys.executable, "-m", "grasp_env_agents.cli", "train", "--config", str(path)]
+    process = subprocess.Popen(
+        [*command, "--run-dir", str(run)], cwd=tmp_path, stdout=subprocess.PIPE, text=True
+    )
+    try:
+        deadline = time.monotonic() + 300
+        while time.monotonic() < deadline and not list(run.glob("tb/ppo/*")):
+            time.sleep(0.05)  # learning has started
+        time.sleep(1.0)
+        process.send_signal(signal.SIGTERM)
+        output, _ = process.communicate(timeout=120)
+    finally:
+        process.kill()
+    assert process.returncode == 130
+    assert "interrupted: saved the model" in output and "--resume" in output
+    saved = [checkpoint_steps(p) for p in (run / "checkpoints").glob("ppo_*_steps.zip")]
+    assert saved and max(saved) > 0
+
+
 @pytest.mark.slow
 def test_sigkill_then_resume_logs_every_step_once(tmp_path):
     """A run killed (SIGKILL) between checkpoints and resumed: TensorBoard, the learning curve
