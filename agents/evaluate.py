@@ -31,6 +31,7 @@ import numpy as np
 from stable_baselines3.common.evaluation import evaluate_policy
 
 from grasp_env import MinimaxExpert
+from grasp_env.envs.validation import MAX_ENVS
 from grasp_env.mechanics import contact_pairs
 
 from .baselines import ConstantPolicy, RandomPolicy, equal_k_policy
@@ -86,6 +87,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     runs = [Path(run_dir) for run_dir in args.run_dirs]
+    seen: dict[Path, Path] = {}  # by the directory it is
+    for run_dir in runs:
+        first = seen.setdefault(run_dir.resolve(), run_dir)
+        if first is not run_dir:  # the same directory again, maybe by another path
+            same = "twice" if first == run_dir else f"twice (as {first} and {run_dir})"
+            raise ValueError(f"RUN {first} is given {same}: give each run once")
+    check_episodes(args.episodes)
     for run_dir in runs:
         out = args.out if len(runs) == 1 else None
         if out is None:
@@ -125,6 +133,13 @@ def _cell(fmt: str, value: float) -> str:
     return text[1:] if text.startswith("-") and float(text.rstrip("%")) == 0 else text
 
 
+def check_episodes(episodes: int | None) -> None:
+    """ValueError naming --episodes if ``episodes`` is given and outside [1, MAX_ENVS] (one
+    environment per held-out scene)."""
+    if episodes is not None and not 1 <= episodes <= MAX_ENVS:
+        raise ValueError(f"--episodes must be in [1, {MAX_ENVS}], got {episodes}")
+
+
 def evaluate_run(
     run_dir: Path,
     episodes: int | None = None,
@@ -142,9 +157,8 @@ def evaluate_run(
     if not (run_dir / "config.yaml").is_file():
         raise ValueError(f"{str(run_dir)!r} is not a run directory (no config.yaml)")
     config = load_config(run_dir / "config.yaml")
+    check_episodes(episodes)
     episodes = config.eval_episodes if episodes is None else episodes
-    if episodes < 1:
-        raise ValueError(f"--episodes must be >= 1, got {episodes}")
     if physics_episodes is None:
         physics_episodes = min(PHYSICS_EPISODES, episodes)
     if not 0 <= physics_episodes <= episodes:

@@ -49,6 +49,7 @@ from pathlib import Path
 
 import numpy as np
 
+from grasp_env import ENV_IDS
 from grasp_env.mechanics import (
     PAPER_FACES,
     PHI,
@@ -93,6 +94,10 @@ DEFAULT_SCENES = 20
 #: The video of a rollout: frames per pose (spread evenly over the simulated time after the
 #: settle) and frames per second.
 FRAMES_PER_POSE, FPS = 10, 30
+#: The environments that can drive a saved model's grip (``--env``): grasp_env's but the gait
+#: ones, whose hand phases fingers in and out.
+MODEL_ENV_IDS = tuple(env_id for env_id in ENV_IDS if "Gait" not in env_id)
+DEFAULT_MODEL_ENV = "grasp_env/CubeGrasp-v0"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -105,12 +110,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         " --trajectory, a saved model whose grips join the study",
     )
     parser.add_argument(
-        "--algo", default="ppo", help="the algorithm that wrote a saved model (default ppo)"
+        "--algo",
+        default=None,
+        help="the algorithm that wrote a saved model (default: the run's, from its config.yaml;"
+        " ppo for a model file)",
     )
     parser.add_argument(
         "--env",
-        default="grasp_env/CubeGrasp-v0",
-        help="environment that drives a saved model (default grasp_env/CubeGrasp-v0)",
+        default=None,
+        help=f"environment that drives a saved model, one of {', '.join(MODEL_ENV_IDS)}"
+        f" (default: the run's, from its config.yaml; {DEFAULT_MODEL_ENV} for a model file)",
     )
     add_scene_arguments(parser)
     parser.add_argument(
@@ -145,7 +154,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help=f"write the rollout as a video ({FRAMES_PER_POSE} frames per pose at {FPS} fps,"
         " 480x480); implies --trajectory",
     )
-    parser.add_argument("--seed", type=int, default=0, help="seed of the agreement studies")
+    parser.add_argument(
+        "--seed", type=int, default=None, help="seed of the agreement studies (default 0)"
+    )
     parser.add_argument("--out", type=Path, default=Path("results/verify"), help="output dir")
 
 
@@ -157,6 +168,19 @@ def run(args: argparse.Namespace) -> int:
     scenes = DEFAULT_SCENES if args.scenes is None else args.scenes
     if scenes < 1:
         raise ValueError(f"--scenes must be >= 1, got {scenes}")
+    if args.seed is not None and not args.agreement:
+        raise ValueError("--seed is for the agreement studies: use it with --agreement")
+    seed = 0 if args.seed is None else args.seed
+    saved = args.policy not in ("expert", "equal-k")
+    for option, value in (("--algo", args.algo), ("--env", args.env)):
+        if value is not None and not saved:
+            raise ValueError(
+                f"{option} is for a saved model: use it with --policy PATH (a .zip or a run"
+                " directory)"
+            )
+    algo, env_id = "ppo", DEFAULT_MODEL_ENV
+    if saved:
+        algo, env_id = model_setup(Path(args.policy), args.algo, args.env)
     if args.video is not None:
         if args.agreement:
             raise ValueError("--video writes the rollout: use it without --agreement")
@@ -180,12 +204,10 @@ def run(args: argparse.Namespace) -> int:
                         " in the study already)"
                     )
                 policy = Path(args.policy)
-            return run_trajectory_agreement(
-                args.seed, scenes, args.out, policy, args.algo, args.env
-            )
+            return run_trajectory_agreement(seed, scenes, args.out, policy, algo, env_id)
         if args.policy != "expert":
             raise ValueError("--policy with --agreement is for the trajectory study (--trajectory)")
-        return run_agreement(args.seed, args.out)
+        return run_agreement(seed, args.out)
     scene = scene_from_arguments(args)
     start, end, step = args.alphas
     trajectory = Trajectory(alpha_start_deg=start, alpha_end_deg=end, alpha_step_deg=step)
@@ -195,7 +217,7 @@ def run(args: argparse.Namespace) -> int:
         forces, label = equal_k_forces(scene, trajectory), "equal-k"
     else:
         path = Path(args.policy)
-        scene, forces = model_forces(path, args.algo, args.env, scene, trajectory)
+        scene, forces = model_forces(path, algo, env_id, scene, trajectory)
         label = f"learned ({model_name(path)})"
     if args.trajectory:
         return run_rollout(scene, trajectory, forces, label, args.out, args.video)
@@ -224,6 +246,41 @@ def model_name(path: Path) -> str:
     if path.is_dir():
         return path.name
     return path.parent.name if path.name == "model.zip" else path.stem
+
+
+def model_setup(path: Path, algo: str | None, env_id: str | None) -> tuple[str, str]:
+    """The algorithm that wrote the saved model at ``path`` and the environment that drives
+    it: those of the run's ``config.yaml`` when ``path`` is a ``grasp-env train`` run
+    directory (or its model.zip), else ``algo`` (default ppo) and ``env_id`` (default
+    :data:`DEFAULT_MODEL_ENV`). An ``algo`` that contradicts the run's is refused."""
+    from .models import ALGORITHMS
+
+    if algo is not None and algo not in ALGORITHMS:
+        raise ValueError(f"--algo must be one of {', '.join(ALGORITHMS)}, got {algo!r}")
+    path = Path(path)
+    run_dir = path if path.is_dir() else path.parent if path.name == "model.zip" else None
+    if run_dir is None or not (run_dir / "config.yaml").is_file():
+        return ("ppo" if algo is None else algo), check_model_env(env_id or DEFAULT_MODEL_ENV)
+    from .config import load_config
+
+    config = load_config(run_dir / "config.yaml")
+    if algo is not None and algo != config.algo:
+        raise ValueError(
+            f"--algo {algo}: the run {run_dir} was trained with algo: {config.algo} (its"
+            f" config.yaml); drop --algo or give --algo {config.algo}"
+        )
+    trained_on = config.env_id if config.env_id in MODEL_ENV_IDS else DEFAULT_MODEL_ENV
+    return config.algo, check_model_env(env_id or trained_on)
+
+
+def check_model_env(env_id: str) -> str:
+    """``env_id`` if it is one of :data:`MODEL_ENV_IDS` (ValueError naming --env if not)."""
+    if env_id not in MODEL_ENV_IDS:
+        raise ValueError(
+            f"--env must be one of {', '.join(MODEL_ENV_IDS)} (the grasp environments that can"
+            f" drive a saved model), got {env_id!r}"
+        )
+    return env_id
 
 
 def model_forces(
@@ -255,8 +312,17 @@ def model_grips(
 
     from .models import load_agent
 
+    check_model_env(env_id)
     agent = load_agent(path, algo)
     env = gym.make(env_id, terminate_on_slip=False)
+    spaces = (agent.model.observation_space.shape, agent.model.action_space.shape)
+    if spaces != (env.observation_space.shape, env.action_space.shape):
+        env.close()
+        raise ValueError(
+            f"--env {env_id} does not fit the model: the model observes {spaces[0]} and acts"
+            f" in {spaces[1]}, {env_id} observes {env.observation_space.shape} and acts in"
+            f" {env.action_space.shape} (give --env the environment the model was trained on)"
+        )
     grips = []
     for scene, trajectory in problems:
         options: dict = {
