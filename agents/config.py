@@ -395,6 +395,22 @@ _Loader.add_implicit_resolver(
 )
 
 
+def read_yaml(path: Path, what: str) -> Any:
+    """The YAML file ``path`` (a config, a sweep file, a results spec: ``what``) as data, with
+    a key given twice refused and 1e-4 read as a number; a ValueError naming the file if it is
+    missing, a directory or not valid YAML."""
+    if path.is_dir():
+        raise ValueError(f"{what} {str(path)!r} is a directory, not a file")
+    if not path.is_file():
+        raise ValueError(f"{what} {str(path)!r} does not exist")
+    try:
+        return yaml.load(path.read_text(), Loader=_Loader)
+    except yaml.YAMLError as error:
+        raise ValueError(f"{what} {str(path)!r} is not valid YAML: {error}") from None
+    except ValueError as error:  # a duplicate key
+        raise ValueError(f"{what} {str(path)!r}, {error}") from None
+
+
 def load_config(path: str | Path, overrides: Mapping[str, Any] | None = None) -> TrainConfig:
     """Read and check a YAML config.
 
@@ -402,14 +418,7 @@ def load_config(path: str | Path, overrides: Mapping[str, Any] | None = None) ->
     (``{"total_timesteps": 0, "ppo.learning_rate": 1e-4}``: the CLI's, a sweep's).
     """
     path = Path(path)
-    if not path.is_file():
-        raise ValueError(f"config file {str(path)!r} does not exist")
-    try:
-        data = yaml.load(path.read_text(), Loader=_Loader)
-    except yaml.YAMLError as error:
-        raise ValueError(f"config {str(path)!r} is not valid YAML: {error}") from None
-    except ValueError as error:
-        raise ValueError(f"config {str(path)!r}, {error}") from None
+    data = read_yaml(path, "config file")
     if data is None:
         raise ValueError(
             f"config {str(path)!r} is empty: a config sets at least env_id and total_timesteps"

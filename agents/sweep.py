@@ -36,8 +36,6 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 HELP = "a hyperparameter sweep on Ray Tune (grid, random or Optuna) over config keys and seeds"
 SEARCHES = ("grid", "random", "optuna")
 DISTRIBUTIONS = ("grid", "choice", "uniform", "loguniform", "randint")
@@ -64,17 +62,16 @@ EXPERIMENT = "tune"
 
 def load_sweep(path: Path) -> dict[str, Any]:
     """Read and check a sweep file (every key and distribution), with its defaults filled in."""
-    if not path.is_file():
-        raise ValueError(f"sweep file {str(path)!r} does not exist")
-    try:
-        sweep = yaml.safe_load(path.read_text()) or {}
-    except yaml.YAMLError as error:
-        raise ValueError(f"sweep file {path} is not valid YAML: {error}") from None
+    from .config import read_yaml
+
+    sweep = read_yaml(path, "sweep file") or {}
     if not isinstance(sweep, Mapping):
         raise ValueError(f"sweep file {path} must be a mapping of keys to values")
     unknown = set(sweep) - set(SWEEP_KEYS)
     if unknown:
-        raise ValueError(f"unknown sweep key(s) {sorted(unknown)}; accepted keys: {SWEEP_KEYS}")
+        raise ValueError(
+            f"unknown sweep key(s) {sorted(unknown, key=str)}; accepted keys: {SWEEP_KEYS}"
+        )
     if "config" not in sweep:
         raise ValueError("sweep file needs config: a shipped config's name or a path")
     sweep = {
@@ -107,6 +104,11 @@ def load_sweep(path: Path) -> dict[str, Any]:
         check_distribution(str(key), value)
         if sweep["search"] == "optuna" and _is_grid(value):
             raise ValueError(f"space.{key}: optuna takes choice, not grid")
+    if "seed" in sweep["space"] and seeds is not None:
+        raise ValueError(
+            "space.seed: the seeds are given by the seeds key (every point of the space runs "
+            f"with each of {seeds}); drop seed from space, or drop seeds to search it as a key"
+        )
     if sweep["search"] == "optuna" and seeds is not None:
         raise ValueError(
             "optuna suggests one config per trial: search the seed as a key "
@@ -149,11 +151,11 @@ def check_distribution(key: str, value: Any) -> None:
 
 def base_config(sweep: Mapping[str, Any]) -> dict[str, Any]:
     """The base config as plain data (checked by loading it)."""
-    from .config import config_path, load_config
+    from .config import config_path, load_config, read_yaml
 
     path = config_path(sweep["config"])
     load_config(path)
-    return yaml.safe_load(path.read_text()) or {}
+    return read_yaml(path, "config file")
 
 
 def with_overrides(data: Mapping[str, Any], overrides: Mapping[str, Any]) -> dict[str, Any]:
@@ -299,16 +301,19 @@ def tuner(sweep: dict[str, Any], out: Path) -> Any:
 
 def sweep(path: Path, out: Path, address: str | None = None, num_cpus: int | None = None) -> Any:
     """Run (or resume) the sweep in ``path`` into ``out``; returns the results' groups."""
+    spec = load_sweep(path)
+    check_space(spec)
+    if address is None:
+        num_cpus = local_cpus(spec, num_cpus)
+
     import ray
 
     from .results import Group, plot_curves, read_run, table, write_csv
 
-    spec = load_sweep(path)
-    check_space(spec)
     out = out.resolve()
     out.mkdir(parents=True, exist_ok=True)
     if address is None:
-        ray.init(num_cpus=num_cpus or os.cpu_count(), include_dashboard=False)
+        ray.init(num_cpus=num_cpus, include_dashboard=False)
     else:
         ray.init(address=address)
     try:
@@ -333,6 +338,20 @@ def sweep(path: Path, out: Path, address: str | None = None, num_cpus: int | Non
     plot_curves(ordered, out / "learning_curves.png")
     print(markdown)
     return ordered
+
+
+def local_cpus(sweep: Mapping[str, Any], num_cpus: int | None) -> int | None:
+    """The cores of the local Ray (``num_cpus``, else the machine's), checked against
+    ``cpus_per_trial``: Ray would leave a trial that needs more pending forever."""
+    cpus = num_cpus or os.cpu_count()
+    if cpus is not None and sweep["cpus_per_trial"] > cpus:
+        given = "--num-cpus" if num_cpus else "the machine's cores"
+        raise ValueError(
+            f"cpus_per_trial is {sweep['cpus_per_trial']} but the local Ray has {cpus} CPU(s)"
+            f" ({given}): no trial could ever start; set cpus_per_trial to at most {cpus}, or run"
+            " on a cluster with --address"
+        )
+    return cpus
 
 
 def _shown(config: str) -> str:

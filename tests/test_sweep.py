@@ -27,8 +27,9 @@ TINY = {
 }
 
 
-def write(path: Path, data: dict) -> Path:
-    path.write_text(yaml.safe_dump(data))
+def write(path: Path, data: dict | str) -> Path:
+    """``data`` as YAML, or a string as the file's text (YAML no dict can give)."""
+    path.write_text(data if isinstance(data, str) else yaml.safe_dump(data))
     return path
 
 
@@ -78,6 +79,19 @@ def test_replace_table_rewrites_only_between_the_markers(tmp_path: Path) -> None
     readme.write_text("no markers")
     with pytest.raises(ValueError, match="markers"):
         results.replace_table(readme, "| new |")
+    readme.write_text(f"intro\n{results.END}\nold table\n{results.BEGIN}\nafter\n")
+    with pytest.raises(ValueError, match=r"README.md: the end marker .* before the begin marker"):
+        results.replace_table(readme, "| new |")
+    assert "old table" in readme.read_text()
+
+
+def test_results_checks_the_readme_markers_before_any_evaluation(tmp_path: Path, capsys) -> None:
+    from grasp_env_agents import cli
+
+    readme = write(tmp_path / "README.md", f"{results.END}\n{results.BEGIN}\n")
+    spec = write(tmp_path / "spec.yaml", {"groups": [{"label": "a", "runs": "no-such-run*"}]})
+    assert cli.main(["results", str(spec), "--readme", str(readme)]) == 2
+    assert "the end marker" in capsys.readouterr().err  # not: no run directories match
 
 
 # --- sweep files -----------------------------------------------------------------------------
@@ -95,6 +109,11 @@ def test_replace_table_rewrites_only_between_the_markers(tmp_path: Path) -> None
             "needs final: evaluation",
         ),
         ({"episodes": 0, "groups": [{"label": "a", "runs": "r*"}]}, "positive integer"),
+        ({"episodes": True, "groups": [{"label": "a", "runs": "r*"}]}, "got True"),
+        ({"groups": [{"label": "a", "runs": "r*", "seed": 1}]}, r"unknown key\(s\) \['seed'\]"),
+        ({"grops": []}, r"unknown key\(s\) \['grops'\]; accepted keys: \['episodes'"),
+        ("groups: [", r"spec.yaml' is not valid YAML: while parsing"),
+        ("groups: []\ngroups: [{label: a, runs: r}]\n", "line 2: duplicate key 'groups'"),
     ],
 )
 def test_bad_results_specs_are_refused_naming_the_key(
@@ -122,6 +141,7 @@ def test_overrides_set_dotted_keys_without_touching_the_base() -> None:
         ({"space": {"ppo.learning_rate": {"normal": [0, 1]}}}, "must be a plain value or"),
         ({"search": "optuna", "seeds": [0, 1]}, "search the seed as a key"),
         ({"config": "no-such-config"}, "no such file"),
+        ({"seeds": [0], "space": {"seed": {"grid": [0, 1]}}}, "given by the seeds key"),
     ],
 )
 def test_bad_sweep_files_are_refused_naming_the_key(
@@ -131,6 +151,50 @@ def test_bad_sweep_files_are_refused_naming_the_key(
     path = write(tmp_path / "sweep.yaml", {"config": "tiny.yaml", **change})
     with pytest.raises(ValueError, match=message):
         sweep.load_sweep(path)
+
+
+def test_sweep_files_and_specs_are_read_as_configs_are(tmp_path: Path) -> None:
+    """The configs' YAML: a key given twice is refused, 1e-4 is a number (in the sweep file
+    and in its base config); a directory is no file."""
+    write(tmp_path / "tiny.yaml", TINY)
+    text = "config: tiny.yaml\nseeds: [0]\nseeds: [1]\n"
+    with pytest.raises(ValueError, match=r"sweep\.yaml', line 3: duplicate key 'seeds'"):
+        sweep.load_sweep(write(tmp_path / "sweep.yaml", text))
+    base = yaml.safe_dump(TINY).replace("ppo:\n", "ppo:\n  learning_rate: 3e-4\n")
+    write(tmp_path / "tiny.yaml", base)
+    text = "config: tiny.yaml\nspace:\n  policy.log_std_init: {uniform: [-4e0, -2e0]}\n"
+    study = sweep.load_sweep(write(tmp_path / "sweep.yaml", text))
+    sweep.check_space(study)
+    assert sweep.trial_config(study, {}).ppo.learning_rate == 3e-4
+    with pytest.raises(ValueError, match="is a directory, not a file"):
+        sweep.load_sweep(tmp_path)
+    with pytest.raises(ValueError, match="is a directory, not a file"):
+        results.load_spec(tmp_path)
+
+
+def test_more_cpus_per_trial_than_the_local_ray_has_is_refused_before_ray(
+    tmp_path: Path, monkeypatch, capsys
+) -> None:
+    """Ray would leave the trial pending forever; a cluster (--address) is Ray's to judge."""
+    import sys
+
+    from grasp_env_agents import cli
+
+    monkeypatch.setitem(sys.modules, "ray", None)  # import ray raises: refused before it
+    write(tmp_path / "tiny.yaml", TINY)
+    path = write(tmp_path / "sweep.yaml", {"config": "tiny.yaml", "cpus_per_trial": 2})
+    out = tmp_path / "out"
+    with pytest.raises(ValueError, match=r"cpus_per_trial is 2 but the local Ray has 1 CPU"):
+        sweep.sweep(path, out, num_cpus=1)
+    monkeypatch.setattr(sweep.os, "cpu_count", lambda: 1)
+    assert cli.main(["sweep", str(path), "--out", str(out)]) == 2
+    assert "cpus_per_trial is 2 but the local Ray has 1 CPU(s) (the machine's" in (
+        capsys.readouterr().err
+    )
+    assert not out.exists()
+    with pytest.raises(ImportError):  # an existing cluster: on to Ray
+        sweep.sweep(path, out, address="auto")
+    assert sweep.local_cpus({"cpus_per_trial": 2}, 2) == 2
 
 
 STUDIES = Path(__file__).parent.parent / "configs" / "studies"
