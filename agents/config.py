@@ -14,7 +14,7 @@ per problem). The models are the documentation of every key (docs/agents.md).
 from __future__ import annotations
 
 import re
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from importlib import resources
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -395,20 +395,32 @@ _Loader.add_implicit_resolver(
 )
 
 
-def read_yaml(path: Path, what: str) -> Any:
+def read_yaml(path: Path, what: str, keys: Sequence[str] | None = None) -> Any:
     """The YAML file ``path`` (a config, a sweep file, a results spec: ``what``) as data, with
     a key given twice refused and 1e-4 read as a number; a ValueError naming the file if it is
-    missing, a directory or not valid YAML."""
+    missing, a directory or not valid YAML. With ``keys``: a mapping of those keys only (an
+    empty file is an empty one)."""
     if path.is_dir():
         raise ValueError(f"{what} {str(path)!r} is a directory, not a file")
     if not path.is_file():
         raise ValueError(f"{what} {str(path)!r} does not exist")
     try:
-        return yaml.load(path.read_text(), Loader=_Loader)
+        data = yaml.load(path.read_text(), Loader=_Loader)
     except yaml.YAMLError as error:
         raise ValueError(f"{what} {str(path)!r} is not valid YAML: {error}") from None
     except ValueError as error:  # a duplicate key
         raise ValueError(f"{what} {str(path)!r}, {error}") from None
+    if keys is None:
+        return data
+    data = {} if data is None else data
+    if not isinstance(data, Mapping):
+        raise ValueError(f"{what} {path} must be a mapping of the keys {list(keys)}")
+    unknown = set(data) - set(keys)
+    if unknown:
+        raise ValueError(
+            f"{what} {path}: unknown key(s) {sorted(unknown, key=str)}; accepted keys: {list(keys)}"
+        )
+    return dict(data)
 
 
 def load_config(path: str | Path, overrides: Mapping[str, Any] | None = None) -> TrainConfig:

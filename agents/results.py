@@ -339,15 +339,7 @@ def load_spec(path: Path) -> tuple[int, str, list[dict]]:
     """A results spec: the held-out scenes, where final metrics come from, the groups."""
     from .config import read_yaml
 
-    spec = read_yaml(path, "results spec") or {}
-    if not isinstance(spec, dict):
-        raise ValueError(f"results spec {path} must be a mapping of the keys {list(SPEC_KEYS)}")
-    unknown = set(spec) - set(SPEC_KEYS)
-    if unknown:
-        raise ValueError(
-            f"results spec {path}: unknown key(s) {sorted(unknown, key=str)}; accepted keys:"
-            f" {list(SPEC_KEYS)}"
-        )
+    spec = read_yaml(path, "results spec", SPEC_KEYS)
     episodes = spec.get("episodes", 2048)
     if not isinstance(episodes, int) or isinstance(episodes, bool) or episodes < 1:
         raise ValueError(

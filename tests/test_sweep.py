@@ -133,7 +133,7 @@ def test_overrides_set_dotted_keys_without_touching_the_base() -> None:
 @pytest.mark.parametrize(
     ("change", "message"),
     [
-        ({"serach": "grid"}, "unknown sweep key"),
+        ({"serach": "grid"}, r"sweep.yaml: unknown key\(s\) \[.serach.\]"),
         ({"search": "bayes"}, "search must be one of"),
         ({"metric": "reward"}, "metric must be one of"),
         ({"seeds": [0, -1]}, "seeds must be"),
