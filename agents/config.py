@@ -335,11 +335,6 @@ class TrainConfig(_Section):
                 "ppo.baseline: mean_action is exact for gamma = 0 (each pose a bandit), got"
                 f" ppo.gamma: {self.ppo.gamma}; use baseline: critic"
             )
-        if self.ppo.baseline == "mean_action" and self.env_id == "grasp_env/CubeGait-v0":
-            raise ValueError(
-                "ppo.baseline: mean_action needs the reward to be the pose's friction-angle"
-                " margin; grasp_env/CubeGait-v0's is not (use baseline: critic)"
-            )
         if self.policy.features == "grasp" and self.normalize:
             raise ValueError(
                 "normalize must be false with policy.features: grasp (the grasp features are "

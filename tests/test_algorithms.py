@@ -216,10 +216,6 @@ TINY = {
         ({"algo": "sac", "offpolicy": {"action_noise": 0.1}}, "offpolicy.action_noise is TD3's"),
         ({"ppo": {"baseline": "zero"}}, "baseline"),
         ({"ppo": {"baseline": "mean_action", "gamma": 0.9}}, "exact for gamma = 0"),
-        (
-            {"env_id": "grasp_env/CubeGait-v0", "ppo": {"baseline": "mean_action"}},
-            "CubeGait-v0's is not",
-        ),
     ],
 )
 def test_algo_keys_are_checked(change: dict, message: str) -> None:
