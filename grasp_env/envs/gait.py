@@ -38,13 +38,13 @@ from ..mechanics import (
 )
 from ..mechanics.gait import MIN_LOADED, GaitStates, gait_states
 from ..mechanics.threads import available_cores, in_parts
+from .cube_grasp import action_array
 from .kernels import evaluate_grips
 from .scenes import TRAJECTORY_KEYS, check_trajectory
 from .validation import (
     DEFAULT_K_MAX_RATIO,
     MAX_ENVS,
     MU_RANGE,
-    check_array,
     check_bool,
     check_integer,
     check_k_max_ratio,
@@ -55,7 +55,6 @@ from .validation import (
 #: The paper's axis over [-90, 90] deg in 1 deg steps, as the ``trajectory`` keyword's mapping.
 PAPER_TURN_SPEC = {key: getattr(PAPER_TURN, key) for key in TRAJECTORY_KEYS}
 _SQRT3 = float(np.sqrt(3.0))
-_KERNEL_DTYPES = (np.dtype(np.float64), np.dtype(np.float32))  # the step kernel's compiled types
 #: From this many sub-environments the step's kernel is split across the cores (as the vector
 #: envs' step: it releases the GIL and each row depends on its own inputs alone).
 _PARALLEL_FROM = 512
@@ -481,14 +480,6 @@ def _buffers(task: GaitTask, B: int) -> tuple[np.ndarray, ...]:
 _INFO = ("refused", "lost", "move", "theta", "loaded", "k", "contact_forces", "slip", "contacts")
 
 
-def _check_actions(actions: Any, shape: tuple[int, ...]) -> np.ndarray:
-    if type(actions) is np.ndarray and actions.dtype.kind == "f" and actions.shape == shape:
-        if actions.dtype in _KERNEL_DTYPES and actions.flags.c_contiguous:
-            return actions  # finiteness: checked by the step kernel
-        return np.ascontiguousarray(actions, dtype=np.float64)  # float16, longdouble
-    return check_array("action", actions, shape)
-
-
 # ------------------------------------------------------------------------- the policies
 
 
@@ -760,7 +751,7 @@ class CubeGaitEnv(gym.Env[np.ndarray, np.ndarray]):
         if self._done:
             raise RuntimeError("the episode has ended (or not started): call reset()")
         task = self.task
-        a = _check_actions(action, self.action_space.shape)
+        a = action_array(action, self.action_space.shape)
         t = self._t
         self._xs[0], self._ts[0] = self._x, t
         floats, ints, flags, obs = _buffers(task, 1)
@@ -875,7 +866,7 @@ class CubeGaitVectorEnv(VectorEnv):
         if not self._started:
             raise RuntimeError("call reset() before step()")
         task = self.task
-        a = _check_actions(actions, self.action_space.shape)
+        a = action_array(actions, self.action_space.shape)
         restarting = np.flatnonzero(self._autoreset)
         xs, t = self._x.copy(), self._t.copy()
         if restarting.size:  # NEXT_STEP: these reset and ignore their action (stepped from the
