@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+from pathlib import Path
 
 from grasp_env import __version__
 
@@ -25,6 +26,14 @@ SUMMARIES = {
     "results": "results across runs: IQM and 95% bootstrap intervals over seeds, the README table",
     "gait": "when to phase fingers out and in: the certified optimal gait along a long rotation",
 }
+
+
+def path_argument(text: str) -> Path:
+    """An argparse type for file and folder arguments: an empty one would silently mean the
+    working directory."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("an empty path: give a file or folder name")
+    return Path(text)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -35,6 +35,7 @@ from grasp_env.envs.validation import MAX_ENVS
 from grasp_env.mechanics import contact_pairs
 
 from .baselines import ConstantPolicy, RandomPolicy, equal_k_policy
+from .cli import path_argument
 from .config import load_config
 from .envs import HELD_OUT_SEED, Episode, find_held_out, make_held_out_env, summarise
 from .models import load_agent
@@ -59,7 +60,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     # dest "run" would shadow the CLI's args.run (the command's entry point)
     parser.add_argument(
         "run_dirs",
-        type=Path,
+        type=path_argument,
         nargs="+",
         metavar="RUN",
         help="run directories written by grasp-env train; with several, also the report across"
@@ -77,7 +78,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--out",
-        type=Path,
+        type=path_argument,
         metavar="DIR",
         help="folder for the report, comparison.csv and the plot (default:"
         " RUN/evaluation-<N>-scenes; --out RUN replaces the run's own report); with several"

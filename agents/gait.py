@@ -37,6 +37,7 @@ from grasp_env.mechanics import (
 )
 from grasp_env.mechanics.gait import GAIT_CG_OFFSET, site_sets
 
+from .cli import path_argument
 from .progress import status
 from .scene_args import floats
 
@@ -44,7 +45,9 @@ HELP = "when to phase fingers out and in: the certified optimal gait along a lon
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--out", type=Path, default=Path("results/gait"), help="output dir")
+    parser.add_argument(
+        "--out", type=path_argument, default=Path("results/gait"), help="output dir"
+    )
     hand = Hand()
     parser.add_argument("--weight", type=float, default=5.0, help="weight, N (default 5)")
     parser.add_argument("--mu", type=float, default=0.5, help="friction coefficient (0.5)")
@@ -85,7 +88,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-thumb", action="store_true", help="a hand without the thumb")
     parser.add_argument("--no-plots", action="store_true", help="write the CSV only")
     parser.add_argument(
-        "--models", nargs="+", type=Path, default=[], metavar="MODEL",
+        "--models", nargs="+", type=path_argument, default=[], metavar="MODEL",
         help="trained agents (SB3 model files, e.g. rl-zoo3's)"
         " to play on grasp_env/CubeGait-v0 beside the optimal and the greedy gait (the"
         " default hand, sites and weight; --axis, --alpha-*, --mu, --cone, --k-max apply)",

@@ -28,6 +28,7 @@ from grasp_env.mechanics import (
 )
 from grasp_env.mechanics.forces import Grasp
 
+from .cli import path_argument
 from .plotting import plot_series
 from .progress import status
 from .scene_args import add_scene_arguments, floats, scene_from_arguments
@@ -36,7 +37,9 @@ HELP = "the paper's quasi-static sweep: optimal k_ij and friction angles, table 
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--out", type=Path, default=Path("results/reproduce"), help="output dir")
+    parser.add_argument(
+        "--out", type=path_argument, default=Path("results/reproduce"), help="output dir"
+    )
     add_scene_arguments(parser)
     parser.add_argument(
         "--axis", type=floats(3), default=(1.0, -1.0, 0.0), metavar="X,Y,Z",

@@ -43,6 +43,8 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from .cli import path_argument
+
 HELP = "aggregate runs: IQM and 95% bootstrap CIs over seeds, learning curves, the README table"
 #: Bootstrap resamples of every interval (rliable's stratified bootstrap).
 BOOTSTRAP_REPS = 20_000
@@ -446,9 +448,11 @@ def _around_table(readme: Path) -> tuple[str, str]:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("spec", type=Path, metavar="SPEC", help="a results spec (YAML)")
-    parser.add_argument("--out", type=Path, help="output folder (default: the spec's folder)")
-    parser.add_argument("--readme", type=Path, help="rewrite the table in this README")
+    parser.add_argument("spec", type=path_argument, metavar="SPEC", help="a results spec (YAML)")
+    parser.add_argument(
+        "--out", type=path_argument, help="output folder (default: the spec's folder)"
+    )
+    parser.add_argument("--readme", type=path_argument, help="rewrite the table in this README")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -36,6 +36,8 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+from .cli import path_argument
+
 HELP = "a hyperparameter sweep on Ray Tune (grid, random or Optuna) over config keys and seeds"
 SEARCHES = ("grid", "random", "optuna")
 DISTRIBUTIONS = ("grid", "choice", "uniform", "loguniform", "randint")
@@ -355,9 +357,11 @@ def _shown(config: str) -> str:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("sweep_file", type=Path, metavar="SWEEP", help="a sweep file (YAML)")
     parser.add_argument(
-        "--out", type=Path, help="the sweep's folder (default: sweeps/<sweep file name>)"
+        "sweep_file", type=path_argument, metavar="SWEEP", help="a sweep file (YAML)"
+    )
+    parser.add_argument(
+        "--out", type=path_argument, help="the sweep's folder (default: sweeps/<sweep file name>)"
     )
     parser.add_argument(
         "--address", help="an existing Ray cluster (e.g. auto, or ray://head:10001)"

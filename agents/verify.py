@@ -84,6 +84,7 @@ from grasp_env.physics.agreement import (
     trajectory_cases,
 )
 
+from .cli import path_argument
 from .progress import status
 from .scene_args import add_scene_arguments, floats, scene_from_arguments
 
@@ -148,7 +149,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--video",
-        type=Path,
+        type=path_argument,
         default=None,
         metavar="FILE.mp4",
         help=f"write the rollout as a video ({FRAMES_PER_POSE} frames per pose at {FPS} fps,"
@@ -157,7 +158,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--seed", type=int, default=None, help="seed of the agreement studies (default 0)"
     )
-    parser.add_argument("--out", type=Path, default=Path("results/verify"), help="output dir")
+    parser.add_argument(
+        "--out", type=path_argument, default=Path("results/verify"), help="output dir"
+    )
 
 
 def run(args: argparse.Namespace) -> int:

@@ -166,6 +166,25 @@ def test_cli_reports_a_bad_config_cleanly(tmp_path, capsys):
     assert not (tmp_path / "r").exists()
 
 
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["reproduce", "--out", ""],
+        ["train", "--run-dir", " "],
+        ["results", ""],
+        ["gait", "--out", ""],
+    ],
+)
+def test_cli_refuses_an_empty_path(argv, tmp_path, monkeypatch, capsys):
+    """An empty --out or run directory would write into the working directory unasked."""
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as stop:
+        cli.main(argv)
+    assert stop.value.code == 2
+    assert "an empty path" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_shipped_configs_by_name_from_any_directory(tmp_path, monkeypatch):
     """--config NAME finds the shipped config wherever the command runs (and paths still work)."""
     import grasp_env_agents.train as training
