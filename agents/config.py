@@ -436,7 +436,9 @@ def load_config(path: str | Path, overrides: Mapping[str, Any] | None = None) ->
     try:
         return config_from_dict(_with_keys(data, overrides or {}))
     except ValueError as error:
-        raise ValueError(f"config {str(path)!r}: {error}") from None
+        changed = ", ".join(f"{key}={value!r}" for key, value in (overrides or {}).items())
+        where = f" with {changed}" if changed else ""  # the caller's overrides may be the cause
+        raise ValueError(f"config {str(path)!r}{where}: {error}") from None
 
 
 def config_from_dict(data: Mapping[str, Any]) -> TrainConfig:

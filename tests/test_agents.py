@@ -204,6 +204,15 @@ def test_shipped_configs_by_name_from_any_directory(tmp_path, monkeypatch):
     assert cli.main(["train", "--config", "no-such-config"]) == 2
 
 
+def test_cli_override_errors_name_the_override(tmp_path, capsys):
+    argv = ["train", "--config", "dagger", "--run-dir", str(tmp_path / "r")]
+    assert cli.main([*argv, "--total-timesteps", "-1"]) == 2
+    assert (
+        "dagger.yaml' with total_timesteps=-1: total_timesteps must be" in capsys.readouterr().err
+    )
+    assert not (tmp_path / "r").exists()
+
+
 # --- training ------------------------------------------------------------------------------
 
 
