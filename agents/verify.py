@@ -74,6 +74,7 @@ from grasp_env.physics import (
 )
 from grasp_env.physics.agreement import (
     FAR_FROM_EDGE_DEG,
+    Agreement,
     TrajectoryCase,
     agreement_sets,
     check_cases,
@@ -644,6 +645,19 @@ def plot_rollouts(
 # ------------------------------------------------------------------------------ the agreement
 
 
+def _verdict(result: Agreement) -> int:
+    """The exit code of an agreement study: 1 (and why) unless every verdict far from the
+    edge agrees, the target a script can test."""
+    if result.far == 1.0:
+        return 0
+    wrong = round((1.0 - result.far) * result.n_far)
+    print(
+        f"exit 1: {wrong} of the {result.n_far} verdicts at >= {FAR_FROM_EDGE_DEG} deg from"
+        " the edge disagree (exit 0 needs every one of them to agree)"
+    )
+    return 1
+
+
 def _confusion_table(title: str, confusion: np.ndarray):
     from rich.table import Table
 
@@ -697,7 +711,7 @@ def run_agreement(seed: int, out: Path) -> int:
         f" {1e3 * (checked - generated) / len(sets):.1f} ms per check); plot {path}"
     )
     print(result.line())
-    return 0 if result.far == 1.0 else 1
+    return _verdict(result)
 
 
 def _margin_ticks(ax, ticks: tuple[float, ...]) -> None:
@@ -811,7 +825,7 @@ def run_trajectory_agreement(
         f" rollout); plot {path}"
     )
     print(result.line("trajectories"))
-    return 0 if result.far == 1.0 else 1
+    return _verdict(result)
 
 
 def _plot_trajectory_agreement(cases, reports: list[RolloutReport], path: Path) -> None:

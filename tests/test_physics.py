@@ -733,3 +733,17 @@ def test_verify_rejects_a_missing_model(tmp_path, capsys):
     status = main(["verify", "--policy", str(tmp_path / "none.zip"), "--out", str(tmp_path)])
     assert status == 2
     assert "is not a file" in capsys.readouterr().err
+
+
+def test_an_agreement_study_that_misses_says_why_it_exits_1(capsys):
+    from grasp_env.physics.agreement import agreement
+    from grasp_env_agents.verify import _verdict
+
+    holds = np.array([True, True, False, False])
+    far = np.array([1.0, 1.0, 1.0, 0.01])  # deg from the edge
+    assert _verdict(agreement(holds, holds, far)) == 0
+    assert capsys.readouterr().out == ""
+    assert _verdict(agreement(holds, np.array([True, False, False, True]), far)) == 1
+    assert "exit 1: 1 of the 3 verdicts at >= 0.05 deg from the edge disagree" in (
+        capsys.readouterr().out
+    )
