@@ -44,6 +44,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import time
 from pathlib import Path
 
@@ -191,10 +192,13 @@ def run(args: argparse.Namespace) -> int:
         if args.video.suffix.lower() != ".mp4":  # the container ffmpeg writes is chosen by it
             raise ValueError(f"--video {args.video}: the video is an MP4, name it FILE.mp4")
         _imageio()  # before the rollout: say at once if the writer is missing
+        existed = args.video.exists()
         try:  # before the rollout: say at once if the file cannot be written
             args.video.open("ab").close()
         except OSError as error:
             raise ValueError(f"--video {args.video}: cannot write it ({error.strerror})") from None
+        if not existed:  # the video appears when it is complete
+            args.video.unlink()
         args.trajectory = True
     args.out.mkdir(parents=True, exist_ok=True)
     if args.agreement:
@@ -579,8 +583,10 @@ def write_video(
     finite = np.all(np.isfinite(qpos), axis=1)
     last_finite = np.maximum.accumulate(np.where(finite, np.arange(len(qpos)), 0))
     view = GraspView(scene, width=size, height=size)
+    # Written beside it and renamed when complete: an interrupted run leaves no short video.
+    partial = path.with_name(f"{path.stem}.partial.mp4")
     try:
-        with imageio.get_writer(path, format="FFMPEG", fps=FPS, macro_block_size=16) as writer:
+        with imageio.get_writer(partial, format="FFMPEG", fps=FPS, macro_block_size=16) as writer:
             for k in steps:
                 # MuJoCo turns the load about the object; the picture turns the object instead.
                 rotation, state = motion.rotations[k], qpos[last_finite[k]].copy()
@@ -595,8 +601,10 @@ def write_video(
                 forces = motion.forces[k] @ rotation.T
                 image = view.render_state(state, rotation, forces, motion.contact[k], text)
                 writer.append_data(image)
+        os.replace(partial, path)
     finally:
         view.close()
+        partial.unlink(missing_ok=True)
     return count
 
 

@@ -25,6 +25,7 @@ def test_verify_video_writes_the_rollout_with_its_overlay(tmp_path, capsys):
     assert main(argv) == 0
     assert f"{3 * FRAMES_PER_POSE} frames at {FPS} fps" in capsys.readouterr().out
     assert (tmp_path / "rollout.json").is_file()  # --video implies --trajectory
+    assert sorted(p.name for p in tmp_path.glob("*.mp4")) == ["rollout.mp4"]
     reader = imageio.get_reader(str(path), "ffmpeg")
     assert reader.get_meta_data()["fps"] == FPS
     frames = np.array(list(reader.iter_data())).astype(int)
@@ -61,3 +62,21 @@ def test_verify_video_refuses_the_agreement_study_and_a_missing_writer(
     monkeypatch.setitem(sys.modules, "imageio", None)  # imageio not installed
     assert main(["verify", "--video", video, "--out", str(tmp_path)]) == 2
     assert 'pip install "grasp-env[video]"' in capsys.readouterr().err
+
+
+def test_an_interrupted_video_leaves_no_file(tmp_path, monkeypatch):
+    """Ctrl-C while frames are written: exit 130 and no short video under the asked name."""
+    render = GraspView.render_state
+    frames = []
+
+    def interrupted(self, *args):
+        frames.append(1)
+        if len(frames) == 5:
+            raise KeyboardInterrupt
+        return render(self, *args)
+
+    monkeypatch.setattr(GraspView, "render_state", interrupted)
+    path = tmp_path / "rollout.mp4"
+    argv = ["verify", "--alphas=-10,10,10", "--video", str(path), "--out", str(tmp_path)]
+    assert main(argv) == 130
+    assert len(frames) == 5 and not list(tmp_path.glob("*.mp4"))
