@@ -421,7 +421,9 @@ def test_bad_normals(normal: tuple[float, float, float]) -> None:
             solve_minimax(value, 10.0)
 
 
-@pytest.mark.parametrize("k_max", [0.0, -1.0, np.nan, np.inf, None, "ten", [1.0, None]])
+@pytest.mark.parametrize(
+    "k_max", [0.0, -1.0, np.nan, np.inf, None, "ten", [1.0, None], "10", True, np.True_, [1.0, "2"]]
+)
 def test_bad_k_max(k_max: float) -> None:
     for rotation in (START_ROTATION, np.stack([START_ROTATION] * 2)):  # one grasp, a batch
         g = scene_grasp(Scene(), rotation)
@@ -429,7 +431,7 @@ def test_bad_k_max(k_max: float) -> None:
             solve_minimax(g, k_max)
 
 
-@pytest.mark.parametrize("f_max", [0.0, -2.0, np.nan, np.inf])
+@pytest.mark.parametrize("f_max", [0.0, -2.0, np.nan, np.inf, "2", True])
 def test_bad_f_max(f_max: float) -> None:
     g = scene_grasp(Scene(), START_ROTATION)
     with pytest.raises(ValueError, match="f_max must be finite and > 0"):

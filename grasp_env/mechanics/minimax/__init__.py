@@ -107,7 +107,10 @@ def _broadcast(name: str, array: np.ndarray, batch: tuple[int, ...]) -> np.ndarr
 
 def _positive_limit(name: str, value: ArrayLike, batch: tuple[int, ...]) -> np.ndarray:
     try:
-        numbers = np.asarray(value, dtype=float)
+        numbers = np.asarray(value)
+        if numbers.dtype.kind not in "iuf":  # not "10" or True, which numpy would convert
+            raise TypeError
+        numbers = numbers.astype(float, copy=False)
     except (TypeError, ValueError):
         raise ValueError(f"{name} must be finite and > 0 (newtons), got {value!r}") from None
     array = _broadcast(name, numbers, batch)
@@ -124,6 +127,8 @@ def _scalar(value: ArrayLike | None) -> bool:
 
 def _positive_number(name: str, value: ArrayLike) -> float:
     try:
+        if isinstance(value, bool | np.bool_ | str | bytes):  # which float() would convert
+            raise TypeError
         number = float(value)  # type: ignore[arg-type]
     except (TypeError, ValueError):
         number = math.nan
