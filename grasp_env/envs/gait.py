@@ -45,11 +45,14 @@ from .validation import (
     DEFAULT_K_MAX_RATIO,
     MAX_ENVS,
     MU_RANGE,
+    check_autoreset_mode,
     check_bool,
     check_integer,
     check_k_max_ratio,
     check_number,
     check_seed,
+    refuse_ended,
+    split_reset_mask,
 )
 
 #: The paper's axis over [-90, 90] deg in 1 deg steps, as the ``trajectory`` keyword's mapping.
@@ -791,10 +794,16 @@ class CubeGaitVectorEnv(VectorEnv):
     Args:
         num_envs: number of sub-environments.
         autoreset_mode: ``AutoresetMode.NEXT_STEP`` (the step after an episode ends resets
-            that sub-environment, ignoring its action, with reward 0) or ``SAME_STEP`` (it
+            that sub-environment, ignoring its action, with reward 0), ``SAME_STEP`` (it
             resets at once; the last observation and info are in ``info["final_obs"]`` and
-            ``info["final_info"]``).
+            ``info["final_info"]``) or ``DISABLED`` (episodes never reset by themselves:
+            reset the ended ones with ``reset(options={"reset_mask": mask})``; stepping one
+            that ended raises a RuntimeError). The modes' values are accepted too.
         **kwargs: the single environment's keywords.
+
+    ``reset(options={"reset_mask": mask})`` (a numpy bool array of shape ``(num_envs,)``), in
+    every mode, returns the sub-environments where ``mask`` is True to the start (nothing is
+    random) and the observations of all, as Gymnasium's ``SyncVectorEnv``.
     """
 
     metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP, "render_modes": []}  # noqa: RUF012
@@ -806,15 +815,7 @@ class CubeGaitVectorEnv(VectorEnv):
         **kwargs: Any,
     ) -> None:
         self.num_envs = check_integer("num_envs", num_envs, 1, MAX_ENVS)
-        modes = (AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP)
-        try:
-            mode = AutoresetMode(autoreset_mode)
-        except ValueError:
-            mode = None
-        if mode not in modes:
-            raise ValueError(
-                f"autoreset_mode must be one of {[m.value for m in modes]}, got {autoreset_mode!r}"
-            )
+        mode = check_autoreset_mode(autoreset_mode)
         self.autoreset_mode = mode
         self.metadata = {**self.metadata, "autoreset_mode": mode}
         self.render_mode = None
@@ -827,7 +828,10 @@ class CubeGaitVectorEnv(VectorEnv):
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self._x = np.full(self.num_envs, self.task.start, np.int64)
         self._t = np.zeros(self.num_envs, np.int64)
+        # Ended episodes not reset yet: NEXT_STEP resets them at the next step, DISABLED
+        # refuses to step them.
         self._autoreset = np.zeros(self.num_envs, bool)
+        self._dropped = np.zeros(self.num_envs, bool)  # ended with the cube dropped
         self._started = False
 
     def _observations(self, x: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -839,7 +843,11 @@ class CubeGaitVectorEnv(VectorEnv):
     def reset(
         self, *, seed: int | Sequence[int | None] | None = None, options: Any = None
     ) -> tuple[np.ndarray, dict[str, Any]]:
-        """Reset every sub-environment (nothing is random: ``seed`` seeds ``np_random``)."""
+        """Reset every sub-environment (nothing is random: ``seed`` seeds ``np_random``), or
+        those where ``options={"reset_mask": mask}`` is True."""
+        mask, options = split_reset_mask(options, self.num_envs)
+        if mask is None:
+            mask = np.ones(self.num_envs, bool)
         if seed is None or isinstance(seed, Integral):
             check_seed("seed", seed)
         elif isinstance(seed, Sequence | np.ndarray) and not isinstance(seed, str | bytes):
@@ -847,24 +855,35 @@ class CubeGaitVectorEnv(VectorEnv):
                 raise ValueError(f"seed must list {self.num_envs} seeds, got {len(seed)}")
             for i, s in enumerate(seed):
                 check_seed(f"seed[{i}]", s)
-            seed = seed[0]
+            seed = seed[int(np.argmax(mask))]  # the first reset sub-environment's
         else:
             raise ValueError(f"seed must be None, an integer >= 0 or a list, got {seed!r}")
+        if options:  # None and {} are the only options besides the mask
+            raise ValueError(
+                f"the gait environment takes no reset options but reset_mask, got {options!r}"
+            )
+        if not mask.all() and not self._started:
+            raise RuntimeError(
+                "the first reset() resets every sub-environment: call it without a reset_mask"
+            )
         if seed is not None:
             self._np_random, _ = seeding.np_random(int(seed))
-        if options:  # None and {} are the only options
-            raise ValueError(f"the gait environment takes no reset options, got {options!r}")
-        self._x[:] = self.task.start
-        self._t[:] = 0
-        self._autoreset[:] = False
+        self._x[mask] = self.task.start
+        self._t[mask] = 0
+        self._autoreset[mask] = False
+        self._dropped[mask] = False
         self._started = True
-        return self._observations(self._x, self._t), {}
+        observations = self._observations(self._x, self._t)
+        # a dropped cube's last observation shows no contacts (the state is kept)
+        observations[self._dropped, self.task.pose_size() : -self.task.reach_obs.shape[1]] = 0.0
+        return observations, {}
 
     def step(
         self, actions: Any
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
         if not self._started:
             raise RuntimeError("call reset() before step()")
+        refuse_ended(self.autoreset_mode, self._autoreset)
         task = self.task
         a = action_array(actions, self.action_space.shape)
         restarting = np.flatnonzero(self._autoreset)
@@ -892,6 +911,7 @@ class CubeGaitVectorEnv(VectorEnv):
             truncated[restarting] = False
             mask[restarting] = False
         done = terminated | truncated
+        self._dropped = dropped & terminated  # not the restarted ones
         if self.autoreset_mode == AutoresetMode.SAME_STEP and done.any():
             ended = np.flatnonzero(done)
             final_obs = np.full(self.num_envs, None, dtype=object)
@@ -899,13 +919,14 @@ class CubeGaitVectorEnv(VectorEnv):
             final_info = {**info, **{f"_{key}": done for key in info}}
             self._x[ended] = task.start
             self._t[ended] = 0
+            self._dropped[ended] = False
             observations[ended] = self._observations(self._x[ended], self._t[ended])
             info.update({f"_{key}": ~done for key in list(info)})
             info.update(
                 final_obs=final_obs, _final_obs=done, final_info=final_info, _final_info=done
             )
-        else:
-            if self.autoreset_mode == AutoresetMode.NEXT_STEP:
+        else:  # NEXT_STEP resets the ended episodes at the next step, DISABLED never
+            if self.autoreset_mode != AutoresetMode.SAME_STEP:
                 self._autoreset = done
             info.update({f"_{key}": mask for key in list(info)})
         return observations, reward, terminated, truncated, info

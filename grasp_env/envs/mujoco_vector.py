@@ -26,7 +26,7 @@ from .kernels import pose_geometry
 from .observation import ObservationLayout
 from .scenes import EDGE, SceneBatch
 from .validation import DEFAULT_K_MAX_RATIO, check_bool, check_mujoco_k_max_ratio
-from .vector import CubeGraspRandomVectorEnv, CubeGraspVectorEnv, _CubeGraspVectorEnv
+from .vector import _OPTION, CubeGraspRandomVectorEnv, CubeGraspVectorEnv, _CubeGraspVectorEnv
 
 
 def trajectory_rotations(scenes: SceneBatch, index: np.ndarray) -> list[np.ndarray]:
@@ -62,9 +62,11 @@ class _MujocoVectorEnv(_CubeGraspVectorEnv):
 
     Args:
         num_envs: number of sub-environments.
-        autoreset_mode: ``AutoresetMode.NEXT_STEP`` (default) or ``AutoresetMode.SAME_STEP``
+        autoreset_mode: ``AutoresetMode.NEXT_STEP`` (default), ``AutoresetMode.SAME_STEP``
             (the ended episodes' last info, ``physics_trajectory`` included, is in
-            ``info["final_info"]``).
+            ``info["final_info"]``) or ``AutoresetMode.DISABLED`` (episodes never reset by
+            themselves: reset the ended ones with ``reset(options={"reset_mask": mask})``;
+            stepping one that ended raises a RuntimeError).
         physics: "mujoco" (the only engine; the registered ids pass it).
         **kwargs: the single environment's keywords (``render_mode`` is not supported).
 
@@ -73,6 +75,10 @@ class _MujocoVectorEnv(_CubeGraspVectorEnv):
     ``contact_lost``, ``released``, ``drift``, ``rotation_deg``, ``time``) with its own masks,
     and ``info["physics_trajectory"]`` (the sub-environments whose episode ended at this step)
     a dict in the layout Gymnasium's ``SyncVectorEnv`` gives: per-pose lists in object arrays.
+
+    ``reset(options={"reset_mask": mask, ...})`` resets only the sub-environments where
+    ``mask`` is True (as the numpy vector env's); their MuJoCo checkers and the grips of their
+    rollouts start afresh, the others' carry on.
     """
 
     def __init__(
@@ -96,25 +102,28 @@ class _MujocoVectorEnv(_CubeGraspVectorEnv):
         self._checkers: list[Any] = [None] * self.num_envs
         self._own = np.zeros(self.num_envs, bool)
         self._default_checker: Any = None
-        self._option: tuple[Episode | None, Any] = (None, None)
+        # The checkers of scene options' episodes, by id(episode): (episode, checker).
+        self._option_checkers: dict[int, tuple[Episode, Any]] = {}
         self._grips: list[list[np.ndarray]] = [[] for _ in range(self.num_envs)]
 
     # -- episodes ------------------------------------------------------------------------------
 
     def _shared_checker(self, episode: Episode) -> Any:
-        """The checker of a shared episode: the default scene's (kept) or the latest scene
-        option's (a new option resets every sub-environment, so the old one goes)."""
+        """The checker of a shared episode: the default scene's (kept) or a scene option's
+        (kept while its episode is in the store: sub-environments a masked reset left out may
+        still run an earlier option's)."""
         from ..physics import StabilityChecker
 
         if episode is self._store.default:
             if self._default_checker is None:
                 self._default_checker = StabilityChecker(episode.scene)
             return self._default_checker
-        if self._option[0] is not episode:
-            if self._option[1] is not None:
-                self._option[1].close()
-            self._option = (episode, StabilityChecker(episode.scene))
-        return self._option[1]
+        stored = {id(e) for e in self._store.shared[_OPTION:]}
+        for key in [key for key in self._option_checkers if key not in stored]:
+            self._option_checkers.pop(key)[1].close()  # no sub-environment runs its episode
+        if id(episode) not in self._option_checkers:
+            self._option_checkers[id(episode)] = (episode, StabilityChecker(episode.scene))
+        return self._option_checkers[id(episode)][1]
 
     def _check_open(self) -> None:
         if self.closed:  # its MuJoCo checkers are freed
@@ -189,6 +198,7 @@ class _MujocoVectorEnv(_CubeGraspVectorEnv):
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
         """Step every sub-environment, then check their forces in MuJoCo (see the class)."""
         self._check_open()
+        self._refuse_ended()  # before the batched step below, which runs as NEXT_STEP
         mode, terminate = self.autoreset_mode, self.terminate_on_slip
         # The batched step, as NEXT_STEP without termination: the resets wait for MuJoCo.
         self.autoreset_mode, self.terminate_on_slip = AutoresetMode.NEXT_STEP, False
@@ -229,7 +239,7 @@ class _MujocoVectorEnv(_CubeGraspVectorEnv):
                 info.update(
                     final_obs=final_obs, _final_obs=done, final_info=final_info, _final_info=done
                 )
-        else:
+        else:  # NEXT_STEP resets the ended episodes at the next step, DISABLED never
             self._autoreset = done
             info = {**data, **{f"_{key}": active for key in data}}
             if ended.size:
@@ -238,12 +248,13 @@ class _MujocoVectorEnv(_CubeGraspVectorEnv):
 
     def close_extras(self, **kwargs: Any) -> None:
         own = [c for c, mine in zip(self._checkers, self._own, strict=True) if mine]
-        for checker in [*own, self._default_checker, self._option[1]]:
+        options = [checker for _, checker in self._option_checkers.values()]
+        for checker in [*own, self._default_checker, *options]:
             if checker is not None:
                 checker.close()
         self._checkers = [None] * self.num_envs
         self._own[:] = False
-        self._default_checker, self._option = None, (None, None)
+        self._default_checker, self._option_checkers = None, {}
         super().close_extras(**kwargs)
 
 

@@ -1,6 +1,6 @@
 """Checks of the environments' keywords, options, seeds and actions: one validator per rule,
 each raising a ValueError that names the input and the accepted range (docs/environments.md,
-"Accepted inputs").
+"Accepted inputs"); a vector env's reset mask of the wrong type is a TypeError, as Gymnasium's.
 
 Numbers must be real numbers (Python or numpy ints and floats): booleans, complex numbers,
 strings and None are refused rather than converted, and flags must be booleans.
@@ -13,6 +13,7 @@ from numbers import Integral, Real
 from typing import Any
 
 import numpy as np
+from gymnasium.vector import AutoresetMode
 
 # re-exported: the environments' pose cap is the trajectories' (each pose a solve at a reset)
 from ..mechanics.trajectory import MAX_POSES as MAX_POSES
@@ -156,3 +157,66 @@ def check_seed(name: str, value: Any) -> int | None:
     if not isinstance(value, Integral) or isinstance(value, bool | np.bool_) or value < 0:
         raise ValueError(f"{name} must be None or an integer >= 0, got {value!r}")
     return int(value)
+
+
+#: The autoreset modes of the batched vector environments: all of Gymnasium's.
+AUTORESET_MODES = tuple(AutoresetMode)
+
+
+def check_autoreset_mode(value: Any) -> AutoresetMode:
+    """An :class:`~gymnasium.vector.AutoresetMode` or its value (``"NextStep"``,
+    ``"SameStep"``, ``"Disabled"``)."""
+    try:
+        return AutoresetMode(value)
+    except (ValueError, TypeError):
+        raise ValueError(
+            f"autoreset_mode must be one of {[m.value for m in AUTORESET_MODES]} (or the"
+            f" AutoresetMode members), got {value!r}"
+        ) from None
+
+
+_MASK_FORM = "a numpy array of dtype bool and shape ({},), True for the sub-environments to reset"
+
+
+def split_reset_mask(options: Any, num_envs: int) -> tuple[np.ndarray | None, Any]:
+    """Gymnasium's ``reset(options={"reset_mask": mask, ...})`` of a vector environment: the
+    checked mask (a copy) and the other options (a new mapping; the caller's is left as it
+    is), or ``(None, options)`` when there is no mask.
+
+    As Gymnasium's ``SyncVectorEnv``, the mask must be a numpy array (TypeError otherwise) of
+    shape ``(num_envs,)`` (ValueError) and dtype bool (TypeError), with at least one True
+    (ValueError).
+    """
+    if not isinstance(options, Mapping) or "reset_mask" not in options:
+        return None, options
+    mask = options["reset_mask"]
+    form = _MASK_FORM.format(num_envs)
+    if not isinstance(mask, np.ndarray):
+        raise TypeError(f"options['reset_mask'] must be {form}; got a {type(mask).__name__}")
+    if mask.shape != (num_envs,):
+        raise ValueError(f"options['reset_mask'] must be {form}; got shape {mask.shape}")
+    if mask.dtype != np.bool_:
+        raise TypeError(f"options['reset_mask'] must be {form}; got dtype {mask.dtype}")
+    if not mask.any():
+        raise ValueError(
+            f"options['reset_mask'] must be {form}, at least one of them; got all False"
+        )
+    rest = {key: value for key, value in options.items() if key != "reset_mask"}
+    return mask.copy(), rest
+
+
+def refuse_ended(mode: AutoresetMode, ended: np.ndarray) -> None:
+    """A vector env's step with autoreset ``mode``: a RuntimeError, naming them, if it is
+    DISABLED and sub-environments' episodes have ended (``ended``, (num_envs,) bool) without
+    a reset since."""
+    if mode != AutoresetMode.DISABLED or not ended.any():
+        return
+    which = np.flatnonzero(ended)
+    listed = f"{which[:20].tolist()}" + (f" and {len(which) - 20} more" if len(which) > 20 else "")
+    shown = np.array2string(ended, separator=", ", threshold=16)
+    raise RuntimeError(
+        f"the episodes of sub-environments {listed} have ended and autoreset_mode is"
+        " DISABLED: reset them before the next step with"
+        " reset(options={'reset_mask': mask}), mask a numpy bool array of shape"
+        f" ({len(ended)},) True for them (here {shown})"
+    )

@@ -23,10 +23,14 @@ from .cube_grasp import CubeGraspEnv, CubeGraspRandomEnv, _CubeGraspEnv, action_
 from .episodes import Episode, EpisodeBatch, build_episodes, sample_episodes
 from .kernels import step_batch
 from .scenes import parse_options
-from .validation import MAX_ENVS, check_integer, check_seed
-
-_MODES = (AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP)
-
+from .validation import (
+    MAX_ENVS,
+    check_autoreset_mode,
+    check_integer,
+    check_seed,
+    refuse_ended,
+    split_reset_mask,
+)
 
 _STORED = (  # in step_batch's order
     "forces_w", "directions", "normals", "observations", "alphas", "expert_k_w", "expert_reward",
@@ -38,8 +42,10 @@ MAX_STORE_ROWS = 1 << 23
 #: its own generator, so the episodes do not depend on it): it bounds the memory a reset of
 #: many sub-environments needs besides the store.
 _RESET_CHUNK = 8192
-# Where a sub-environment's episode lives in the store.
-_DEFAULT, _OPTION, _SLOT = 0, 1, 2
+# Where a sub-environment's episode lives in the store: a shared episode (its index in
+# _PoseStore.shared: the default episode, the latest scene option's, then earlier options' still
+# run by sub-environments a masked reset left alone) or its own slot.
+_DEFAULT, _OPTION, _SLOT = 0, 1, -1
 #: From this many sub-environments a step's kernel is split across the cores this process may
 #: use (step_batch releases the GIL and each row depends on its own inputs alone); fewer are
 #: not worth the hand-off to a thread.
@@ -81,41 +87,65 @@ def _padded(episode: Episode) -> dict[str, np.ndarray]:
 class _PoseStore:
     """The pose arrays of every running episode, stacked so that one kernel call serves all.
 
-    The rows begin with the shared episodes: the environment's default episode and the
-    episode of the last ``reset(options={"scene": ...})`` (each stored once, whatever the
-    number of sub-environments in it); after them each sub-environment owns a slot of
-    ``capacity`` rows for episodes of its own (the slots grow, and move, when a longer episode
-    comes). Row ``base + t`` holds pose t of an episode and its observation t (T + 1
-    observations).
+    The rows begin with the shared episodes (each stored once, whatever the number of
+    sub-environments in it): ``shared[0]`` the environment's default episode (None for random
+    scenes), ``shared[1]`` the episode of the last ``reset(options={"scene": ...})``, then the
+    episodes of earlier scene options that sub-environments left out of a masked reset still
+    run. After them each sub-environment owns a slot of ``capacity`` rows for episodes of its
+    own (the slots grow, and move, when a longer episode comes). Row ``base + t`` holds pose t
+    of an episode and its observation t (T + 1 observations).
     """
 
     def __init__(self, num_envs: int, default: Episode | None) -> None:
         self.num_envs = num_envs
-        self.default = default
-        self.option: Episode | None = None
+        self.shared: list[Episode | None] = [default, None]
         self.capacity = 0
         self.arrays: dict[str, np.ndarray] = {}
-        self.shared_bases = np.zeros(3, dtype=np.int64)  # default, option, first slot
-        self._share()
+        self.shared_bases = np.zeros(3, dtype=np.int64)  # per shared episode, then the slots
+        self._lay_out(keep_slots=False)
 
-    def _share(self) -> None:
-        """Lay out the shared episodes (the slots are emptied: every sub-environment is
-        starting a shared episode)."""
-        parts = [_padded(e) for e in (self.default, self.option) if e is not None]
-        sizes = [len(e) + 1 if e is not None else 0 for e in (self.default, self.option)]
-        self.shared_bases = np.cumsum([0, *sizes])
-        self.arrays = (
-            {name: np.concatenate([p[name] for p in parts]) for name in _STORED} if parts else {}
+    @property
+    def default(self) -> Episode | None:
+        return self.shared[_DEFAULT]
+
+    @property
+    def option(self) -> Episode | None:
+        return self.shared[_OPTION]
+
+    def _lay_out(self, keep_slots: bool) -> None:
+        """Lay out the shared episodes, followed by the slots as they are (``keep_slots``) or
+        none (no sub-environment runs an episode of its own)."""
+        parts = [_padded(e) for e in self.shared if e is not None]
+        sizes = [len(e) + 1 if e is not None else 0 for e in self.shared]
+        slots = (
+            {name: array[self.offset :] for name, array in self.arrays.items()}
+            if keep_slots and self.capacity
+            else {}
         )
-        self.capacity = 0
+        names = _STORED if parts else list(slots)
+        self.arrays = {
+            name: np.concatenate([*(p[name] for p in parts), *([slots[name]] if slots else [])])
+            for name in names
+        }
+        if not slots:
+            self.capacity = 0
+        self.shared_bases = np.cumsum([0, *sizes])
 
-    def share_option(self, episode: Episode) -> None:
-        self.option = episode
-        self._share()
+    def share_option(self, episode: Episode, kept: np.ndarray) -> np.ndarray:
+        """Store ``episode`` as the latest scene option's; ``kept`` are the store codes
+        (``_where``) of the sub-environments that keep their episodes, returned as they are
+        after the new layout (the options none of them runs are dropped)."""
+        running = sorted({int(c) for c in kept if c >= _OPTION})
+        recode = np.zeros(len(self.shared), np.int64)  # old code -> new code (options run)
+        recode[running] = _OPTION + 1 + np.arange(len(running))
+        self.shared = [self.default, episode, *(self.shared[c] for c in running)]
+        self._lay_out(keep_slots=bool(np.any(kept == _SLOT)))
+        return np.where(kept >= _OPTION, recode[np.maximum(kept, 0)], kept)
 
     @property
     def offset(self) -> int:
-        return int(self.shared_bases[2])
+        """The first row of the slots."""
+        return int(self.shared_bases[-1])
 
     def _grow(self, capacity: int, template: dict[str, np.ndarray]) -> None:
         grown = {}
@@ -148,7 +178,7 @@ class _PoseStore:
     def bases(self, where: np.ndarray) -> np.ndarray:
         """First rows of the sub-environments' episodes (slots move when the store grows)."""
         slots = self.offset + self.capacity * np.arange(self.num_envs, dtype=np.int64)
-        return np.where(where == _SLOT, slots, self.shared_bases[np.minimum(where, 1)])
+        return np.where(where == _SLOT, slots, self.shared_bases[np.maximum(where, 0)])
 
 
 class _CubeGraspVectorEnv(VectorEnv):
@@ -157,11 +187,20 @@ class _CubeGraspVectorEnv(VectorEnv):
     Args:
         num_envs: number of sub-environments.
         autoreset_mode: ``AutoresetMode.NEXT_STEP`` (Gymnasium's default: the step after an
-            episode ends resets that sub-environment, ignoring its action, with reward 0) or
+            episode ends resets that sub-environment, ignoring its action, with reward 0),
             ``AutoresetMode.SAME_STEP`` (it resets at once; the last observation and info are
-            in ``info["final_obs"]`` and ``info["final_info"]``).
+            in ``info["final_obs"]`` and ``info["final_info"]``) or
+            ``AutoresetMode.DISABLED`` (episodes never reset by themselves: reset the ended
+            sub-environments with ``reset(options={"reset_mask": mask})``; stepping one that
+            ended raises a RuntimeError). The modes' values ("NextStep", "SameStep",
+            "Disabled") are accepted too.
         **kwargs: the single environment's keywords (``physics`` and ``render_mode`` are not
             supported: use ``vectorization_mode="sync"`` for those).
+
+    ``reset(seed=..., options={"reset_mask": mask, ...})``, in every mode, resets only the
+    sub-environments where ``mask`` (a numpy bool array of shape ``(num_envs,)``) is True, as
+    Gymnasium's ``SyncVectorEnv``: they are seeded as in a full reset (the seeds of the others
+    are not used) and take the other options; the observations of all are returned.
     """
 
     metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP, "render_modes": []}  # noqa: RUF012
@@ -174,14 +213,7 @@ class _CubeGraspVectorEnv(VectorEnv):
         **kwargs: Any,
     ) -> None:
         num_envs = check_integer("num_envs", num_envs, 1, MAX_ENVS)
-        try:
-            mode = AutoresetMode(autoreset_mode)
-        except ValueError as error:
-            raise ValueError(
-                f"autoreset_mode must be one of {[m.value for m in _MODES]}, got {autoreset_mode!r}"
-            ) from error
-        if mode not in _MODES:
-            raise ValueError(f"autoreset_mode must be one of {[m.value for m in _MODES]}")
+        mode = check_autoreset_mode(autoreset_mode)
         if kwargs.get("physics") is not None or kwargs.get("render_mode") is not None:
             raise ValueError(
                 "this batched vector env takes neither physics nor render_mode: for physics make"
@@ -219,6 +251,8 @@ class _CubeGraspVectorEnv(VectorEnv):
         self._weight = np.zeros(self.num_envs)
         self._limit = np.zeros(self.num_envs)
         self._t = np.zeros(self.num_envs, dtype=np.int64)
+        # Ended episodes not reset yet: NEXT_STEP resets them at the next step, DISABLED
+        # refuses to step them.
         self._autoreset = np.zeros(self.num_envs, dtype=bool)
         self._started = False
 
@@ -231,16 +265,17 @@ class _CubeGraspVectorEnv(VectorEnv):
 
     def _start(self, envs: np.ndarray, scene: Mapping[str, Any] | None) -> None:
         """New episodes for sub-environments ``envs`` (from their own generators); a ``scene``
-        (from the reset options) starts for every sub-environment."""
+        (from the reset options) starts for all of them."""
         if len(envs) == 0:
             return
         template = self.template
         store = self._store
         if scene is not None or (store.default is not None):
             if scene is not None:  # one explicit scene for all of them, stored once
-                store.share_option(
-                    build_episodes(template.scene_batch(scene), template.k_max_ratio).episode(0)
-                )
+                option = build_episodes(template.scene_batch(scene), template.k_max_ratio)
+                others = np.ones(self.num_envs, bool)  # the episodes of these carry on
+                others[envs] = False
+                self._where[others] = store.share_option(option.episode(0), self._where[others])
             episode = store.option if scene is not None else store.default
             self._where[envs] = _OPTION if scene is not None else _DEFAULT
             self._length[envs] = len(episode)
@@ -271,10 +306,22 @@ class _CubeGraspVectorEnv(VectorEnv):
         if not self._started:
             raise RuntimeError("call reset() first")
         if self._scenes[env] is None:
-            shared = self._store.option if self._where[env] == _OPTION else self._store.default
-            return shared.scene
+            return self._store.shared[self._where[env]].scene
         scenes, index = self._scenes[env]
         return scenes.scene(index)
+
+    def _seeds(self, seed: Any) -> list[int | None]:
+        """Each sub-environment's seed: ``seed`` None, an int (env i gets seed + i) or a list."""
+        if seed is None or isinstance(seed, Integral):
+            first = check_seed("seed", seed)
+            return [None if first is None else first + i for i in range(self.num_envs)]
+        if isinstance(seed, Sequence | np.ndarray) and not isinstance(seed, str | bytes):
+            if len(seed) != self.num_envs:
+                raise ValueError(f"seed must list {self.num_envs} seeds, got {len(seed)}")
+            return [check_seed(f"seed[{i}]", s) for i, s in enumerate(seed)]
+        raise ValueError(
+            f"seed must be None, an integer >= 0 or a list of {self.num_envs}, got {seed!r}"
+        )
 
     def reset(
         self,
@@ -285,26 +332,35 @@ class _CubeGraspVectorEnv(VectorEnv):
         """Reset every sub-environment; ``seed`` is None, an int (env i gets seed + i) or a list.
 
         ``options={"scene": {...}}`` sets the scene of this episode of every sub-environment.
+        ``options={"reset_mask": mask}`` (a numpy bool array of shape ``(num_envs,)``) resets
+        only the sub-environments where it is True, as Gymnasium's vector envs do (seeded as
+        in a full reset, the seeds of the others unused; a scene option applies to them); the
+        observations of all sub-environments are returned, the others' as they were.
         """
-        if seed is None or isinstance(seed, Integral):
-            first = check_seed("seed", seed)
-            seeds = [None if first is None else first + i for i in range(self.num_envs)]
-        elif isinstance(seed, Sequence | np.ndarray) and not isinstance(seed, str | bytes):
-            if len(seed) != self.num_envs:
-                raise ValueError(f"seed must list {self.num_envs} seeds, got {len(seed)}")
-            seeds = [check_seed(f"seed[{i}]", s) for i, s in enumerate(seed)]
-        else:
-            raise ValueError(
-                f"seed must be None, an integer >= 0 or a list of {self.num_envs}, got {seed!r}"
-            )
-        for env, single in enumerate(seeds):
-            if single is not None:
-                self._rngs[env], _ = seeding.np_random(single)
+        seeds = self._seeds(seed)
+        mask, options = split_reset_mask(options, self.num_envs)
         scene = parse_options(options)
-        self._start(np.arange(self.num_envs), scene)
-        self._autoreset[:] = False
+        if mask is None or mask.all():
+            envs = np.arange(self.num_envs)
+        elif not self._started:
+            raise RuntimeError(
+                "the first reset() resets every sub-environment: call it without a reset_mask"
+            )
+        else:
+            envs = np.flatnonzero(mask)
+        self._reset(envs, seeds, scene)
+        return self._store.arrays["observations"][self._base + self._t], {}
+
+    def _reset(
+        self, envs: np.ndarray, seeds: list[int | None], scene: Mapping[str, Any] | None
+    ) -> None:
+        """New episodes for sub-environments ``envs``, seeded by their ``seeds``."""
+        for env in envs:
+            if seeds[env] is not None:
+                self._rngs[env], _ = seeding.np_random(seeds[env])
+        self._start(envs, scene)
+        self._autoreset[envs] = False
         self._started = True
-        return self._store.arrays["observations"][self._base], {}
 
     # -- stepping ------------------------------------------------------------------------------
 
@@ -317,6 +373,7 @@ class _CubeGraspVectorEnv(VectorEnv):
         """Step every sub-environment; k = clip(action, -1, 1) x k_max (see the single env)."""
         if not self._started:
             raise RuntimeError("call reset() before step()")
+        self._refuse_ended()
         a = self._actions(actions)
         count = self.num_envs
         restarting = np.flatnonzero(self._autoreset)
@@ -385,11 +442,16 @@ class _CubeGraspVectorEnv(VectorEnv):
             info.update(
                 final_obs=final_obs, _final_obs=done, final_info=final_info, _final_info=done
             )
-        else:
-            if self.autoreset_mode == AutoresetMode.NEXT_STEP:
+        else:  # NEXT_STEP resets the ended episodes at the next step, DISABLED never
+            if self.autoreset_mode != AutoresetMode.SAME_STEP:
                 self._autoreset = done
             info.update({f"_{key}": mask for key in list(info)})
         return observations, reward, terminated, truncated, info
+
+    def _refuse_ended(self) -> None:
+        """With autoreset disabled, a RuntimeError if an ended episode was not reset (raised
+        before any state changes; Gymnasium's SyncVectorEnv asserts)."""
+        refuse_ended(self.autoreset_mode, self._autoreset)
 
     def close_extras(self, **kwargs: Any) -> None:
         self.template.close()
