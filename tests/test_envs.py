@@ -546,7 +546,7 @@ def test_vector_step_split_across_cores_equals_one_call(env_id, module, monkeypa
     count = 600  # above the split threshold, not a multiple of the cores
     runs = []
     for parallel_from in (512, count + 1):
-        monkeypatch.setattr(importlib.import_module(module), "_PARALLEL_FROM", parallel_from)
+        monkeypatch.setattr(importlib.import_module(module), "PARALLEL_FROM", parallel_from)
         venv = gym.make_vec(
             env_id, num_envs=count, vectorization_mode="vector_entry_point",
             terminate_on_slip=False,

@@ -54,13 +54,11 @@ from .validation import (
     refuse_ended,
     split_reset_mask,
 )
+from .vector import PARALLEL_FROM
 
 #: The paper's axis over [-90, 90] deg in 1 deg steps, as the ``trajectory`` keyword's mapping.
 PAPER_TURN_SPEC = {key: getattr(PAPER_TURN, key) for key in TRAJECTORY_KEYS}
 _SQRT3 = float(np.sqrt(3.0))
-#: From this many sub-environments the step's kernel is split across the cores (as the vector
-#: envs' step: it releases the GIL and each row depends on its own inputs alone).
-_PARALLEL_FROM = 512
 
 
 # ------------------------------------------------------------------------------- the task
@@ -448,7 +446,7 @@ def _step(
             floats[lo:hi], ints[lo:hi], flags[lo:hi], obs[lo:hi],
         )  # fmt: skip
 
-    parts = available_cores() if B >= _PARALLEL_FROM else 1
+    parts = available_cores() if B >= PARALLEL_FROM else 1
     if not all(in_parts("grasp-gait-step", B, part, parts)):
         rows = np.flatnonzero(flags[:, 3]).tolist()
         raise ValueError(f"actions must be finite numbers; rows {rows} are not")

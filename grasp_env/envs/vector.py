@@ -46,10 +46,10 @@ _RESET_CHUNK = 8192
 # _PoseStore.shared: the default episode, the latest scene option's, then earlier options' still
 # run by sub-environments a masked reset left alone) or its own slot.
 _DEFAULT, _OPTION, _SLOT = 0, 1, -1
-#: From this many sub-environments a step's kernel is split across the cores this process may
-#: use (step_batch releases the GIL and each row depends on its own inputs alone); fewer are
-#: not worth the hand-off to a thread.
-_PARALLEL_FROM = 512
+#: From this many sub-environments a vector step's kernel is split across the cores this
+#: process may use (the grasp and the gait envs': their kernels release the GIL and each row
+#: depends on its own inputs alone); fewer are not worth the hand-off to a thread.
+PARALLEL_FROM = 512
 
 
 def _step_parts(
@@ -71,7 +71,7 @@ def _step_parts(
         )  # fmt: skip
 
     count = len(rows)
-    in_parts("grasp-vector-step", count, part, available_cores() if count >= _PARALLEL_FROM else 1)
+    in_parts("grasp-vector-step", count, part, available_cores() if count >= PARALLEL_FROM else 1)
 
 
 def _padded(episode: Episode) -> dict[str, np.ndarray]:
