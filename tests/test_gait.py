@@ -765,3 +765,26 @@ def test_gait_env_through_the_sb3_adapter_and_not_grasp_env_train():
     PPO("MlpPolicy", venv, n_steps=16, batch_size=64, n_epochs=1, seed=0).learn(64)
     with pytest.raises(ValueError, match="trains with rl-zoo3"):
         config_from_dict({"env_id": GAIT_ID, "total_timesteps": 64})
+
+
+def test_gait_expert_refuses_observations_outside_the_space():
+    """A phase outside [0, 1] is no pose of the run (a negative one indexed from the end)."""
+    from grasp_env.envs.gait import GaitExpert
+
+    expert = GaitExpert()
+    env = make_gait()
+    obs, _ = env.reset(seed=0)
+    phase = env.unwrapped.task.pose_size() - 1
+    assert env.observation_space.low[phase] == 0.0 and env.observation_space.high[phase] == 1.0
+    expert.predict(obs)  # inside: fine
+    for value in (-0.01, 1.5):
+        bad = obs.copy()
+        bad[phase] = value
+        with pytest.raises(ValueError, match=r"phase \(entry \d+\) must be within \[0, 1\]"):
+            expert.predict(bad)
+        with pytest.raises(ValueError, match="phase"):
+            expert.predict(np.stack([obs, bad]))
+    bad = obs.copy()
+    bad[env.unwrapped.task.pose_size() :] = 0.0  # no finger touches
+    with pytest.raises(ValueError, match="no state of the hand"):
+        expert.predict(bad)

@@ -518,7 +518,13 @@ class _GaitPolicy:
             raise ValueError("observation must be finite")
         batch = obs.reshape(-1, size)
         T, F, N = task.n_poses, task.n_fingers, task.n_sites
-        t = np.minimum(np.rint(batch[:, task.pose_size() - 1] * T).astype(np.int64), T - 1)
+        phase = batch[:, task.pose_size() - 1]
+        if np.any((phase < 0.0) | (phase > 1.0)):  # outside the space: no pose of the run
+            raise ValueError(
+                f"the observation's phase (entry {task.pose_size() - 1}) must be within [0, 1],"
+                f" got {phase[(phase < 0.0) | (phase > 1.0)][:5].tolist()}"
+            )
+        t = np.minimum(np.rint(phase * T).astype(np.int64), T - 1)
         onehot = batch[:, task.pose_size() : task.pose_size() + F * N].reshape(-1, F, N) > 0.5
         assignment = np.where(onehot.any(axis=2), onehot.argmax(axis=2), -1)
         code = ((assignment + 1) * (N + 1) ** np.arange(F)).sum(axis=1)
