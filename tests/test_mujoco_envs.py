@@ -223,6 +223,9 @@ def test_vector_env_matches_gymnasiums_sync_vector_env():
     for a, b in zip(ours[:4], theirs[:4], strict=True):
         np.testing.assert_array_equal(a, b)
     assert ours[2].tolist() == [False, True]  # the second grip slips
+    for field, value in theirs[4]["physics"].items():  # the same layout: (N,) or (N, n) arrays
+        got = ours[4]["physics"][field]
+        assert (got.shape, got.dtype) == (value.shape, value.dtype), field
     for key in ("physics", "physics_trajectory"):
         assert set(ours[4][key]) == set(theirs[4][key])
         np.testing.assert_array_equal(ours[4][f"_{key}"], theirs[4][f"_{key}"])

@@ -58,6 +58,12 @@ def action_array(action: Any, shape: tuple[int, ...]) -> np.ndarray:
     return check_array("action", action, shape)
 
 
+def physics_info(report: dict[str, Any]) -> dict[str, Any]:
+    """A pose check's report as ``info["physics"]``: its per-finger lists as arrays, so that
+    Gymnasium's SyncVectorEnv batches them to (N, n) arrays, as the MuJoCo vector env does."""
+    return {key: np.asarray(v) if isinstance(v, list) else v for key, v in report.items()}
+
+
 class _CubeGraspEnv(gym.Env[np.ndarray, np.ndarray]):
     """What the fixed and the random environments share: spaces, step, physics and rendering."""
 
@@ -169,7 +175,7 @@ class _CubeGraspEnv(gym.Env[np.ndarray, np.ndarray]):
         terminated = self.terminate_on_slip and reward < 0.0
         if self._checker is not None:
             report = self._checker.check(episode.rotations[t], forces)
-            info["physics"] = report.as_dict()
+            info["physics"] = physics_info(report.as_dict())
             terminated = self.terminate_on_slip and not report.holds
             self._grips.append(forces.copy())  # info's forces are the user's to change
         self._step = t + 1

@@ -21,6 +21,7 @@ import numpy as np
 from gymnasium.vector import AutoresetMode
 
 from ..mechanics import START_ROTATION, contact_pairs
+from .cube_grasp import physics_info
 from .episodes import Episode
 from .kernels import pose_geometry
 from .observation import ObservationLayout
@@ -49,11 +50,6 @@ def trajectory_rotations(scenes: SceneBatch, index: np.ndarray) -> list[np.ndarr
         np.empty((count, layout.size), np.float32), np.empty(count),
     )  # fmt: skip
     return np.split(rotations, np.cumsum(lengths)[:-1])
-
-
-def _arrays(report: dict[str, Any]) -> dict[str, Any]:
-    """A pose report with its per-finger lists as arrays (batched to (N, n) in the info)."""
-    return {key: np.asarray(v) if isinstance(v, list) else v for key, v in report.items()}
 
 
 class _MujocoVectorEnv(_CubeGraspVectorEnv):
@@ -216,7 +212,7 @@ class _MujocoVectorEnv(_CubeGraspVectorEnv):
         holds = np.ones(count, bool)
         reports = self._check_poses(acting, poses, forces)
         for e, f, report in zip(acting, forces, reports, strict=True):
-            physics = self._add_info(physics, _arrays(report.as_dict()), int(e))
+            physics = self._add_info(physics, physics_info(report.as_dict()), int(e))
             holds[e] = report.holds
             self._grips[e].append(f.copy())
         data["physics"] = physics
