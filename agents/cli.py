@@ -36,6 +36,21 @@ def path_argument(text: str) -> Path:
     return Path(text)
 
 
+def folder_argument(text: str) -> Path:
+    """An argparse type for output folders (created if missing): refused at once, before any
+    work, if it or a folder above it is a file."""
+    path = path_argument(text)
+    for folder in (path, *path.parents):
+        if folder.exists():
+            if not folder.is_dir():
+                above = "" if folder == path else f" ({folder} is)"
+                raise argparse.ArgumentTypeError(
+                    f"{path} cannot be a folder: a file is in the way{above}"
+                )
+            break
+    return path
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     parser = argparse.ArgumentParser(

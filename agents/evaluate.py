@@ -35,7 +35,7 @@ from grasp_env.envs.validation import MAX_ENVS
 from grasp_env.mechanics import contact_pairs
 
 from .baselines import ConstantPolicy, RandomPolicy, equal_k_policy
-from .cli import path_argument
+from .cli import folder_argument, path_argument
 from .config import load_config
 from .envs import HELD_OUT_SEED, Episode, find_held_out, make_held_out_env, summarise
 from .models import load_agent
@@ -78,7 +78,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--out",
-        type=path_argument,
+        type=folder_argument,
         metavar="DIR",
         help="folder for the report, comparison.csv and the plot (default:"
         " RUN/evaluation-<N>-scenes; --out RUN replaces the run's own report); with several"

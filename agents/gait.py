@@ -37,7 +37,7 @@ from grasp_env.mechanics import (
 )
 from grasp_env.mechanics.gait import GAIT_CG_OFFSET, site_sets
 
-from .cli import path_argument
+from .cli import folder_argument, path_argument
 from .progress import status
 from .scene_args import floats
 
@@ -46,7 +46,7 @@ HELP = "when to phase fingers out and in: the certified optimal gait along a lon
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
-        "--out", type=path_argument, default=Path("results/gait"), help="output dir"
+        "--out", type=folder_argument, default=Path("results/gait"), help="output dir"
     )
     hand = Hand()
     parser.add_argument("--weight", type=float, default=5.0, help="weight, N (default 5)")

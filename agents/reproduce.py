@@ -28,7 +28,7 @@ from grasp_env.mechanics import (
 )
 from grasp_env.mechanics.forces import Grasp
 
-from .cli import path_argument
+from .cli import folder_argument
 from .plotting import plot_series
 from .progress import status
 from .scene_args import add_scene_arguments, floats, scene_from_arguments
@@ -38,7 +38,7 @@ HELP = "the paper's quasi-static sweep: optimal k_ij and friction angles, table 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
-        "--out", type=path_argument, default=Path("results/reproduce"), help="output dir"
+        "--out", type=folder_argument, default=Path("results/reproduce"), help="output dir"
     )
     add_scene_arguments(parser)
     parser.add_argument(

@@ -43,7 +43,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from .cli import path_argument
+from .cli import folder_argument, path_argument
 
 HELP = "aggregate runs: IQM and 95% bootstrap CIs over seeds, learning curves, the README table"
 #: Bootstrap resamples of every interval (rliable's stratified bootstrap).
@@ -450,7 +450,7 @@ def _around_table(readme: Path) -> tuple[str, str]:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("spec", type=path_argument, metavar="SPEC", help="a results spec (YAML)")
     parser.add_argument(
-        "--out", type=path_argument, help="output folder (default: the spec's folder)"
+        "--out", type=folder_argument, help="output folder (default: the spec's folder)"
     )
     parser.add_argument("--readme", type=path_argument, help="rewrite the table in this README")
 

@@ -36,7 +36,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from .cli import path_argument
+from .cli import folder_argument, path_argument
 
 HELP = "a hyperparameter sweep on Ray Tune (grid, random or Optuna) over config keys and seeds"
 SEARCHES = ("grid", "random", "optuna")
@@ -361,7 +361,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "sweep_file", type=path_argument, metavar="SWEEP", help="a sweep file (YAML)"
     )
     parser.add_argument(
-        "--out", type=path_argument, help="the sweep's folder (default: sweeps/<sweep file name>)"
+        "--out", type=folder_argument, help="the sweep's folder (default: sweeps/<sweep file name>)"
     )
     parser.add_argument(
         "--address", help="an existing Ray cluster (e.g. auto, or ray://head:10001)"

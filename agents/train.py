@@ -54,7 +54,7 @@ from .checkpoints import (
     tensorboard_logger,
     trim_tensorboard,
 )
-from .cli import path_argument
+from .cli import folder_argument, path_argument
 from .config import TrainConfig, config_path, load_config, save_config, shipped_configs
 from .curve import Clock, LearningCurve, last_steps
 from .envs import HeldOutScenes, find_held_out, make_held_out_env, make_vec_env
@@ -82,7 +82,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--run-dir",
-        type=path_argument,
+        type=folder_argument,
         help="directory for the run (default: runs/<config name>-<date>-<time>)",
     )
     parser.add_argument(

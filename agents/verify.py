@@ -86,7 +86,7 @@ from grasp_env.physics.agreement import (
     trajectory_cases,
 )
 
-from .cli import path_argument
+from .cli import folder_argument, path_argument
 from .progress import status
 from .scene_args import add_scene_arguments, floats, scene_from_arguments
 
@@ -161,7 +161,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--seed", type=int, default=None, help="seed of the agreement studies (default 0)"
     )
     parser.add_argument(
-        "--out", type=path_argument, default=Path("results/verify"), help="output dir"
+        "--out", type=folder_argument, default=Path("results/verify"), help="output dir"
     )
 
 

@@ -204,6 +204,25 @@ def test_shipped_configs_by_name_from_any_directory(tmp_path, monkeypatch):
     assert cli.main(["train", "--config", "no-such-config"]) == 2
 
 
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["reproduce", "--out", "afile"],
+        ["train", "--run-dir", "afile/run"],
+        ["gait", "--out", "afile"],
+    ],
+)
+def test_cli_refuses_an_output_folder_in_a_files_way(argv, tmp_path, monkeypatch, capsys):
+    """Refused before any work (it was an OSError, exit 1, after the computation)."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "afile").write_text("")
+    with pytest.raises(SystemExit) as stop:
+        cli.main(argv)
+    assert stop.value.code == 2
+    assert "cannot be a folder: a file is in the way" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["afile"]
+
+
 def test_cli_override_errors_name_the_override(tmp_path, capsys):
     argv = ["train", "--config", "dagger", "--run-dir", str(tmp_path / "r")]
     assert cli.main([*argv, "--total-timesteps", "-1"]) == 2
