@@ -9,7 +9,10 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import math
 import sys
+from collections.abc import Callable
+from contextlib import nullcontext
 from pathlib import Path
 
 from grasp_env import __version__
@@ -51,6 +54,22 @@ def folder_argument(text: str) -> Path:
     return path
 
 
+def integer_argument(low: int) -> Callable[[str], int]:
+    """An argparse type for counts and seeds: an integer >= ``low``, written as configs take
+    them (``1000``, ``1_000`` or ``1e3``)."""
+
+    def integer(text: str) -> int:
+        try:
+            number = float(text) if "e" in text.lower() else int(text)
+        except ValueError:
+            number = math.nan
+        if not (math.isfinite(number) and number == int(number) and number >= low):
+            raise argparse.ArgumentTypeError(f"must be an integer >= {low}, got {text!r}")
+        return int(number)
+
+    return integer
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     parser = argparse.ArgumentParser(
@@ -63,8 +82,12 @@ def main(argv: list[str] | None = None) -> int:
         # help is %-formatted by argparse, description is not
         command = sub.add_parser(name, help=summary.replace("%", "%%"), description=summary)
         if name == chosen:
+            helping = "-h" in argv or "--help" in argv  # its output is the usage alone
+            loading = (
+                nullcontext() if helping else status(f"grasp-env {name}: loading its libraries")
+            )
             try:
-                with status(f"grasp-env {name}: loading its libraries"):
+                with loading:
                     module = importlib.import_module(f".{name}", __package__)
             except KeyboardInterrupt:  # Ctrl-C while torch and friends load
                 print("interrupted", file=sys.stderr)

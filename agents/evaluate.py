@@ -35,7 +35,7 @@ from grasp_env.envs.validation import MAX_ENVS
 from grasp_env.mechanics import contact_pairs
 
 from .baselines import ConstantPolicy, RandomPolicy, equal_k_policy
-from .cli import folder_argument, path_argument
+from .cli import folder_argument, integer_argument, path_argument
 from .config import load_config
 from .envs import HELD_OUT_SEED, Episode, find_held_out, make_held_out_env, summarise
 from .models import load_agent
@@ -68,12 +68,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--episodes",
-        type=int,
+        type=integer_argument(1),
         help="held-out scenes (default: the run's eval_episodes)",
     )
     parser.add_argument(
         "--physics-episodes",
-        type=int,
+        type=integer_argument(0),
         help=f"of those, scenes also checked in MuJoCo (default {PHYSICS_EPISODES}; 0: none)",
     )
     parser.add_argument(

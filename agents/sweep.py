@@ -36,7 +36,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from .cli import folder_argument, path_argument
+from .cli import folder_argument, integer_argument, path_argument
 
 HELP = "a hyperparameter sweep on Ray Tune (grid, random or Optuna) over config keys and seeds"
 SEARCHES = ("grid", "random", "optuna")
@@ -367,13 +367,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--address", help="an existing Ray cluster (e.g. auto, or ray://head:10001)"
     )
     parser.add_argument(
-        "--num-cpus", type=int, help="cores of the local Ray (default: the machine's)"
+        "--num-cpus",
+        type=integer_argument(1),
+        help="cores of the local Ray (default: the machine's)",
     )
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.num_cpus is not None and args.num_cpus < 1:
-        raise ValueError(f"--num-cpus must be >= 1, got {args.num_cpus}")
     out = args.out or Path("sweeps") / args.sweep_file.stem
     sweep(args.sweep_file, out, args.address, args.num_cpus)
     print(f"\nsweep: {out.resolve()} (results.md, learning_curves.png, runs/)")

@@ -54,7 +54,7 @@ from .checkpoints import (
     tensorboard_logger,
     trim_tensorboard,
 )
-from .cli import folder_argument, path_argument
+from .cli import folder_argument, integer_argument, path_argument
 from .config import TrainConfig, config_path, load_config, save_config, shipped_configs
 from .curve import Clock, LearningCurve, last_steps
 from .envs import HeldOutScenes, find_held_out, make_held_out_env, make_vec_env
@@ -93,7 +93,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--total-timesteps",
-        type=int,
+        type=integer_argument(0),
         metavar="N",
         help="the algorithm's environment steps, overriding the config (e.g. to extend a"
         " resumed run)",

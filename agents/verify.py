@@ -86,7 +86,7 @@ from grasp_env.physics.agreement import (
     trajectory_cases,
 )
 
-from .cli import folder_argument, path_argument
+from .cli import folder_argument, integer_argument, path_argument
 from .progress import status
 from .scene_args import add_scene_arguments, floats, scene_from_arguments
 
@@ -143,7 +143,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--scenes",
-        type=int,
+        type=integer_argument(1),
         default=None,
         metavar="N",
         help=f"random scenes of the trajectory study (default {DEFAULT_SCENES}, about 3"
@@ -158,7 +158,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         " 480x480); implies --trajectory",
     )
     parser.add_argument(
-        "--seed", type=int, default=None, help="seed of the agreement studies (default 0)"
+        "--seed",
+        type=integer_argument(0),
+        default=None,
+        help="seed of the agreement studies (default 0)",
     )
     parser.add_argument(
         "--out", type=folder_argument, default=Path("results/verify"), help="output dir"
@@ -171,8 +174,6 @@ def run(args: argparse.Namespace) -> int:
             "--scenes is for the trajectory study: use it with --agreement --trajectory"
         )
     scenes = DEFAULT_SCENES if args.scenes is None else args.scenes
-    if scenes < 1:
-        raise ValueError(f"--scenes must be >= 1, got {scenes}")
     if args.seed is not None and not args.agreement:
         raise ValueError("--seed is for the agreement studies: use it with --agreement")
     seed = 0 if args.seed is None else args.seed

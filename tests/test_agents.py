@@ -223,12 +223,32 @@ def test_cli_refuses_an_output_folder_in_a_files_way(argv, tmp_path, monkeypatch
     assert sorted(p.name for p in tmp_path.iterdir()) == ["afile"]
 
 
+@pytest.mark.parametrize(
+    ("argv", "error"),
+    [
+        (["verify", "--agreement", "--seed", "-1"], "argument --seed: must be an integer >= 0"),
+        (["evaluate", "run", "--episodes", "2.5"], "argument --episodes: must be an integer >= 1"),
+        (["sweep", "s.yaml", "--num-cpus", "0"], "argument --num-cpus: must be an integer >= 1"),
+        (["train", "--total-timesteps", "nan"], "argument --total-timesteps: must be an integer"),
+    ],
+)
+def test_cli_counts_name_their_option(argv, error, capsys):
+    with pytest.raises(SystemExit) as stop:
+        cli.main(argv)
+    assert stop.value.code == 2 and error in capsys.readouterr().err
+
+
+def test_cli_counts_are_written_as_configs_write_them():
+    from grasp_env_agents.cli import integer_argument
+
+    assert [integer_argument(0)(text) for text in ("1000", "1_000", "1e3", "0")] == [1000] * 3 + [0]
+
+
 def test_cli_override_errors_name_the_override(tmp_path, capsys):
     argv = ["train", "--config", "dagger", "--run-dir", str(tmp_path / "r")]
-    assert cli.main([*argv, "--total-timesteps", "-1"]) == 2
-    assert (
-        "dagger.yaml' with total_timesteps=-1: total_timesteps must be" in capsys.readouterr().err
-    )
+    assert cli.main([*argv, "--total-timesteps", "1e13"]) == 2  # above the config's range
+    err = capsys.readouterr().err
+    assert "dagger.yaml' with total_timesteps=10000000000000: total_timesteps must be" in err
     assert not (tmp_path / "r").exists()
 
 
@@ -820,3 +840,15 @@ def test_evaluate_checks_episodes_up_front(tmp_path, capsys, episodes):
     assert cli.main(["evaluate", str(run), "--episodes", episodes]) == 2
     assert f"--episodes must be in [1, 1048576], got {episodes}" in capsys.readouterr().err
     assert not list(run.glob("evaluation-*"))
+
+
+def test_cli_help_is_the_usage_alone():
+    """--help prints no progress line while the command's libraries load (about 2 s)."""
+    import subprocess
+    import sys
+
+    done = subprocess.run(
+        [sys.executable, "-m", "grasp_env_agents.cli", "train", "--help"],
+        capture_output=True, text=True, timeout=120, check=True,
+    )  # fmt: skip
+    assert done.stdout.startswith("usage: grasp-env train") and done.stderr == ""

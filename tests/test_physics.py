@@ -647,8 +647,9 @@ def test_verify_refuses_scenes_outside_the_trajectory_study(tmp_path, capsys):
     assert main(["verify", "--scenes", "3", "--out", str(tmp_path)]) == 2
     assert "--agreement --trajectory" in capsys.readouterr().err
     argv = ["verify", "--agreement", "--trajectory", "--scenes", "0", "--out", str(tmp_path)]
-    assert main(argv) == 2
-    assert "--scenes must be >= 1" in capsys.readouterr().err
+    with pytest.raises(SystemExit, match="2"):
+        main(argv)
+    assert "argument --scenes: must be an integer >= 1, got '0'" in capsys.readouterr().err
 
 
 def test_verify_and_gait_say_which_path_they_cannot_write(tmp_path, capsys):
