@@ -49,6 +49,7 @@ from .validation import (
     check_bool,
     check_integer,
     check_k_max_ratio,
+    check_max_episode_steps,
     check_number,
     check_seed,
     refuse_ended,
@@ -803,6 +804,12 @@ class CubeGaitVectorEnv(VectorEnv):
             ``info["final_info"]``) or ``DISABLED`` (episodes never reset by themselves:
             reset the ended ones with ``reset(options={"reset_mask": mask})``; stepping one
             that ended raises a RuntimeError). The modes' values are accepted too.
+        max_episode_steps: None (the default: an episode runs to the trajectory's end) or an
+            integer >= 1: each sub-environment's episode is truncated after that many steps,
+            as Gymnasium's ``TimeLimit`` truncates a single environment's (truncated is True
+            at that step even if the episode terminated there too; at the trajectory's end
+            the gait itself truncates only episodes that did not terminate).
+            ``gym.make_vec(id, ..., max_episode_steps=k)`` passes it.
         **kwargs: the single environment's keywords.
 
     ``reset(options={"reset_mask": mask})`` (a numpy bool array of shape ``(num_envs,)``), in
@@ -816,10 +823,12 @@ class CubeGaitVectorEnv(VectorEnv):
         self,
         num_envs: int = 1,
         autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
+        max_episode_steps: int | None = None,
         **kwargs: Any,
     ) -> None:
         self.num_envs = check_integer("num_envs", num_envs, 1, MAX_ENVS)
         mode = check_autoreset_mode(autoreset_mode)
+        self.max_episode_steps = check_max_episode_steps(max_episode_steps)
         self.autoreset_mode = mode
         self.metadata = {**self.metadata, "autoreset_mode": mode}
         self.render_mode = None
@@ -830,6 +839,12 @@ class CubeGaitVectorEnv(VectorEnv):
         self.single_action_space = self.template.action_space
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
+        # Truncation at step _end: the trajectory's end, where the gait truncates only what did
+        # not terminate, unless max_episode_steps cuts there or before (TimeLimit's rule: it
+        # truncates whatever happened at that step).
+        poses, cut = self.task.n_poses, self.max_episode_steps
+        self._end = poses if cut is None else min(poses, cut)
+        self._cut_terminated = cut is not None and cut <= poses
         self._x = np.full(self.num_envs, self.task.start, np.int64)
         self._t = np.zeros(self.num_envs, np.int64)
         # Ended episodes not reset yet: NEXT_STEP resets them at the next step, DISABLED
@@ -901,7 +916,9 @@ class CubeGaitVectorEnv(VectorEnv):
         dropped, reward, observations = out["dropped"], out["reward"], out["obs"]
         terminated = out["terminated"]
         self._t = t + 1
-        truncated = (self._t == task.n_poses) & ~terminated
+        truncated = self._t == self._end
+        if not self._cut_terminated:
+            truncated &= ~terminated
         self._x = np.where(dropped, xs, out["next"])
         info = {key: out[key] for key in _INFO}
         info.update(alpha_deg=task.alphas[t], expert_reward=task.expert_margins[t])

@@ -9,7 +9,9 @@ one model structure share rollout calls), and at the end of episodes one batch o
 rollouts (:func:`grasp_env.physics.check_trajectories`) over the sub-environments whose episode
 ended. MuJoCo's verdicts do not depend on batching or threads, so step for step these equal
 single environments seeded seed, seed + 1, ... (``info["physics"]``,
-``info["physics_trajectory"]`` and termination included).
+``info["physics_trajectory"]`` and termination included). With ``max_episode_steps`` an
+episode it cuts also gets its ``info["physics_trajectory"]``, which a single environment in
+Gymnasium's ``TimeLimit`` cannot give (the wrapper truncates it from outside).
 """
 
 from __future__ import annotations
@@ -64,13 +66,22 @@ class _MujocoVectorEnv(_CubeGraspVectorEnv):
             themselves: reset the ended ones with ``reset(options={"reset_mask": mask})``;
             stepping one that ended raises a RuntimeError).
         physics: "mujoco" (the only engine; the registered ids pass it).
+        terminate_on_slip: end an episode when MuJoCo's pose check finds that the grip does
+            not hold (the single environment's).
+        max_episode_steps: None (the default) or an integer >= 1: each sub-environment's
+            episode is truncated after that many steps, as Gymnasium's ``TimeLimit``
+            truncates a single environment's (``gym.make_vec(id, ..., max_episode_steps=k)``
+            passes it). Unlike a ``TimeLimit`` around the single environment, which truncates
+            it from outside, a cut episode gets its ``physics_trajectory`` at that step: the
+            rollout of the steps it took.
         **kwargs: the single environment's keywords (``render_mode`` is not supported).
 
     The info is a dict of arrays with Gymnasium's ``_key`` masks, as the numpy vector env's;
     ``info["physics"]`` is a dict of arrays (N,) or (N, n) (``holds``, ``slip``,
     ``contact_lost``, ``released``, ``drift``, ``rotation_deg``, ``time``) with its own masks,
-    and ``info["physics_trajectory"]`` (the sub-environments whose episode ended at this step)
-    a dict in the layout Gymnasium's ``SyncVectorEnv`` gives: per-pose lists in object arrays.
+    and ``info["physics_trajectory"]`` (the sub-environments whose episode ended at this step:
+    terminated, at its trajectory's end or cut by ``max_episode_steps``) a dict in the layout
+    Gymnasium's ``SyncVectorEnv`` gives: per-pose lists in object arrays.
 
     ``reset(options={"reset_mask": mask, ...})`` resets only the sub-environments where
     ``mask`` is True (as the numpy vector env's); their MuJoCo checkers and the grips of their
@@ -83,6 +94,7 @@ class _MujocoVectorEnv(_CubeGraspVectorEnv):
         autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
         physics: str | None = "mujoco",
         terminate_on_slip: bool = True,
+        max_episode_steps: int | None = None,
         **kwargs: Any,
     ) -> None:
         if physics != "mujoco":
@@ -90,7 +102,9 @@ class _MujocoVectorEnv(_CubeGraspVectorEnv):
         check_mujoco_k_max_ratio(kwargs.get("k_max_ratio", DEFAULT_K_MAX_RATIO))
         terminate = check_bool("terminate_on_slip", terminate_on_slip)
         # The batched step runs without analytic termination: MuJoCo's verdict terminates.
-        super().__init__(num_envs, autoreset_mode, terminate_on_slip=False, **kwargs)
+        super().__init__(
+            num_envs, autoreset_mode, max_episode_steps, terminate_on_slip=False, **kwargs
+        )
         self.terminate_on_slip = terminate
         # Per sub-environment: its episode's rotations, its MuJoCo checker (its own for a drawn
         # scene, shared for the default scene and a scene option) and the forces of its steps.

@@ -159,6 +159,16 @@ def check_seed(name: str, value: Any) -> int | None:
     return int(value)
 
 
+def check_max_episode_steps(value: Any) -> int | None:
+    """A vector environment's time limit (``gym.make_vec(..., max_episode_steps=...)``): None
+    (none) or an integer >= 1 (numpy integers too; booleans are refused)."""
+    if value is None:
+        return None
+    if not isinstance(value, Integral) or isinstance(value, bool | np.bool_) or value < 1:
+        raise ValueError(f"max_episode_steps must be None or an integer >= 1, got {value!r}")
+    return int(value)
+
+
 #: The autoreset modes of the batched vector environments: all of Gymnasium's.
 AUTORESET_MODES = tuple(AutoresetMode)
 

@@ -27,6 +27,7 @@ from .validation import (
     MAX_ENVS,
     check_autoreset_mode,
     check_integer,
+    check_max_episode_steps,
     check_seed,
     refuse_ended,
     split_reset_mask,
@@ -50,6 +51,7 @@ _DEFAULT, _OPTION, _SLOT = 0, 1, -1
 #: process may use (the grasp and the gait envs': their kernels release the GIL and each row
 #: depends on its own inputs alone); fewer are not worth the hand-off to a thread.
 PARALLEL_FROM = 512
+_NO_CUT = np.iinfo(np.int64).max  # no max_episode_steps
 
 
 def _step_parts(
@@ -194,6 +196,13 @@ class _CubeGraspVectorEnv(VectorEnv):
             sub-environments with ``reset(options={"reset_mask": mask})``; stepping one that
             ended raises a RuntimeError). The modes' values ("NextStep", "SameStep",
             "Disabled") are accepted too.
+        max_episode_steps: None (the default: an episode runs to its trajectory's end) or an
+            integer >= 1: each sub-environment's episode is truncated after that many steps,
+            as Gymnasium's ``TimeLimit`` truncates a single environment's (truncated is True
+            at that step even if the episode terminated there too).
+            ``gym.make_vec(id, ..., max_episode_steps=k)`` passes it (and an id's registered
+            ``max_episode_steps``); ``vectorization_mode="sync"`` wraps each single env in a
+            ``TimeLimit`` instead, with the same results.
         **kwargs: the single environment's keywords (``physics`` and ``render_mode`` are not
             supported: use ``vectorization_mode="sync"`` for those).
 
@@ -210,10 +219,14 @@ class _CubeGraspVectorEnv(VectorEnv):
         self,
         num_envs: int = 1,
         autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
+        max_episode_steps: int | None = None,
         **kwargs: Any,
     ) -> None:
         num_envs = check_integer("num_envs", num_envs, 1, MAX_ENVS)
         mode = check_autoreset_mode(autoreset_mode)
+        self.max_episode_steps = check_max_episode_steps(max_episode_steps)
+        # The step at which an episode is truncated: min(trajectory length, this) (int64).
+        self._cut = min(self.max_episode_steps or _NO_CUT, _NO_CUT)
         if kwargs.get("physics") is not None or kwargs.get("render_mode") is not None:
             raise ValueError(
                 "this batched vector env takes neither physics nor render_mode: for physics make"
@@ -248,6 +261,7 @@ class _CubeGraspVectorEnv(VectorEnv):
         self._base = np.zeros(self.num_envs, dtype=np.int64)
         self._where = np.full(self.num_envs, _DEFAULT, dtype=np.int64)
         self._length = np.zeros(self.num_envs, dtype=np.int64)
+        self._end = np.zeros(self.num_envs, dtype=np.int64)  # the step that truncates
         self._weight = np.zeros(self.num_envs)
         self._limit = np.zeros(self.num_envs)
         self._t = np.zeros(self.num_envs, dtype=np.int64)
@@ -299,6 +313,7 @@ class _CubeGraspVectorEnv(VectorEnv):
                 for j, e in enumerate(chunk):
                     self._scenes[e] = (batch.scenes, j)
         self._base = store.bases(self._where)
+        self._end[envs] = np.minimum(self._length[envs], self._cut)
         self._t[envs] = 0
 
     def scene(self, env: int) -> Scene:
@@ -404,7 +419,7 @@ class _CubeGraspVectorEnv(VectorEnv):
         )  # fmt: skip
         terminated = reward < 0.0 if self.terminate_on_slip else np.zeros(count, bool)
         self._t += 1
-        truncated = self._t == self._length
+        truncated = self._t == self._end  # the trajectory's end or max_episode_steps
         info = {
             "alpha_deg": alpha,
             "theta": theta,
