@@ -300,8 +300,9 @@ _DOC_SPACES = """
     every finger pushing, `expert_reward` is the certified bound theta_lim - 90 deg);
     `optimality_gap` = expert_reward - reward >= 0; `slip` (n,) bool; with
     `physics="mujoco"` also `physics`, the MuJoCo check of this step's forces at its pose
-    (`PhysicsReport.as_dict()`: `holds`, `slip`, `contact_lost`, `released`, `drift`,
-    `rotation_deg`, `time`), and at the episode's last step (terminated or truncated)
+    (`PhysicsReport.as_dict()`, per-finger lists as arrays: `holds`, `slip`, `contact_lost`,
+    `released`, `drift`, `rotation_deg`, `time`), and at the episode's last step (terminated,
+    or truncated at the trajectory's end; a `TimeLimit` wrapper cuts from outside, unseen)
     `physics_trajectory`, the grips of all its steps carried through its poses in one
     continuous MuJoCo rollout (`RolloutReport.as_dict()`: `holds`, `predicted_holds`,
     `pose_holds`, `pose_predicted`, `max_angle_deg`, `margin_deg`, `slip`, `drift`,
