@@ -38,8 +38,8 @@ from grasp_env.mechanics import (
 from grasp_env.mechanics.gait import GAIT_CG_OFFSET, site_sets
 
 from .cli import folder_argument, path_argument
-from .progress import status
-from .scene_args import floats
+from .progress import console, status
+from .scene_args import floats, weight
 
 HELP = "when to phase fingers out and in: the certified optimal gait along a long rotation"
 
@@ -49,7 +49,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--out", type=folder_argument, default=Path("results/gait"), help="output dir"
     )
     hand = Hand()
-    parser.add_argument("--weight", type=float, default=5.0, help="weight, N (default 5)")
+    parser.add_argument(
+        "--weight", type=weight, default=5.0, help="weight, N, in [1e-6, 1e6] (default 5)"
+    )
     parser.add_argument("--mu", type=float, default=0.5, help="friction coefficient (0.5)")
     parser.add_argument(
         "--offsets", type=floats(2 * len(SITE_FACES)), default=None,
@@ -149,7 +151,6 @@ def segments(gait: Gait) -> list[tuple[int, int]]:
 
 
 def print_gait(solution: GaitSolution, gait: Gait, title: str) -> None:
-    from rich.console import Console
     from rich.table import Table
 
     alphas = solution.trajectory.alphas_deg
@@ -160,7 +161,7 @@ def print_gait(solution: GaitSolution, gait: Gait, title: str) -> None:
         span = f"{alphas[start]:g}" if start == end else f"{alphas[start]:g} .. {alphas[end]:g}"
         worst = gait.margins[start : end + 1].min()
         table.add_row(span, _contacts(solution, gait, start), _deg(worst))
-    Console().print(table)
+    console().print(table)
 
 
 def summary(solution: GaitSolution, seconds: float) -> list[str]:
@@ -230,18 +231,49 @@ class Episode:
     worst: float
 
 
+def check_observes(policy: Any, space: Any, name: str = "the model") -> None:
+    """ValueError unless ``policy`` (a trained agent; the gaits observe anything) observes
+    ``space``, ``grasp_env/CubeGait-v0``'s observation space."""
+    observes = getattr(getattr(policy, "model", None), "observation_space", space)
+    if observes.shape != space.shape:
+        raise ValueError(
+            f"{name} observes {observes.shape}, grasp_env/CubeGait-v0 {space.shape}: not a gait"
+            " agent"
+        )
+
+
+def load_models(args: argparse.Namespace) -> list[tuple[str, Any]]:
+    """The agents of ``--models``, labelled (:func:`model_labels`) and checked before any work:
+    each file is a model (:func:`grasp_env_agents.models.load_agent`, which names the file and
+    the problem) that observes what ``grasp_env/CubeGait-v0`` with the options observes."""
+    import gymnasium as gym
+
+    import grasp_env  # noqa: F401  (registers the environments)
+
+    from .models import load_agent
+
+    env = gym.make("grasp_env/CubeGait-v0", **env_kwargs(args))
+    space = env.observation_space
+    env.close()
+    agents = []
+    for label, path in zip(model_labels(args.models), args.models, strict=True):
+        agent = load_agent(path)
+        check_observes(agent, space, f"{path}: the model")
+        agents.append((label, agent))
+    return agents
+
+
 def play(policy: Any, kwargs: dict[str, Any]) -> Episode:
     """Plays ``policy.predict`` (deterministic) on ``grasp_env/CubeGait-v0`` with ``kwargs``;
     the episode stops at the first slip or drop (the environment's default)."""
     import gymnasium as gym
 
     env = gym.make("grasp_env/CubeGait-v0", **kwargs)
-    space = getattr(getattr(policy, "model", None), "observation_space", env.observation_space)
-    if space.shape != env.observation_space.shape:
-        raise ValueError(
-            f"the model observes {space.shape}, grasp_env/CubeGait-v0"
-            f" {env.observation_space.shape}: not a gait agent"
-        )
+    try:
+        check_observes(policy, env.observation_space)
+    except ValueError:
+        env.close()
+        raise
     obs, _ = env.reset(seed=0)
     rewards, terminated, truncated, info = [], False, False, {}
     while not (terminated or truncated):
@@ -269,24 +301,22 @@ def model_labels(paths: list[Path]) -> list[str]:
     return [str(p) for p in paths]
 
 
-def compare_models(args: argparse.Namespace) -> list[tuple[str, Episode]]:
-    """Prints the table of ``--models``: the optimal and greedy gaits and each trained agent,
-    and across the agents the IQM with its 95% bootstrap interval (rliable); returns its
-    rows."""
-    from rich.console import Console
+def compare_models(
+    args: argparse.Namespace, loaded: list[tuple[str, Any]] | None = None
+) -> list[tuple[str, Episode]]:
+    """Prints the table of ``--models`` (``loaded``: their :func:`load_models`, loaded here if
+    not given): the optimal and greedy gaits and each trained agent, and across the agents the
+    IQM with its 95% bootstrap interval (rliable); returns its rows."""
     from rich.table import Table
 
     from grasp_env.envs.gait import GaitExpert, GreedyGait
 
-    from .models import load_agent
-
     kwargs = env_kwargs(args)
+    if loaded is None:
+        loaded = load_models(args)
     rows = [("optimal gait (certified)", play(GaitExpert(**kwargs), kwargs))]
     rows.append(("greedy gait", play(GreedyGait(**kwargs), kwargs)))
-    labels = model_labels(args.models)
-    agents = [
-        (label, play(load_agent(p), kwargs)) for label, p in zip(labels, args.models, strict=True)
-    ]
+    agents = [(label, play(agent, kwargs)) for label, agent in loaded]
     table = Table(title="On grasp_env/CubeGait-v0 (deterministic, to the first slip or drop)")
     for name in ("policy", "poses held", "ended at alpha (deg)", "worst margin held (deg)"):
         left = name == "policy"
@@ -309,7 +339,7 @@ def compare_models(args: argparse.Namespace) -> list[tuple[str, Episode]]:
             f"the {len(agents)} agents: IQM [95% CI]", held.format("{:.1f}"), "",
             iqm_interval(worst).format("{:.3f}") if worst else "none held",
         )  # fmt: skip
-    Console().print(table)
+    console().print(table)
     return rows + agents
 
 
@@ -423,8 +453,10 @@ def plot(solution: GaitSolution, path: Path) -> None:
 
 def run(args: argparse.Namespace) -> int:
     scene, hand, trajectory = problem(args)
-    if args.models:
-        env_kwargs(args)  # refuse options the environment cannot take before solving
+    loaded = []
+    if args.models:  # before solving: refuse options the environment cannot take, and models
+        with status(f"loading and checking {len(args.models)} model(s)"):
+            loaded = load_models(args)  # missing, unreadable or not observing the gait env
     start = time.perf_counter()
     with status(
         f"the certified minimax of every site set at {len(trajectory):,} poses, then the gait"
@@ -442,5 +474,5 @@ def run(args: argparse.Namespace) -> int:
         written.append("gait.png")
     print(f"wrote {', '.join(str(args.out / name) for name in written)}")
     if args.models:
-        compare_models(args)
+        compare_models(args, loaded)
     return 0

@@ -9,6 +9,9 @@ on a terminal one line redrawn every second, elsewhere (a log, CI) a line every
 :func:`watch_numba` makes numba's compilation of grasp_env's kernels one of these blocks: the
 first command after installing (or updating) the package compiles them for a minute or two,
 once, and caches them for every later run.
+
+:func:`console` is the rich Console the commands print their tables with: a terminal's own
+width, and in a log or a pipe wide enough that no cell is cut and no line is wrapped.
 """
 
 from __future__ import annotations
@@ -19,11 +22,15 @@ import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+from typing import Any
 
 #: Seconds a block runs silently before its status line appears.
 DELAY = 1.0
 #: Seconds between status lines when stderr is not a terminal.
 LOG_EVERY = 10.0
+#: Width of :func:`console` when stdout is not a terminal (rich would assume 80 columns and
+#: cut the tables' cells to "16.14…"): wider than any table or line the commands print.
+LOG_WIDTH = 10_000
 COMPILING = "compiling grasp_env's numba kernels, once after installing (cached for later runs)"
 
 
@@ -120,6 +127,23 @@ def say(*args: object) -> None:
     with _LINE.lock:
         _LINE.clear()
         print(*args, flush=True)
+
+
+def console() -> Any:
+    """A rich ``Console`` on stdout for the commands' tables and lines. On a terminal it takes
+    the terminal's width; elsewhere (a log, a pipe, a test's capture) :data:`LOG_WIDTH`, so the
+    values are printed whole whatever ``COLUMNS`` says. Like :func:`say`, its ``print`` first
+    clears the status line."""
+    from rich.console import Console
+
+    class _Console(Console):
+        def print(self, *args: Any, **kwargs: Any) -> None:
+            with _LINE.lock:
+                _LINE.clear()
+                super().print(*args, **kwargs)
+
+    terminal = getattr(sys.stdout, "isatty", lambda: False)()
+    return _Console(width=None if terminal else LOG_WIDTH)
 
 
 class _Compiling:

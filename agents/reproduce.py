@@ -30,7 +30,7 @@ from grasp_env.mechanics.forces import Grasp
 
 from .cli import folder_argument
 from .plotting import plot_series
-from .progress import status
+from .progress import console, status
 from .scene_args import add_scene_arguments, floats, scene_from_arguments
 
 HELP = "the paper's quasi-static sweep: optimal k_ij and friction angles, table and plots"
@@ -72,6 +72,12 @@ def run_sweep(scene: Scene, trajectory: Trajectory, k_max: float | None = None) 
     return Sweep(scene, trajectory, k_max, grasp, solve_minimax(grasp, k_max))
 
 
+def newtons(value: float) -> str:
+    """A force or k_ij (N) for tables and figures: 5 significant digits, so that it reads the
+    same at any weight (1.3608, 1.3608e+06, 1.3608e-06) where fixed decimals lose it."""
+    return f"{value:#.5g}"
+
+
 def pair_names(n_contacts: int) -> list[str]:
     return [f"k{i + 1}{j + 1}" for i, j in contact_pairs(n_contacts)]
 
@@ -101,7 +107,6 @@ def write_csv(sweep: Sweep, path: Path) -> None:
 
 
 def print_table(sweep: Sweep) -> None:
-    from rich.console import Console
     from rich.table import Table
 
     n = sweep.scene.n_contacts
@@ -117,15 +122,25 @@ def print_table(sweep: Sweep) -> None:
         angles = np.rad2deg(opt.angles[t])
         table.add_row(
             f"{alpha:g}",
-            *(f"{k:.4f}" for k in opt.k[t]),
+            *(newtons(k) for k in opt.k[t]),
             *(f"{a:.4f}" for a in angles),
             f"{angles.max():.4f}",
             "yes" if angles.max() <= limit else "NO",
         )
-    Console().print(table)
+    console().print(table)
 
 
 def plot_trend(sweep: Sweep, path: Path) -> None:
+    """Save :func:`trend_figure`."""
+    import matplotlib.pyplot as plt
+
+    fig = trend_figure(sweep)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def trend_figure(sweep: Sweep) -> Any:
+    """The optimal friction angles and k_ij against alpha."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -140,13 +155,13 @@ def plot_trend(sweep: Sweep, path: Path) -> None:
     ax_theta.set_ylabel("friction angle at the optimum (deg)")
     ax_theta.legend(loc="center right")
     ax_theta.set_title("Minimised maximum friction angle along the trajectory")
-    plot_series(ax_k, alphas, sweep.optimum.k.T, pair_names(n), "N")
+    # k scales with the weight: curves coincide or are 0 relative to it, not to 1 N
+    plot_series(ax_k, alphas, sweep.optimum.k.T, pair_names(n), "N", scale=sweep.scene.weight)
     ax_k.set_xlabel("alpha (deg)")
     ax_k.set_ylabel("optimal interaction scalar k_ij (N)")
     ax_k.legend(loc="best")
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    return fig
 
 
 def theta1_grid(sweep: Sweep, points: int = 100) -> tuple[np.ndarray, ...]:
@@ -192,7 +207,9 @@ def theta1_figure(sweep: Sweep) -> Any:
     ax3d.set_ylabel("k13 (N)")
     ax3d.set_zlabel("theta1 (deg)")
     names = pair_names(sweep.scene.n_contacts)
-    others = ", ".join(f"{name} = {k:.4f} N" for name, k in zip(names[2:], k_opt[2:], strict=True))
+    others = ", ".join(
+        f"{name} = {newtons(k)} N" for name, k in zip(names[2:], k_opt[2:], strict=True)
+    )
     fig.suptitle(
         "theta1 over (k12, k13) at alpha = 0 (the paper's Fig. 2); "
         f"{others} (held at the optimum; it does not act on finger 1)"
@@ -200,7 +217,9 @@ def theta1_figure(sweep: Sweep) -> Any:
     ax = fig.add_subplot(1, 2, 2)
     contour = ax.contourf(k12, k13, theta1, levels=30, cmap="viridis")
     fig.colorbar(contour, ax=ax, label="theta1 (deg)")
-    ax.plot(k_opt[0], k_opt[1], "r*", ms=14, label=f"optimum ({k_opt[0]:.4f}, {k_opt[1]:.4f})")
+    ax.plot(
+        k_opt[0], k_opt[1], "r*", ms=14, label=f"optimum ({newtons(k_opt[0])}, {newtons(k_opt[1])})"
+    )
     ax.set_xlabel("k12 (N)")
     ax.set_ylabel("k13 (N)")
     ax.legend(loc="upper right")

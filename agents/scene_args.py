@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 from collections.abc import Callable
 
 import numpy as np
@@ -25,10 +26,28 @@ def floats(count: int) -> Callable[[str], tuple[float, ...]]:
     return parse
 
 
+def weight(text: str) -> float:
+    """An argparse type: a weight in newtons within the scenes' range (docs/environments.md;
+    far beyond it the forces in newtons overflow or underflow)."""
+    from grasp_env.envs.validation import WEIGHT_RANGE
+
+    low, high = WEIGHT_RANGE
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not low <= value <= high:
+        raise argparse.ArgumentTypeError(f"must be in [{low:g}, {high:g}] N, got {text!r}")
+    return value
+
+
 def add_scene_arguments(parser: argparse.ArgumentParser) -> None:
     """--weight, --mu, --offsets and --cg-offset of the paper's three-finger grasp."""
     parser.add_argument(
-        "--weight", type=float, default=DEFAULT_WEIGHT, help=f"weight, N (default {DEFAULT_WEIGHT})"
+        "--weight",
+        type=weight,
+        default=DEFAULT_WEIGHT,
+        help=f"weight, N, in [1e-6, 1e6] (default {DEFAULT_WEIGHT})",
     )
     parser.add_argument(
         "--mu", type=float, default=DEFAULT_MU, help=f"friction coefficient (default {DEFAULT_MU})"

@@ -87,7 +87,7 @@ from grasp_env.physics.agreement import (
 )
 
 from .cli import folder_argument, integer_argument, path_argument
-from .progress import status
+from .progress import console, status
 from .scene_args import add_scene_arguments, floats, scene_from_arguments
 
 HELP = "check grip forces in MuJoCo physics along a trajectory (or --agreement)"
@@ -400,7 +400,6 @@ def run_poses(
     scene: Scene, trajectory: Trajectory, forces: np.ndarray, label: str, out: Path
 ) -> int:
     """Check every pose on its own in MuJoCo; print the table; save the plot."""
-    from rich.console import Console
     from rich.table import Table
 
     rotations = trajectory.rotations()
@@ -425,14 +424,14 @@ def run_poses(
             micro(report.slip.max()),
             micro(report.drift),
         )
-    console = Console()
-    console.print(table)
+    printer = console()
+    printer.print(table)
     held = sum(r.holds for r in reports)
     agree = sum(r.holds == (a <= limit) for r, a in zip(reports, angles, strict=True))
     path = out / "verify.png"
     title = f"{label} grip, each pose checked on its own: MuJoCo holds at {held}/{len(reports)}"
     _plot_poses(scene, trajectory.alphas_deg, angles, limit, reports, title, path)
-    console.print(
+    printer.print(
         f"MuJoCo: holds at {held}/{len(reports)} poses; analytic and MuJoCo agree at"
         f" {agree}/{len(reports)}; {1e3 * elapsed / len(reports):.1f} ms per check; plot {path}"
     )
@@ -498,7 +497,6 @@ def run_rollout(
 ) -> int:
     """Carry the grip through the trajectory in one MuJoCo rollout; print the per-pose table
     and the verdict; save the plot and the report (and the video)."""
-    from rich.console import Console
     from rich.table import Table
 
     alphas = trajectory.alphas_deg
@@ -522,8 +520,8 @@ def run_rollout(
             micro(report.slip[t].max()),
             micro(report.drift[t]),
         )
-    console = Console()
-    console.print(table)
+    printer = console()
+    printer.print(table)
 
     def where(coordinate: float | None) -> str:
         return (
@@ -531,7 +529,7 @@ def run_rollout(
         )
 
     word = {True: "holds", False: "slips"}
-    console.print(
+    printer.print(
         f"{len(report.motion)} steps, {report.time:.2f} s simulated after the settle, in"
         f" {elapsed:.2f} s; MuJoCo holds at {int(report.pose_holds.sum())}/{len(alphas)} poses"
         f" (after a failure the motion under way carries on); first failure, analytic:"
@@ -542,11 +540,11 @@ def run_rollout(
     data.write_text(
         json.dumps({"policy": label, "alphas_deg": alphas.tolist(), **report.as_dict()}, indent=1)
     )
-    console.print(f"plot {path}, report {data}")
+    printer.print(f"plot {path}, report {data}")
     if video is not None:
         with status(f"rendering the video {video}"):
             frames = write_video(video, scene, alphas, report)
-        console.print(f"video {video}: {frames} frames at {FPS} fps")
+        printer.print(f"video {video}: {frames} frames at {FPS} fps")
     print(
         f"trajectory: analytic {word[report.predicted_holds]}, MuJoCo {word[report.holds]}"
         f" ({'agree' if report.agrees else 'DISAGREE'}); margin {report.margin_deg:+.3f} deg,"
@@ -697,10 +695,9 @@ def _bands_table(distance: np.ndarray, agree: np.ndarray, what: str):
 
 def run_agreement(seed: int, out: Path) -> int:
     """The pose study: confusion matrix, runtime and the one-line summary."""
-    from rich.console import Console
     from tqdm import tqdm
 
-    console = Console()
+    printer = console()
     start = time.perf_counter()
     sets = agreement_sets(seed)
     generated = time.perf_counter()
@@ -708,13 +705,13 @@ def run_agreement(seed: int, out: Path) -> int:
     checked = time.perf_counter()
     observed = np.array([r.holds for r in reports])
     result = summarise(sets, observed)
-    console.print(_confusion_table("analytic (rows) vs MuJoCo (columns)", result.confusion))
+    printer.print(_confusion_table("analytic (rows) vs MuJoCo (columns)", result.confusion))
     distance = np.array([s.edge_distance_deg for s in sets])
     predicted = np.array([s.predicted_holds for s in sets])
-    console.print(_bands_table(distance, predicted == observed, "sets"))
+    printer.print(_bands_table(distance, predicted == observed, "sets"))
     path = out / "agreement.png"
     _plot_agreement(sets, reports, path)
-    console.print(
+    printer.print(
         f"runtime: {checked - start:.1f} s ({generated - start:.1f} s generating {len(sets)}"
         f" force sets, {checked - generated:.1f} s in MuJoCo,"
         f" {1e3 * (checked - generated) / len(sets):.1f} ms per check); plot {path}"
@@ -785,11 +782,10 @@ def run_trajectory_agreement(
     """The trajectory study: confusion matrix, agreement by kind of grip and by distance from
     the edge, the disagreements, runtime and the one-line summary. With ``policy`` (a saved
     model) its grips on the study's scenes of ``env_id``'s number of fingers are cases too."""
-    from rich.console import Console
     from rich.table import Table
     from tqdm import tqdm
 
-    console = Console()
+    printer = console()
     start = time.perf_counter()
     with status(f"generating the trajectories of {scenes} scenes and the gaits"):
         cases = trajectory_cases(seed, scenes) + gait_cases(seed)
@@ -802,7 +798,7 @@ def run_trajectory_agreement(
     )
     checked = time.perf_counter()
     result = summarise_trajectories(reports)
-    console.print(_confusion_table("analytic (rows) vs MuJoCo (columns), whole trajectories",
+    printer.print(_confusion_table("analytic (rows) vs MuJoCo (columns), whole trajectories",
                                    result.confusion))  # fmt: skip
     agree = np.array([r.agrees for r in reports])
     kinds = Table(title="agreement by grip")
@@ -813,12 +809,12 @@ def run_trajectory_agreement(
         mine = np.array([n == kind for n in names])
         held = sum(r.holds for r, m in zip(reports, mine, strict=True) if m)
         kinds.add_row(kind, str(int(mine.sum())), str(int(agree[mine].sum())), str(held))
-    console.print(kinds)
+    printer.print(kinds)
     distance = np.abs([r.margin_deg for r in reports])
-    console.print(_bands_table(distance, agree, "trajectories"))
+    printer.print(_bands_table(distance, agree, "trajectories"))
     for case, report in zip(cases, reports, strict=True):
         if not report.agrees:
-            console.print(
+            printer.print(
                 f"disagrees: {case.kind}, {case.scene.n_contacts} fingers, margin"
                 f" {report.margin_deg:+.3f} deg, analytic"
                 f" {'holds' if report.predicted_holds else 'slips'}, MuJoCo"
@@ -828,7 +824,7 @@ def run_trajectory_agreement(
     path = out / "trajectory_agreement.png"
     _plot_trajectory_agreement(cases, reports, path)
     seconds = checked - generated
-    console.print(
+    printer.print(
         f"runtime: {checked - start:.1f} s ({generated - start:.1f} s generating {len(cases)}"
         f" trajectories, {seconds:.1f} s in MuJoCo, {1e3 * seconds / len(cases):.0f} ms per"
         f" rollout); plot {path}"

@@ -33,6 +33,7 @@ from grasp_env.mechanics import (
     site_reach,
     solve_gait,
 )
+from grasp_env_agents.bench import Targets
 
 from .bench_envs import NUM_ENVS, single, vector
 
@@ -69,9 +70,8 @@ def programme() -> None:
         print(f"{name:<22} {len(trajectory):>6} {minimax:>12.3f} {dp:>14.3f} {whole:>9.3f}")
 
 
-def environments(seconds: float) -> bool:
+def environments(seconds: float, targets: Targets) -> None:
     kwargs = {"terminate_on_slip": False}
-    ok = True
     for mode, measure in (("single", single), (f"vector ({NUM_ENVS})", vector)):
         rates: dict[str, list[float]] = {GAIT: [], FOUR: []}
         for _ in range(ROUNDS):
@@ -79,13 +79,12 @@ def environments(seconds: float) -> bool:
                 rates[env_id].append(measure(env_id, seconds / ROUNDS, **kwargs))
         gait, four = (float(np.median(rates[e])) for e in (GAIT, FOUR))
         ratio = gait / four
-        ok &= ratio >= TARGET
+        target = f"CubeGait-v0 {mode.split()[0]} >= {TARGET}x CubeGrasp4-v0"
         print(
             f"{mode:<14} CubeGait-v0 {gait:>12,.0f} steps/s  CubeGrasp4-v0 {four:>12,.0f}"
             f" steps/s  ratio {ratio:.2f}x (target {TARGET}x)"
-            f" {'ok' if ratio >= TARGET else 'MISSED'}"
+            f" {targets.check(target, ratio >= TARGET)}"
         )
-    return ok
 
 
 def main() -> int:
@@ -97,7 +96,9 @@ def main() -> int:
     if not args.seconds > 0:
         parser.error(f"--seconds must be > 0, got {args.seconds}")
     programme()
-    return 0 if environments(args.seconds) else 1
+    targets = Targets("gait")
+    environments(args.seconds, targets)
+    return targets.exit_code()
 
 
 if __name__ == "__main__":

@@ -32,6 +32,7 @@ from grasp_env.mechanics import PHI, Scene, Trajectory, scene_grasp, solve_minim
 from grasp_env.physics import StabilityChecker, TrajectoryChecker
 from grasp_env.physics.motion import plan_poses
 from grasp_env.physics.simulation import _controls, available_cores, in_parallel
+from grasp_env_agents.bench import Targets
 
 POSE_TARGET_MS = 5.0
 ROLLOUT_TARGET_S = 0.5
@@ -75,7 +76,7 @@ def bare_loop(physics, motion):
     return run
 
 
-def single_runs(seconds: float) -> bool:
+def single_runs(seconds: float, targets: Targets) -> None:
     scene = Scene()
     trajectory = Trajectory()
     rotations = trajectory.rotations()
@@ -100,22 +101,26 @@ def single_runs(seconds: float) -> bool:
         lambda: rollouts.check(rotations, optimal), bare_loop(rollouts.physics, run), seconds
     )
 
-    pose_ok, rollout_ok = 1e3 * pose <= POSE_TARGET_MS, rollout <= ROLLOUT_TARGET_S
+    pose_verdict = targets.check(
+        f"one pose check <= {POSE_TARGET_MS:g} ms", 1e3 * pose <= POSE_TARGET_MS
+    )
+    rollout_verdict = targets.check(
+        f"31-pose rollout <= {ROLLOUT_TARGET_S:g} s", rollout <= ROLLOUT_TARGET_S
+    )
     step_ms = 1e3 * poses.settings["timestep"]
     print(f"one pose check, paper optimum ({len(motion)} steps of {step_ms:g} ms):")
     print(
         f"  median {1e3 * pose:.2f} ms (target <= {POSE_TARGET_MS:.0f} ms: "
-        f"{'ok' if pose_ok else 'MISSED'}); bare mj_step loop {1e3 * pose_bare:.2f} ms;"
+        f"{pose_verdict}); bare mj_step loop {1e3 * pose_bare:.2f} ms;"
         f" check / bare = {pose_ratio:.2f} (median of alternated pairs; fastest of each:"
         f" {pose_best:.2f})"
     )
     print(f"31-pose continuous rollout, paper optimum ({len(run)} steps):")
     print(
         f"  median {rollout:.3f} s (target <= {ROLLOUT_TARGET_S} s: "
-        f"{'ok' if rollout_ok else 'MISSED'}); bare mj_step loop {rollout_bare:.3f} s;"
+        f"{rollout_verdict}); bare mj_step loop {rollout_bare:.3f} s;"
         f" rollout / bare = {rollout_ratio:.2f} (fastest of each: {rollout_best:.2f})"
     )
-    return pose_ok and rollout_ok
 
 
 def thread_ratios(cases: dict[str, tuple[int, Callable[[int], object]]]) -> dict[str, float]:
@@ -162,7 +167,7 @@ def bare_rollout(physics, motions: list) -> Callable[[int], object]:
     )
 
 
-def batched() -> bool:
+def batched(targets: Targets) -> None:
     scene = Scene(mu=0.1)
     rotations = Trajectory().rotations()
     grasp = scene_grasp(scene, rotations)
@@ -203,29 +208,29 @@ def batched() -> bool:
             ),
         }
     )
-    ok = True
     for name in (pose_name, grip_name):
         ours, bare = ratios[name], ratios[f"{name}, bare mujoco.rollout"]
-        ok &= ours >= THREADS_TARGET
+        target = f"{name} on 2 threads >= {THREADS_TARGET}x on 1"
+        verdict = targets.check(target, ours >= THREADS_TARGET)
         print(
             f"  {name}: 2 / 1 = {ours:.2f}x (target >= {THREADS_TARGET}x:"
-            f" {'ok' if ours >= THREADS_TARGET else 'MISSED'}); bare mujoco.rollout of the same"
+            f" {verdict}); bare mujoco.rollout of the same"
             f" runs {bare:.2f}x (the machine's ceiling); ours / bare = {ours / bare:.2f}"
         )
     print(
         f"  what bounds the rollouts: their planning (the path and its timing, numpy on the"
         f" GIL) scales {ratios[f'{grip_name}, their planning alone']:.2f}x on 2 threads"
     )
-    return ok
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=1.0, help="time per measurement")
     args = parser.parse_args(argv)
-    single_ok = single_runs(args.seconds)
-    batch_ok = batched()
-    return 0 if single_ok and batch_ok else 1
+    targets = Targets("physics")
+    single_runs(args.seconds, targets)
+    batched(targets)
+    return targets.exit_code()
 
 
 if __name__ == "__main__":

@@ -70,7 +70,11 @@ def test_moved_contacts_break_the_zero_angle(tmp_path):
     ],
 )
 def test_bad_options_give_clear_errors(tmp_path, capsys, args, message):
-    assert main(["reproduce", "--out", str(tmp_path), "--no-plots", *args]) == 2
+    try:
+        code = main(["reproduce", "--out", str(tmp_path), "--no-plots", *args])
+    except SystemExit as stop:  # refused by argparse, before the command runs
+        code = stop.code
+    assert code == 2
     err = capsys.readouterr().err
     assert "error" in err
     assert message in err
