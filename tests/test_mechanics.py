@@ -1,7 +1,9 @@
 """The numpy mechanics core: rotations, scenes, trajectory, forces (docs/design.md, "Mechanics")."""
 
+import dataclasses
 import math
 import time
+import warnings
 
 import numpy as np
 import pytest
@@ -21,9 +23,11 @@ from grasp_env.mechanics import (
     equilibrating_forces,
     face_point,
     friction_angles,
+    grasp,
     grasp_matrix,
     load_wrench,
     matrix_quaternion,
+    n_pairs,
     pose_rotation,
     quaternion_matrix,
     scene_grasp,
@@ -136,11 +140,38 @@ def test_trajectory_about_another_axis_starts_at_r0():
         ({"alpha_end_deg": float("nan")}, "finite"),
         ({"alpha_end_deg": 400}, "180"),
         ({"alpha_step_deg": 1e-9}, "at most 10000 poses, but 30 deg in steps of 1e-09 deg"),
+        # numbers are real numbers: no string or boolean is converted
+        ({"alpha_start_deg": "0"}, r"alpha_start_deg must be a finite number in \[-180, 180\]"),
+        ({"alpha_end_deg": True}, "alpha_end_deg must be a finite number"),
+        ({"alpha_step_deg": "1"}, "alpha_step_deg must be a finite number > 0"),
+        ({"axis": (True, 0, 0)}, "trajectory axis must be a finite non-zero 3-vector"),
+        ({"axis": "abc"}, "trajectory axis must be a finite non-zero 3-vector"),
+        ({"axis": (1, 0)}, r"trajectory axis .* got shape \(2,\)"),
+        ({"axis": (np.inf, 0, 0)}, "trajectory axis must be a finite"),
     ],
 )
 def test_bad_trajectory(kwargs, match):
     with pytest.raises(ValueError, match=match):
         Trajectory(**kwargs)
+
+
+def test_a_trajectory_axis_of_any_finite_length_is_normalised_without_overflow():
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no overflow or underflow warning either
+        for axis, unit in (
+            ((1e-300, 0, 0), (1, 0, 0)),
+            ((5e-324, 0, -5e-324), (math.sqrt(0.5), 0, -math.sqrt(0.5))),
+            ((1e300, 1e300, 0), (math.sqrt(0.5), math.sqrt(0.5), 0)),
+            ((np.float64(1.7e308), -1.7e308, 1.7e308), np.array([1, -1, 1]) / math.sqrt(3)),
+        ):
+            trajectory = Trajectory(axis=axis)
+            np.testing.assert_allclose(trajectory.axis, unit, atol=1e-15)
+            rotations = trajectory.rotations()
+            np.testing.assert_allclose(rotations, Trajectory(axis=unit).rotations(), atol=1e-14)
+            np.testing.assert_allclose(axis_angle_matrix(axis, 0.3), axis_angle_matrix(unit, 0.3))
+    # the paper's axis keeps its bits (the common case normalises by the norm directly)
+    assert Trajectory().axis == tuple(PAPER_AXIS / np.linalg.norm(PAPER_AXIS))
+    assert Trajectory(alpha_start_deg=np.int64(-3), alpha_end_deg=3).alpha_start_deg == -3.0
 
 
 def test_the_longest_trajectory_has_max_poses():
@@ -224,6 +255,92 @@ def test_grasp_is_batched():
     )
 
 
+ROTATION = pose_rotation(PAPER_AXIS, 0.1)
+
+
+@pytest.mark.parametrize(
+    ("rotation", "match"),
+    [
+        (np.eye(2), r"rotation must be a \(3, 3\) matrix or an array of them, shape "
+         r"\(\.\.\., 3, 3\), each a proper rotation \(finite, orthonormal, det = \+1\), got "
+         r"shape \(2, 2\)"),
+        (np.ones(9), r"got shape \(9,\)"),
+        (2 * np.eye(3), r"proper rotation .*; got an entry 2"),
+        (0.5 * np.eye(3), r"proper rotation .*; got \|R\^T R - I\| = 0\.75"),
+        (np.full((3, 3), np.nan), "rotation must be .* got NaN or inf"),
+        (np.diag([1.0, 1.0, -1.0]), r"det = -1"),
+        (np.stack([ROTATION, ROTATION.T, 1.001 * ROTATION]), r"at pose \(2,\)"),
+        (np.eye(3).astype(str), "got dtype <U"),
+        (np.eye(3, dtype=bool), "got dtype bool"),
+        ([[1, 0, 0], [0, 1, 0], [0, 0, True]], "got booleans"),
+        (None, "rotation must be"),
+    ],
+)  # fmt: skip
+def test_scene_grasp_refuses_what_is_not_a_rotation(rotation, match):
+    with pytest.raises(ValueError, match=match):
+        scene_grasp(Scene(), rotation)
+
+
+def test_scene_grasp_takes_rotations_of_any_batch_shape_and_a_scene_only():
+    rotations = Trajectory().rotations()
+    grid = scene_grasp(Scene(), rotations.reshape(31, 1, 3, 3) @ rotations[:2])
+    assert grid.equilibrating.shape == (31, 2, 3, 3)
+    assert scene_grasp(Scene(), rotations[:0]).equilibrating.shape == (0, 3, 3)
+    as_list = scene_grasp(Scene(), rotations[3].tolist())  # nested lists of numbers are fine
+    np.testing.assert_array_equal(
+        as_list.equilibrating, scene_grasp(Scene(), rotations[3]).equilibrating
+    )
+    with pytest.raises(
+        ValueError, match=r"scene must be a grasp_env\.mechanics\.Scene, got NoneType"
+    ):
+        scene_grasp(None, np.eye(3))  # type: ignore[arg-type]
+
+
+def test_grasp_checks_its_inputs_and_a_grasp_its_unchecked_fields():
+    scene = Scene()
+    args = (scene.relative_contacts(), scene.normals, ROTATION, load_wrench(5.0), 0.4)
+    np.testing.assert_array_equal(grasp(*args).basis, scene_grasp(scene, ROTATION).basis)
+    for index, bad, match in (
+        (2, 2 * ROTATION, "rotation must be"),
+        (4, 2.0, r"friction_limit must be finite angles in \[0, pi/2\]"),
+        (4, np.nan, "friction_limit must be finite angles"),
+        (4, True, "friction_limit must be finite angles"),
+        (0, args[0][:, :2], r"relative_contacts must have shape \(\.\.\., n, 3\)"),
+        (1, args[1][:2], r"object_normals must have shape \(\.\.\., 3, 3\)"),
+        (3, np.zeros(5), r"wrench must have shape \(\.\.\., 6\)"),
+    ):
+        with pytest.raises(ValueError, match=match):
+            grasp(*args[:index], bad, *args[index + 1 :])
+    with pytest.raises(ValueError, match=r"batch shapes must broadcast, got rotation \(2,\)"):
+        grasp(args[0], args[1], np.stack([ROTATION] * 2), np.zeros((3, 6)), 0.4)
+    # a Grasp made directly (the solver does not read these two; nothing else checks them)
+    g = grasp(*args)
+    for field, value, match in (
+        ("friction_limit", np.float64(np.nan), "grasp friction_limit must be finite angles"),
+        ("friction_limit", np.inf, "grasp friction_limit must be finite angles"),
+        ("friction_limit", -1.0, r"grasp friction_limit .* got \[-1\.0\]"),
+        ("friction_limit", np.array([0.3, 2.0]), r"got \[0\.3, 2\.0\]"),
+        ("positions", g.positions * np.nan, "grasp positions must be finite"),
+        ("normals", g.normals.astype(str), "grasp normals must be finite real numbers"),
+    ):
+        with pytest.raises(ValueError, match=match):
+            dataclasses.replace(g, **{field: value})
+    assert dataclasses.replace(g, friction_limit=0.0).margins(np.zeros(3)).shape == (3,)
+
+
+@pytest.mark.parametrize("count", [-1, 0, 1, 65, 2.5, 3.0, True, "3", None])
+def test_contact_pairs_need_an_integer_count_of_contacts(count):
+    for function in (contact_pairs, n_pairs):
+        with pytest.raises(ValueError, match=r"n_contacts must be an integer in \[2, 64\]"):
+            function(count)
+
+
+def test_contact_pairs_of_numpy_integers_are_the_same():
+    np.testing.assert_array_equal(contact_pairs(np.int64(4)), contact_pairs(4))
+    assert n_pairs(np.int32(4)) == n_pairs(4) == len(contact_pairs(4)) == 6
+    assert contact_pairs(2).tolist() == [[0, 1]]
+
+
 # --- bad scenes ----------------------------------------------------------------------------
 
 
@@ -264,6 +381,24 @@ def with_contact(i, point, contacts=None):
         ({"cg_offset": [np.inf, 0, 0]}, "finite"),
         ({"extra_force": [0, np.nan, 0]}, "finite"),
         ({"extra_torque": [0, 0, np.inf]}, "finite"),
+        # the right shapes, real numbers (no string or boolean converted), documented ranges
+        ({"size": (1, 2)}, r"size must be a number or 3 numbers .* got \(1, 2\)"),
+        ({"size": True}, "size must be a number or 3 numbers"),
+        ({"size": 1e7}, r"each in \[1e-06, 1e\+06\]"),
+        ({"size": "1"}, "size must be"),
+        ({"weight": "5"}, "weight must be a finite number > 0, got '5'"),
+        ({"weight": True}, "weight must be a finite number > 0, got True"),
+        ({"weight": np.True_}, "weight must be a finite number > 0"),
+        ({"weight": [5.0]}, "weight must be a finite number > 0"),
+        ({"mu": "0.5"}, "mu must be a finite number > 0"),
+        ({"mu": 1j}, "mu must be a finite number > 0"),
+        ({"cg_offset": (0.0, 0.0)}, r"cg_offset must be a 3-vector .* got shape \(2,\)"),
+        ({"cg_offset": 0.0}, r"cg_offset must be a 3-vector .* got shape \(\)"),
+        ({"cg_offset": (True, 0, 0)}, "cg_offset must be a 3-vector of finite real numbers"),
+        ({"extra_force": ("0", "0", "0")}, "extra_force must be a 3-vector"),
+        ({"extra_torque": None}, "extra_torque must be a 3-vector"),
+        ({"contacts": [[-0.5, 0, 0], [0, -0.5, 0], [0, 0, "x"]]}, "contacts must be an"),
+        ({"contacts": "abc"}, "contacts must be an"),
     ],
 )
 def test_bad_scenes(kwargs, match):
@@ -272,6 +407,35 @@ def test_bad_scenes(kwargs, match):
         return
     with pytest.raises(ValueError, match=match):
         Scene(**kwargs)
+
+
+def test_scene_numbers_may_be_any_real_numbers_and_are_stored_as_floats():
+    scene = Scene(weight=np.int64(5), mu=np.float32(0.5), size=np.array(1), cg_offset=[0, 0, 0])
+    assert type(scene.weight) is float and scene.weight == 5.0
+    assert type(scene.mu) is float and scene.mu == 0.5
+    assert scene.size.dtype == np.float64 and scene.size.tolist() == [1.0] * 3
+    offset = np.zeros(3)
+    scene = Scene(cg_offset=offset)
+    offset[0] = 0.1  # the scene keeps its own copy
+    assert scene.cg_offset[0] == 0.0 and not scene.cg_offset.flags.writeable
+
+
+def test_gait_scenes_check_their_numbers_as_scenes_do():
+    from grasp_env.mechanics import GaitScene
+    from grasp_env.mechanics.gait import set_values
+
+    for kwargs, match in (
+        ({"size": (1, 2)}, "size must be a number or 3 numbers"),  # was a numpy broadcast error
+        ({"weight": "5"}, "weight must be a finite number > 0, got '5'"),
+        ({"sites": np.eye(3).astype(bool)}, "sites must be an"),
+    ):
+        with pytest.raises(ValueError, match=match):
+            GaitScene(**kwargs)
+    rotations = Trajectory().rotations()[:2]
+    with pytest.raises(ValueError, match="k_max must be a finite number > 0, got '10'"):
+        set_values(GaitScene(), rotations, "10")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match=r"rotations must be .* proper rotation"):
+        set_values(GaitScene(), 2 * rotations)
 
 
 def test_collinear_contacts_rejected():
@@ -283,6 +447,16 @@ def test_collinear_contacts_rejected():
 def test_bad_face_points():
     with pytest.raises(ValueError, match="unknown face"):
         face_point("+w")
+    with pytest.raises(ValueError, match="unknown face"):
+        face_point(["-x"])  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="size must be a number or 3 numbers"):
+        face_point("-x", size=(1, 2))
+    with pytest.raises(ValueError, match="face offset must be 2 finite fractions"):
+        face_point("-x", ("0.1", 0.0))
+    with pytest.raises(ValueError, match="faces must be a sequence of 3 or 4 face names"):
+        Scene.on_faces("-x-y-z")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="offsets must be an array of shape"):
+        Scene.on_faces(PAPER_FACES, offsets=[[0, 0], [0, 0], [0, True]])
     with pytest.raises(ValueError, match="offset"):
         face_point("-x", (1.0, 0.0))
     with pytest.raises(ValueError, match="offsets must have shape"):

@@ -457,6 +457,19 @@ def test_bad_shapes_and_values() -> None:
         solve_minimax(bad, 10.0)
 
 
+def test_the_solver_reads_no_positions_or_friction_limit():
+    # What solve_minimax's docstring says it checks are the arrays it reads; the other two are
+    # checked when a Grasp is made (tests/test_mechanics.py).
+    g = scene_grasp(Scene.on_faces(offsets=[[0.3, 0.1], [-0.2, 0.3], [0.1, -0.3]]), START_ROTATION)
+    other = type(g)(np.zeros((3, 3)), g.normals, g.equilibrating, g.basis, np.float64(0.0))
+    result, same = solve_minimax(g, 10.0), solve_minimax(other, 10.0)
+    assert result.max_angle > 0.01  # a scene whose optimum is not trivially zero
+    for field in fields(result):
+        np.testing.assert_array_equal(getattr(same, field.name), getattr(result, field.name))
+    with pytest.raises(ValueError, match="grasp friction_limit must be finite angles"):
+        type(g)(g.positions, g.normals, g.equilibrating, g.basis, np.float64(np.nan))
+
+
 CALLEE = (
     "from grasp_env.mechanics.minimax.jit import kernel\n\n\n@kernel\ndef value():\n    return {}\n"
 )

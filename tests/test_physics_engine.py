@@ -15,7 +15,13 @@ from grasp_env.mechanics import (
     scene_grasp,
     solve_minimax,
 )
-from grasp_env.physics import SETTINGS, TrajectoryChecker
+from grasp_env.physics import (
+    SETTINGS,
+    StabilityChecker,
+    TrajectoryChecker,
+    check_poses,
+    check_trajectories,
+)
 from grasp_env.physics.motion import path_settings, plan_motion, plan_poses
 from grasp_env.physics.simulation import PhysicsModel, simulate
 
@@ -178,3 +184,61 @@ def test_an_unloading_finger_near_its_edge_holds_when_timed_and_one_outside_slip
     assert untimed.predicted_holds and not untimed.holds
     crossing = TrajectoryChecker(outside[0]).check(*outside[1:])
     assert not crossing.predicted_holds and not crossing.holds
+
+
+@pytest.mark.parametrize("threads", [0, -1, 2.5, "2", True, np.float64(2.0)])
+def test_threads_are_refused_when_a_checker_is_made_and_per_call(paper, threads):
+    scene, rotations, forces = paper
+    match = r"threads must be >= 1, an integer \(or None: every available core\), got"
+    for checker in (StabilityChecker, TrajectoryChecker):
+        with pytest.raises(ValueError, match=match):
+            checker(scene, threads=threads)
+    with pytest.raises(ValueError, match=match):
+        StabilityChecker(scene).check_batch(rotations[:1], forces[:1], threads=threads)
+    with pytest.raises(ValueError, match=match):
+        TrajectoryChecker(scene).check_batch([(rotations[:2], forces[:2], None)], threads=threads)
+    with pytest.raises(ValueError, match=match):
+        check_poses([(scene, rotations[0], forces[0], None)], threads=threads)
+    with pytest.raises(ValueError, match=match):
+        check_trajectories([(scene, rotations[:2], forces[:2], None)], threads=threads)
+    assert StabilityChecker(scene, threads=np.int64(1)).threads == 1
+
+
+def test_empty_and_malformed_batches_say_what_is_wrong(paper):
+    scene, rotations, forces = paper
+    at_least_one = r"rotations must hold at least one pose: .* got shape \(0, 3, 3\)"
+    with pytest.raises(ValueError, match=at_least_one):
+        StabilityChecker(scene).check_batch(rotations[:0], forces[:0])
+    with pytest.raises(ValueError, match=at_least_one):
+        TrajectoryChecker(scene).check(rotations[:0], forces[:0])
+    with pytest.raises(ValueError, match=at_least_one):
+        check_trajectories([(scene, rotations[:0], forces[:0], None)])
+    # no case, no report (a vector env checks the trajectories of the episodes that ended)
+    assert check_poses([]) == [] and check_trajectories([]) == []
+    assert TrajectoryChecker(scene).check_batch([]) == []
+    for cases, match in (
+        ([(None, rotations[:2], forces[:2], None)], "case 0's scene must be a grasp_env"),
+        ([(scene, rotations[:2])], r"case 0 must be a \(scene, rotations, contact_forces, in_"),
+        ((scene, rotations[:2], forces[:2], None), "case 0 must be .* got a Scene"),  # no list
+        (5, "cases must be a list of"),
+    ):
+        with pytest.raises(ValueError, match=match):
+            check_trajectories(cases)
+    with pytest.raises(ValueError, match=r"case 0's rotation must be a \(3, 3\) matrix"):
+        check_poses([(scene, rotations[:2], forces[:2], None)])
+    with pytest.raises(ValueError, match="case 1's scene must be"):
+        check_poses(
+            [(scene, rotations[0], forces[0], None), ("paper", rotations[0], forces[0], None)]
+        )
+    with pytest.raises(ValueError, match=r"grip 0 must be a \(rotations, contact_forces, in_c"):
+        TrajectoryChecker(scene).check_batch([(rotations[:2], forces[:2])])
+    with pytest.raises(ValueError, match="got dtype <U"):
+        StabilityChecker(scene).check(rotations[0].astype(str), forces[0])
+    with pytest.raises(ValueError, match=r"contact_forces must be finite real numbers .* dtype <U"):
+        StabilityChecker(scene).check(rotations[0], forces[0].astype(str))
+
+
+@pytest.mark.parametrize("value", ["0.2", True, None, [0.2]])
+def test_settings_are_real_numbers(value):
+    with pytest.raises(ValueError, match="hold_time must be a finite number > 0, got"):
+        StabilityChecker(Scene(), hold_time=value)

@@ -9,21 +9,53 @@ from __future__ import annotations
 from dataclasses import dataclass
 from functools import cache
 from itertools import combinations
+from numbers import Integral
 
 import numpy as np
 from numpy.typing import ArrayLike
 
+from .checks import real_array
+from .rotations import check_rotations
 from .scene import Scene
+
+#: The most contacts a grasp may have for :func:`contact_pairs` and :func:`n_pairs` (the
+#: scenes have 3 or 4, a gait's hand at most 6 fingers on 8 sites).
+MAX_CONTACTS = 64
+
+
+def _contact_count(n_contacts: int) -> int:
+    """``n_contacts`` as an int: an integer (not a boolean) in [2, MAX_CONTACTS]."""
+    if type(n_contacts) is int and 2 <= n_contacts <= MAX_CONTACTS:  # the usual case, fast
+        return n_contacts
+    if (
+        not isinstance(n_contacts, Integral)
+        or isinstance(n_contacts, bool | np.bool_)
+        or not 2 <= n_contacts <= MAX_CONTACTS
+    ):
+        raise ValueError(
+            f"n_contacts must be an integer in [2, {MAX_CONTACTS}] (a pair needs two contacts),"
+            f" got {n_contacts!r}"
+        )
+    return int(n_contacts)
+
+
+def contact_pairs(n_contacts: int) -> np.ndarray:
+    """The pairs (i, j), i < j, that carry an interaction scalar k_ij: shape (m, 2), for
+    ``n_contacts`` an integer in [2, :data:`MAX_CONTACTS`] (one array per count, shared:
+    do not write to it)."""
+    return _contact_pairs(_contact_count(n_contacts))
 
 
 @cache
-def contact_pairs(n_contacts: int) -> np.ndarray:
-    """The pairs (i, j), i < j, that carry an interaction scalar k_ij: shape (m, 2)."""
+def _contact_pairs(n_contacts: int) -> np.ndarray:
     return np.array(list(combinations(range(n_contacts), 2)))
 
 
 def n_pairs(n_contacts: int) -> int:
-    return n_contacts * (n_contacts - 1) // 2
+    """m = n (n - 1) / 2, the number of :func:`contact_pairs` of ``n_contacts`` in
+    [2, :data:`MAX_CONTACTS`]."""
+    n = _contact_count(n_contacts)
+    return n * (n - 1) // 2
 
 
 def skew(v: np.ndarray) -> np.ndarray:
@@ -155,6 +187,11 @@ class Grasp:
         equilibrating: (..., n, 3) the equilibrating forces F_i.
         basis: (..., m, n, 3) the interaction directions e_ij.
         friction_limit: theta_lim = atan(mu), radians (broadcasts against the batch).
+
+    :func:`scene_grasp` and :func:`grasp` make checked ones. Made directly (a record of
+    arrays, e.g. slices of another grasp), a Grasp refuses arrays of anything but real
+    numbers, non-finite ``positions`` and a ``friction_limit`` outside [0, pi/2]; the arrays
+    :func:`~.minimax.solve_minimax` reads (equilibrating, basis, normals) are checked there.
     """
 
     positions: np.ndarray
@@ -162,6 +199,28 @@ class Grasp:
     equilibrating: np.ndarray
     basis: np.ndarray
     friction_limit: np.ndarray
+
+    def __post_init__(self) -> None:
+        # cheap: the dtypes, and two reductions (none over the big basis)
+        for name in ("positions", "normals", "equilibrating", "basis", "friction_limit"):
+            value = getattr(self, name)
+            if not isinstance(value, np.ndarray | float) or (
+                isinstance(value, np.ndarray) and value.dtype.kind not in "iuf"
+            ):
+                real_array(f"grasp {name}", value)  # a ValueError unless it is numeric
+        if not np.isfinite(self.positions).all():
+            raise ValueError("grasp positions must be finite real numbers, got NaN or inf")
+        limit = self.friction_limit
+        if np.ndim(limit) == 0:  # the usual case, without numpy's reductions
+            inside = 0.0 <= float(limit) <= _RIGHT  # NaN is not
+        else:
+            limit = np.asarray(limit)
+            inside = bool(((limit >= 0.0) & (limit <= _RIGHT)).all())
+        if not inside:
+            raise ValueError(
+                "grasp friction_limit must be finite angles in [0, pi/2] radians (atan(mu)),"
+                f" got {np.unique(limit)[:5].tolist()}"
+            )
 
     def forces(self, k: ArrayLike) -> np.ndarray:
         """Net contact forces P for interaction scalars k (..., m)."""
@@ -176,6 +235,11 @@ class Grasp:
         return np.asarray(self.friction_limit)[..., None] - self.angles(k)
 
 
+#: The largest friction limit accepted, radians: pi/2 (mu -> infinity), and the 1e-6 rad of
+#: rounding that lets float32 data in (a float32 pi/2 lies above the float64 one).
+_RIGHT = np.pi / 2 + 1e-6
+
+
 def grasp(
     relative_contacts: ArrayLike,
     object_normals: ArrayLike,
@@ -186,21 +250,79 @@ def grasp(
     """The grasp at orientation ``rotation`` (..., 3, 3), all inputs broadcasting over ``...``.
 
     ``relative_contacts`` are c_i - g and ``object_normals`` nu_i, both object frame (..., n, 3);
-    ``wrench`` is the world-frame load (..., 6) from :func:`load_wrench`.
+    ``wrench`` is the world-frame load (..., 6) from :func:`load_wrench`; ``friction_limit``
+    theta_lim = atan(mu) in [0, pi/2] radians. Every input must be finite real numbers and
+    ``rotation`` proper rotation matrices (:func:`~.rotations.check_rotations`); the shapes
+    must broadcast. Anything else raises a ValueError naming the input.
     """
-    rotation = np.asarray(rotation, dtype=float)[..., None, :, :]
-    positions = (rotation @ np.asarray(relative_contacts, dtype=float)[..., None])[..., 0]
-    normals = (rotation @ np.asarray(object_normals, dtype=float)[..., None])[..., 0]
+    rotation = check_rotations(rotation, batch=True)
+    contacts = real_array("relative_contacts", relative_contacts, "(..., n, 3) finite numbers")
+    normals = real_array("object_normals", object_normals, "(..., n, 3) finite numbers")
+    wrench = real_array("wrench", wrench, "(..., 6) finite numbers")
+    limit = real_array("friction_limit", friction_limit, "finite angles in [0, pi/2] radians")
+    n = contacts.shape[-2] if contacts.ndim >= 2 else 0
+    if contacts.shape[-1:] != (3,) or not 2 <= n <= MAX_CONTACTS:
+        raise ValueError(
+            f"relative_contacts must have shape (..., n, 3) with 2 <= n <= {MAX_CONTACTS}"
+            f" contacts, got {contacts.shape}"
+        )
+    for name, array, item in (("object_normals", normals, (n, 3)), ("wrench", wrench, (6,))):
+        if array.shape[max(array.ndim - len(item), 0) :] != item:
+            raise ValueError(
+                f"{name} must have shape (..., {', '.join(map(str, item))}), got {array.shape}"
+            )
+    if np.any(limit < 0) or np.any(limit > _RIGHT):
+        raise ValueError(
+            f"friction_limit must be finite angles in [0, pi/2] radians, got"
+            f" {np.unique(limit)[:5].tolist()}"
+        )
+    batches = {
+        "rotation": rotation.shape[:-2],
+        "relative_contacts": contacts.shape[:-2],
+        "object_normals": normals.shape[:-2],
+        "wrench": wrench.shape[:-1],
+        "friction_limit": limit.shape,
+    }
+    try:
+        np.broadcast_shapes(*batches.values())
+    except ValueError:
+        listed = ", ".join(f"{name} {shape}" for name, shape in batches.items())
+        raise ValueError(f"the inputs' batch shapes must broadcast, got {listed}") from None
+    return _grasp(contacts, normals, rotation, wrench, limit)
+
+
+def _grasp(
+    relative_contacts: np.ndarray,
+    object_normals: np.ndarray,
+    rotation: np.ndarray,
+    wrench: np.ndarray,
+    friction_limit: np.ndarray,
+) -> Grasp:
+    """:func:`grasp` of checked arrays."""
+    rotation = rotation[..., None, :, :]
+    positions = (rotation @ relative_contacts[..., None])[..., 0]
+    normals = (rotation @ object_normals[..., None])[..., 0]
     return Grasp(
         positions=positions,
         normals=normals,
         equilibrating=equilibrating_forces(positions, wrench),
         basis=interaction_basis(positions),
-        friction_limit=np.asarray(friction_limit, dtype=float),
+        friction_limit=friction_limit,
     )
 
 
 def scene_grasp(scene: Scene, rotation: ArrayLike) -> Grasp:
-    """The grasp of ``scene`` at one or many orientations (..., 3, 3)."""
+    """The grasp of ``scene`` at one or many orientations ``rotation``: proper rotation
+    matrices (orthonormal within 1e-6, det +1, finite), (3, 3) or (..., 3, 3); anything else
+    raises a ValueError naming ``rotation`` (:func:`~.rotations.check_rotations`)."""
+    if not isinstance(scene, Scene):
+        raise ValueError(f"scene must be a grasp_env.mechanics.Scene, got {type(scene).__name__}")
+    rotation = check_rotations(rotation, batch=True)
     wrench = load_wrench(scene.weight, scene.extra_force, scene.extra_torque)
-    return grasp(scene.relative_contacts(), scene.normals, rotation, wrench, scene.friction_limit)
+    return _grasp(
+        scene.relative_contacts(),
+        scene.normals,
+        rotation,
+        wrench,
+        np.asarray(scene.friction_limit, dtype=float),
+    )

@@ -30,7 +30,6 @@ finger (-1: not touching); move 0 keeps the state, move 1 + f N + s toggles fing
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from functools import cache
 from itertools import combinations
@@ -39,10 +38,12 @@ import numba
 import numpy as np
 from numpy.typing import ArrayLike
 
+from .checks import real_array, real_number
 from .forces import Grasp, grasp, load_wrench, n_pairs
 from .hand import Hand
 from .minimax import MinimaxResult, solve_minimax
-from .scene import DEFAULT_MU, DEFAULT_WEIGHT, FACES, Scene, face_point
+from .rotations import check_rotations
+from .scene import DEFAULT_MU, DEFAULT_WEIGHT, FACES, Scene, box_size, face_point
 from .trajectory import PAPER_AXIS, Trajectory
 
 #: Fewest and most fingers that carry load at a pose.
@@ -91,16 +92,15 @@ class GaitScene:
     normals: np.ndarray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
-        sites = np.array(self.sites, dtype=float)
+        must = f"an (N, 3) array of finite real numbers, 3 <= N <= {_MAX_SITES}"
+        sites = np.array(real_array("sites", self.sites, must))  # the scene's own copy
         if sites.ndim != 2 or sites.shape[1] != 3 or not 3 <= len(sites) <= _MAX_SITES:
             raise ValueError(
                 f"sites must have shape (N, 3), 3 <= N <= {_MAX_SITES}, got {sites.shape}"
             )
-        if not np.all(np.isfinite(sites)):
-            raise ValueError("sites must be finite")
         sites.flags.writeable = False
         object.__setattr__(self, "sites", sites)
-        half = np.broadcast_to(np.asarray(self.size, dtype=float), (3,)) / 2
+        half = box_size(self.size) / 2
         normals = np.zeros_like(sites)
         for i, c in enumerate(sites):
             distance = np.abs(c) - half
@@ -231,12 +231,8 @@ def set_values(scene: GaitScene, rotations: ArrayLike, k_max: float | None = Non
 
     ``k_max`` defaults to 2 w, the environments' action box.
     """
-    rotations = np.asarray(rotations, dtype=float)
-    if rotations.ndim != 3 or rotations.shape[1:] != (3, 3):
-        raise ValueError(f"rotations must have shape (T, 3, 3), got {rotations.shape}")
-    k_max = 2.0 * scene.weight if k_max is None else float(k_max)
-    if not (math.isfinite(k_max) and k_max > 0):
-        raise ValueError(f"k_max must be a finite number > 0 (newtons), got {k_max}")
+    rotations = check_rotations(rotations, name="rotations")
+    k_max = 2.0 * scene.weight if k_max is None else real_number("k_max", k_max, 0, open_low=True)
     sets = site_sets(scene.n_sites)
     T = len(rotations)
     margin = np.full((T, len(sets)), -np.inf)

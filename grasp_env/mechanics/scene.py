@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from itertools import combinations
 
 import numpy as np
 from numpy.typing import ArrayLike
+
+from .checks import real_array, real_number
 
 #: Box faces by name: the outward axis and its sign. A contact on face "-x" has inward normal +x.
 FACES: dict[str, tuple[int, int]] = {
@@ -20,6 +23,11 @@ FOUR_FINGER_FACES: tuple[str, ...] = ("-x", "-y", "-z", "+z")
 DEFAULT_MU = 0.5
 DEFAULT_WEIGHT = 5.0
 
+#: Accepted box edge lengths, metres: within them a contact on a face is told from one on an
+#: edge (to 1e-9 m, or 1e-9 of the edge beyond 1 m), and the grasp's arithmetic neither
+#: overflows nor underflows.
+SIZE_RANGE = (1e-6, 1e6)
+
 # Relative tolerance for "on the face" and for degenerate contact layouts.
 _TOL = 1e-9
 
@@ -30,19 +38,33 @@ def face_point(face: str, offset: ArrayLike = (0.0, 0.0), size: ArrayLike = 1.0)
     ``offset`` = (u, v) moves the point from the face centre along the face's two in-plane axes
     (in axis order, e.g. y then z for an x face), as fractions of the half-widths: |u|, |v| < 1.
     """
-    if face not in FACES:
+    if not isinstance(face, str) or face not in FACES:
         raise ValueError(f"unknown face {face!r}; expected one of {sorted(FACES)}")
-    half = np.broadcast_to(np.asarray(size, dtype=float), (3,)) / 2
-    offset = np.asarray(offset, dtype=float)
-    if offset.shape != (2,) or not np.all(np.isfinite(offset)) or np.any(np.abs(offset) >= 1):
-        raise ValueError(
-            f"face offset must be 2 finite fractions in (-1, 1), got {offset.tolist()}"
-        )
+    half = box_size(size) / 2
+    must = "2 finite fractions in (-1, 1)"
+    offset = real_array("face offset", offset, must)
+    if offset.shape != (2,) or np.any(np.abs(offset) >= 1):
+        raise ValueError(f"face offset must be {must}, got {offset.tolist()}")
     axis, sign = FACES[face]
     point = np.zeros(3)
     point[axis] = sign * half[axis]
     point[[a for a in range(3) if a != axis]] = offset * half[[a for a in range(3) if a != axis]]
     return point
+
+
+def box_size(size: ArrayLike) -> np.ndarray:
+    """The edge lengths (3,) of ``size``: a number (a cube) or 3 of them, each a finite real
+    number in :data:`SIZE_RANGE` metres, or a ValueError naming ``size``."""
+    low, high = SIZE_RANGE
+    must = f"a number or 3 numbers (the box's edge lengths, metres), each in [{low:g}, {high:g}]"
+    array = real_array("size", size, must)
+    if array.shape not in ((), (3,)) or np.any(array < low) or np.any(array > high):
+        raise ValueError(f"size must be {must}, got {_shown(size)}")
+    return np.array(np.broadcast_to(array, (3,)))
+
+
+def _shown(value: ArrayLike) -> str:
+    return repr(value.tolist() if isinstance(value, np.ndarray) else value)
 
 
 @dataclass(frozen=True)
@@ -55,12 +77,18 @@ class Scene:
     the three faces meeting at the corner (-1/2, -1/2, -1/2), w = 5 N.
 
     Args:
-        contacts: (n, 3) contact points on the box surface, n = 3 or 4.
-        size: box edge lengths (a number for a cube), metres.
+        contacts: (n, 3) contact points on the box surface, n = 3 or 4, each on one face (not
+            an edge); not coincident, not collinear (n = 3), not coplanar (n = 4).
+        size: box edge lengths (a number for a cube), metres, each in :data:`SIZE_RANGE`.
         weight: weight w > 0, newtons, acting along world -z at the centre of gravity.
         mu: Coulomb friction coefficient > 0; the friction angle limit is atan(mu).
-        cg_offset: centre of gravity relative to the box centre; must lie inside the box.
-        extra_force, extra_torque: an optional extra wrench on the object (world frame).
+        cg_offset: (3,) centre of gravity relative to the box centre; must lie inside the box.
+        extra_force, extra_torque: (3,) an optional extra wrench on the object (world frame).
+
+    Every number must be a finite real number (Python or numpy ints and floats; booleans,
+    strings and complex numbers are refused, not converted); anything else raises a
+    ValueError naming the field and its accepted range. The scene stores its own read-only
+    float arrays (and floats for ``weight`` and ``mu``).
     """
 
     contacts: np.ndarray = field(
@@ -75,31 +103,33 @@ class Scene:
     normals: np.ndarray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
-        def vector(name: str, value: ArrayLike, shape: tuple[int, ...]) -> np.ndarray:
-            array = np.array(np.broadcast_to(np.asarray(value, dtype=float), shape))
-            if not np.all(np.isfinite(array)):
-                raise ValueError(f"{name} must be finite, got {array.tolist()}")
+        def frozen(name: str, array: np.ndarray) -> np.ndarray:
+            array = np.array(array)  # the scene's own copy, read-only
             array.flags.writeable = False
             object.__setattr__(self, name, array)
             return array
 
-        contacts = np.asarray(self.contacts, dtype=float)
+        def vector(name: str) -> np.ndarray:
+            must = "a 3-vector of finite real numbers"
+            array = real_array(name, getattr(self, name), must)
+            if array.shape != (3,):
+                raise ValueError(f"{name} must be {must}, got shape {array.shape}")
+            return frozen(name, array)
+
+        must = "an (n, 3) array of finite real numbers, n = 3 or 4 contacts"
+        contacts = real_array("contacts", self.contacts, must)
         if contacts.ndim != 2 or contacts.shape[1] != 3 or contacts.shape[0] not in (3, 4):
             raise ValueError(f"contacts must have shape (3, 3) or (4, 3), got {contacts.shape}")
-        contacts = vector("contacts", contacts, contacts.shape)
-        size = vector("size", self.size, (3,))
-        if np.any(size <= 0):
-            raise ValueError(f"box size must be positive, got {size.tolist()}")
+        contacts = frozen("contacts", contacts)
+        size = frozen("size", box_size(self.size))
         for name in ("weight", "mu"):
-            value = float(self.__getattribute__(name))
-            if not np.isfinite(value) or value <= 0:
-                raise ValueError(f"{name} must be a finite number > 0, got {value}")
+            value = real_number(name, getattr(self, name), 0.0, open_low=True)
             object.__setattr__(self, name, value)
-        cg = vector("cg_offset", self.cg_offset, (3,))
+        cg = vector("cg_offset")
         if np.any(np.abs(cg) >= size / 2):
             raise ValueError(f"cg_offset {cg.tolist()} must lie inside the box (|cg| < size / 2)")
-        vector("extra_force", self.extra_force, (3,))
-        vector("extra_torque", self.extra_torque, (3,))
+        vector("extra_force")
+        vector("extra_torque")
 
         normals = np.zeros_like(contacts)
         half = size / 2
@@ -131,9 +161,15 @@ class Scene:
         **kwargs: float | ArrayLike,
     ) -> Scene:
         """One contact per named face, moved by ``offsets`` (see :func:`face_point`)."""
-        offsets = np.zeros((len(faces), 2)) if offsets is None else np.asarray(offsets, float)
-        if offsets.shape != (len(faces), 2):
-            raise ValueError(f"offsets must have shape ({len(faces)}, 2), got {offsets.shape}")
+        if isinstance(faces, str) or not isinstance(faces, Sequence) or len(faces) not in (3, 4):
+            raise ValueError(
+                f"faces must be a sequence of 3 or 4 face names from {sorted(FACES)}, got {faces!r}"
+            )
+        shape = (len(faces), 2)
+        must = f"an array of shape {shape} of finite fractions in (-1, 1)"
+        offsets = np.zeros(shape) if offsets is None else real_array("offsets", offsets, must)
+        if offsets.shape != shape:
+            raise ValueError(f"offsets must have shape {shape}, got {offsets.shape}")
         contacts = np.array([face_point(f, o, size) for f, o in zip(faces, offsets, strict=True)])
         return cls(contacts=contacts, size=size, **kwargs)  # type: ignore[arg-type]
 

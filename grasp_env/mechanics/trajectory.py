@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-from .rotations import axis_angle_matrix
+from .checks import real_number
+from .rotations import axis_angle_matrix, unit_vectors
 
 #: The paper's rotation axis (1, -1, 0)/sqrt(2): it takes the body diagonal onto world z.
 PAPER_AXIS = np.array([1.0, -1.0, 0.0]) / np.sqrt(2.0)
@@ -27,6 +29,11 @@ class Trajectory:
 
     R(alpha) = Rot(axis, alpha) R0 with R0 = Rot(a, phi); for the paper's axis this is the
     paper's Rot(a, phi + alpha). The default is the paper's sweep, -15 to +15 deg by 1 deg.
+
+    Accepted (anything else raises ValueError naming the field): ``axis`` a finite non-zero
+    3-vector of any length (stored normalised); the alphas finite real numbers (not booleans
+    or strings; stored as floats) in [-180, 180] deg with start <= end; a step > 0 deg; at
+    most :data:`MAX_POSES` poses.
     """
 
     axis: tuple[float, float, float] = tuple(PAPER_AXIS)  # type: ignore[assignment]
@@ -35,22 +42,20 @@ class Trajectory:
     alpha_step_deg: float = 1.0
 
     def __post_init__(self) -> None:
-        axis = np.asarray(self.axis, dtype=float)
-        if axis.shape != (3,) or not np.all(np.isfinite(axis)) or np.linalg.norm(axis) < 1e-12:
-            raise ValueError(f"trajectory axis must be a finite non-zero 3-vector, got {self.axis}")
-        object.__setattr__(self, "axis", tuple(float(a) for a in axis / np.linalg.norm(axis)))
-        values = (self.alpha_start_deg, self.alpha_end_deg, self.alpha_step_deg)
-        if not all(np.isfinite(v) for v in values):
-            raise ValueError(f"trajectory alphas must be finite, got {values}")
-        if self.alpha_step_deg <= 0:
-            raise ValueError(f"alpha_step_deg must be > 0, got {self.alpha_step_deg}")
+        axis = unit_vectors("trajectory axis", self.axis, single=True)
+        object.__setattr__(self, "axis", tuple(float(a) for a in axis))
+        for name, low, high, open_low in (
+            ("alpha_start_deg", -180.0, 180.0, False),
+            ("alpha_end_deg", -180.0, 180.0, False),
+            ("alpha_step_deg", 0.0, math.inf, True),
+        ):
+            value = real_number(name, getattr(self, name), low, high, open_low=open_low)
+            object.__setattr__(self, name, value)
         if self.alpha_end_deg < self.alpha_start_deg:
             raise ValueError(
                 f"alpha_end_deg ({self.alpha_end_deg}) must be >= alpha_start_deg"
                 f" ({self.alpha_start_deg})"
             )
-        if abs(self.alpha_start_deg) > 180 or abs(self.alpha_end_deg) > 180:
-            raise ValueError("trajectory alphas must lie in [-180, 180] deg")
         span = self.alpha_end_deg - self.alpha_start_deg
         poses = np.floor(span / self.alpha_step_deg + 1e-9) + 1  # as alphas_deg counts them
         if poses > MAX_POSES:  # each pose is a solve, a MuJoCo check, a frame

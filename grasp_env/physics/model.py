@@ -29,6 +29,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from grasp_env.mechanics import Scene, matrix_quaternion
+from grasp_env.mechanics.checks import real_array
+from grasp_env.mechanics.rotations import check_rotations as check_rotations  # re-exported
 
 #: Standard gravity, m/s^2: the object's mass is 1 / G, so that a 1 N load accelerates it as
 #: the real weight accelerates the real box.
@@ -123,33 +125,17 @@ def check_rotation(rotation: ArrayLike) -> np.ndarray:
     return check_rotations(rotation, single=True)
 
 
-def check_rotations(rotations: ArrayLike, single: bool = False) -> np.ndarray:
-    """``rotations`` as a (T, 3, 3) float array (or (3, 3) with ``single``), or a ValueError."""
-    rotations = np.asarray(rotations, dtype=float)
-    shape = "a (3, 3) matrix" if single else "an array of (3, 3) matrices, shape (T, 3, 3)"
-    if (single and rotations.shape != (3, 3)) or (
-        not single and (rotations.ndim != 3 or rotations.shape[1:] != (3, 3) or not rotations.size)
-    ):
-        raise ValueError(f"rotation must be {shape}, got shape {rotations.shape}")
-    if not np.all(np.isfinite(rotations)):
-        raise ValueError("rotation must be finite (got NaN or inf)")
-    gram = np.swapaxes(rotations, -1, -2) @ rotations
-    if not np.allclose(gram, np.eye(3), atol=1e-6) or np.any(np.linalg.det(rotations) < 0):
-        raise ValueError("rotation must be a proper rotation matrix (orthonormal, det = +1)")
-    return rotations
-
-
 def check_forces(forces: ArrayLike, n_contacts: int, leading: tuple[int, ...] = ()) -> np.ndarray:
-    """``forces`` as a (*leading, n, 3) float array, or a ValueError saying what is wrong."""
-    forces = np.asarray(forces, dtype=float)
+    """``forces`` as a (*leading, n, 3) float array of finite real numbers (no string or
+    boolean converted), or a ValueError saying what is wrong."""
     shape = (*leading, n_contacts, 3)
+    must = f"finite real numbers of shape {shape}, one world-frame force per finger"
+    forces = real_array("contact_forces", forces, must)
     if forces.shape != shape:
         raise ValueError(
             f"contact_forces must have shape {shape}, one world-frame force per finger, got"
             f" {forces.shape}"
         )
-    if not np.all(np.isfinite(forces)):
-        raise ValueError("contact_forces must be finite (got NaN or inf)")
     return forces
 
 

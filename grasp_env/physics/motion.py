@@ -256,7 +256,7 @@ def plan_poses(
     Each is :func:`plan_motion` of that one pose (the same arrays), planned in one vectorised
     pass; ``checked``: the inputs are already validated float arrays."""
     if not checked:
-        rotations = check_rotations(rotations)
+        rotations = check_rotations(rotations, name="rotations")
         forces = check_forces(forces, scene.n_contacts, (len(rotations),))
     contact = _check_contact(scene, forces, in_contact, settings)
     dt = settings["timestep"]
@@ -295,7 +295,7 @@ def plan_motion(
     (T, 3, 3) with fingers ``in_contact`` (T, n; None: every finger), under ``settings``
     (``timestep``, ``settle_time``, ``hold_time``, ``pose_hold_time``, ``time_per_degree``,
     ``min_segment_time``, ``released_force``)."""
-    rotations = check_rotations(rotations)
+    rotations = check_rotations(rotations, name="rotations")
     n_poses, n = len(rotations), scene.n_contacts
     forces = check_forces(forces, n, (n_poses,))
     contact = _check_contact(scene, forces, in_contact, settings)

@@ -24,7 +24,7 @@ from numpy.typing import ArrayLike
 from grasp_env.mechanics import Scene
 
 from .motion import Motion, plan_motion
-from .simulation import Trace, simulate_cases
+from .simulation import Trace, check_threads, described, simulate_cases
 from .stability import Checker, check_settings
 
 
@@ -165,7 +165,8 @@ class TrajectoryChecker(Checker):
 
     Args:
         scene: the grasp to simulate.
-        threads: threads for :meth:`check_batch` (default: every available core).
+        threads: threads for :meth:`check_batch`, an integer >= 1 (default: every available
+            core).
         **settings: overrides of :data:`grasp_env.physics.SETTINGS`.
     """
 
@@ -190,7 +191,20 @@ class TrajectoryChecker(Checker):
         threads: int | None = None,
     ) -> list[RolloutReport]:
         """:meth:`check` of several (rotations, contact_forces, in_contact) grips, in parallel
-        on ``threads`` threads (default: the checker's)."""
+        on ``threads`` threads (an integer >= 1; default: the checker's). No grip, no report."""
+        if isinstance(grips, str | bytes) or not isinstance(grips, Sequence):
+            raise ValueError(
+                "grips must be a list of (rotations, contact_forces, in_contact) tuples, got"
+                f" {type(grips).__name__}"
+            )
+        for g, grip in enumerate(grips):
+            if not isinstance(grip, tuple | list) or len(grip) != 3:
+                raise ValueError(
+                    f"grip {g} must be a (rotations, contact_forces, in_contact) tuple"
+                    f" (in_contact may be None), got {described(grip)}"
+                )
+        if threads is not None:
+            check_threads(threads)
 
         def reports(part: Sequence[tuple]) -> list[RolloutReport]:
             motions = [self.plan(*grip) for grip in part]
@@ -208,7 +222,9 @@ def check_trajectories(
     **settings: float,
 ) -> list[RolloutReport]:
     """Rollouts of (scene, rotations, contact_forces, in_contact) cases over many scenes, all in
-    parallel (runs of the same model structure share rollout calls)."""
+    parallel (runs of the same model structure share rollout calls) on ``threads`` threads
+    (an integer >= 1; default: every available core). Each case is a trajectory of T >= 1
+    poses, as :meth:`TrajectoryChecker.check` takes it; no case, no report."""
     settings = check_settings(settings)
     return [
         rollout_report(scene, motion, trace, settings)

@@ -24,6 +24,7 @@ import itertools
 import threading
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from numbers import Integral
 
 import mujoco
 import mujoco.rollout
@@ -355,11 +356,42 @@ def simulate(
 
 
 def check_threads(threads: int | None) -> int:
-    """``threads`` (None: every available core), or a ValueError."""
-    threads = available_cores() if threads is None else int(threads)
-    if threads < 1:
-        raise ValueError(f"threads must be >= 1, got {threads}")
-    return threads
+    """``threads`` (None: every available core): an integer >= 1 (not a boolean, a float or a
+    string), or a ValueError."""
+    if threads is None:
+        return available_cores()
+    if not isinstance(threads, Integral) or isinstance(threads, bool | np.bool_) or threads < 1:
+        raise ValueError(
+            f"threads must be >= 1, an integer (or None: every available core), got {threads!r}"
+        )
+    return int(threads)
+
+
+def check_cases(cases: Sequence, item: str) -> list[tuple]:
+    """``cases``, a sequence (list or tuple) of (scene, ``item``...) tuples whose scenes are
+    :class:`~grasp_env.mechanics.Scene` s, as a list, or a ValueError naming what is wrong.
+    Empty is fine (no case, no report)."""
+    form = f"a list of (scene, {item}, contact_forces, in_contact) tuples"
+    if isinstance(cases, str | bytes) or not isinstance(cases, Sequence):
+        raise ValueError(f"cases must be {form}, got {type(cases).__name__}")
+    for c, case in enumerate(cases):
+        if not isinstance(case, tuple | list) or len(case) != 4:
+            raise ValueError(
+                f"case {c} must be a (scene, {item}, contact_forces, in_contact) tuple"
+                f" (in_contact may be None), got {described(case)}"
+            )
+        if not isinstance(case[0], Scene):
+            raise ValueError(
+                f"case {c}'s scene must be a grasp_env.mechanics.Scene, got"
+                f" {type(case[0]).__name__}"
+            )
+    return list(cases)
+
+
+def described(value: object) -> str:
+    """A short description of a value for a message: its type, and its length if it has one."""
+    kind = type(value).__name__
+    return f"a {kind} of length {len(value)}" if isinstance(value, tuple | list) else f"a {kind}"
 
 
 def _simulate_serial(runs: Sequence[tuple[PhysicsModel, Motion]]) -> list[Trace]:
@@ -389,6 +421,8 @@ def simulate_cases(
 ) -> list[tuple[Motion, Trace]]:
     """Plan and :func:`simulate` (scene, rotations (T, 3, 3), forces (T, n, 3), in_contact)
     cases over many scenes at once, one model per scene (``settings`` already checked)."""
+    cases = check_cases(cases, "rotations")
+    threads = check_threads(threads)
     physics: dict[int, PhysicsModel] = {}
     for scene, *_ in cases:
         if id(scene) not in physics:
@@ -399,7 +433,7 @@ def simulate_cases(
         runs = [(physics[id(scene)], m) for (scene, *_), m in zip(part, motions, strict=True)]
         return list(zip(motions, _simulate_serial(runs), strict=True))
 
-    return in_parallel(run, list(cases), check_threads(threads))
+    return in_parallel(run, cases, threads)
 
 
 def _simulate_batch(

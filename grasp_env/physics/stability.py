@@ -27,10 +27,19 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from grasp_env.mechanics import Scene
+from grasp_env.mechanics.checks import real_number
 
 from .model import check_forces, check_rotations
 from .motion import Motion, plan_poses
-from .simulation import PhysicsModel, Trace, check_threads, in_parallel, simulate, simulate_cases
+from .simulation import (
+    PhysicsModel,
+    Trace,
+    check_cases,
+    check_threads,
+    in_parallel,
+    simulate,
+    simulate_cases,
+)
 
 # Defaults of the check and of the continuous rollout (docs/physics.md), all overridable as
 # StabilityChecker and TrajectoryChecker keywords. Lengths are in units of the box's largest
@@ -63,14 +72,8 @@ def check_settings(settings: dict[str, float]) -> dict[str, float]:
     if unknown:
         raise ValueError(f"unknown physics settings {sorted(unknown)}; expected {sorted(SETTINGS)}")
     merged = dict(SETTINGS)
-    for name, value in settings.items():
-        try:
-            merged[name] = float(value)
-        except (TypeError, ValueError) as error:
-            raise ValueError(f"{name} must be a finite number > 0, got {value!r}") from error
-    for name, value in merged.items():
-        if not np.isfinite(value) or value <= 0:
-            raise ValueError(f"{name} must be a finite number > 0, got {value}")
+    for name, value in settings.items():  # real numbers: no string or boolean converted
+        merged[name] = real_number(name, value, 0.0, open_low=True)
     if merged["timestep"] > MAX_TIMESTEP:
         raise ValueError(
             f"timestep must be in (0, {MAX_TIMESTEP}] s (the contact's time constant spans two"
@@ -158,7 +161,8 @@ class Checker:
             raise ValueError(f"scene must be a grasp_env.mechanics.Scene, got {type(scene)}")
         self.settings = check_settings(settings)
         self.scene = scene
-        self.threads = threads
+        #: threads for check_batch: None (every available core at the time) or an int >= 1
+        self.threads = None if threads is None else check_threads(threads)
         self.physics: PhysicsModel | None = PhysicsModel(
             scene, self.settings["timestep"], self.settings["settle_mu"]
         )
@@ -187,7 +191,8 @@ class StabilityChecker(Checker):
 
     Args:
         scene: the grasp to simulate.
-        threads: threads for :meth:`check_batch` (default: every available core).
+        threads: threads for :meth:`check_batch`, an integer >= 1 (default: every available
+            core).
         **settings: overrides of :data:`SETTINGS` (positive finite numbers).
     """
 
@@ -220,10 +225,12 @@ class StabilityChecker(Checker):
         in_contact: ArrayLike | None = None,
         threads: int | None = None,
     ) -> list[PhysicsReport]:
-        """:meth:`check` of B poses at once, (B, 3, 3) and (B, n, 3) (and (B, n)), in parallel
-        on ``threads`` threads (default: the checker's)."""
-        rotations = check_rotations(rotations)
+        """:meth:`check` of B >= 1 poses at once, (B, 3, 3) and (B, n, 3) (and (B, n)), in
+        parallel on ``threads`` threads (an integer >= 1; default: the checker's)."""
+        rotations = check_rotations(rotations, name="rotations")
         forces = check_forces(contact_forces, self.scene.n_contacts, (len(rotations),))
+        if threads is not None:
+            check_threads(threads)
         return self._check(rotations, forces, in_contact, threads)
 
     def _check(
@@ -251,12 +258,15 @@ def check_poses(
     **settings: float,
 ) -> list[PhysicsReport]:
     """Checks of (scene, rotation, contact_forces, in_contact) cases over many scenes, all in
-    parallel (runs of the same model structure share rollout calls)."""
+    parallel (runs of the same model structure share rollout calls) on ``threads`` threads
+    (an integer >= 1; default: every available core). Each case is one pose, as
+    :meth:`StabilityChecker.check` takes it; no case, no report."""
     settings = check_settings(settings)
+    threads = check_threads(threads)
     trajectories = [
-        (scene, np.asarray(rotation, dtype=float)[None], np.asarray(forces)[None],
-         None if contact is None else np.asarray(contact)[None])
-        for scene, rotation, forces, contact in cases
+        (scene, check_rotations(rotation, single=True, name=f"case {c}'s rotation")[None],
+         np.asarray(forces)[None], None if contact is None else np.asarray(contact)[None])
+        for c, (scene, rotation, forces, contact) in enumerate(check_cases(cases, "rotation"))
     ]  # fmt: skip
     return [
         pose_report(scene, motion, trace, settings)

@@ -213,11 +213,14 @@ def solve_minimax(
         The optimum with its certificate; see :class:`MinimaxResult`. Never NaN.
 
     Accepted inputs (anything else raises ValueError naming the argument and its range):
-    the grasp's arrays finite, its normals unit vectors (length within 1e-6 of 1); the
-    load's scale s, the largest equilibrating force |F_i|, either 0 (no load: k = 0, every
-    angle 0) or within [1e-305, 1e305] N; k_max and f_max within [1e-12, 1e12] x s (the
-    friction angles depend on k_max / s and f_max / s only, and the solver works in units
-    of s, so every weight in that range gives the same angles).
+    the grasp's equilibrating forces, basis and normals finite (the arrays read here; its
+    positions and friction_limit are not read, and a :class:`Grasp` refuses non-finite
+    positions and a friction_limit outside [0, pi/2] when it is made), its normals unit
+    vectors (length within 1e-6 of 1); the load's scale s, the largest equilibrating force
+    |F_i|, either 0 (no load: k = 0, every angle 0) or within [1e-305, 1e305] N; k_max and
+    f_max within [1e-12, 1e12] x s (the friction angles depend on k_max / s and f_max / s
+    only, and the solver works in units of s, so every weight in that range gives the same
+    angles).
     """
     if not isinstance(grasp, Grasp):
         raise ValueError(f"grasp must be a Grasp (from scene_grasp), got {type(grasp).__name__}")
