@@ -9,11 +9,15 @@ strings and None are refused rather than converted, and flags must be booleans.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from numbers import Integral, Real
+from numbers import Integral
 from typing import Any
 
 import numpy as np
 from gymnasium.vector import AutoresetMode
+
+# the mechanics' rules for numbers, shared (check_number: a finite real number in a range)
+from ..mechanics.checks import is_real
+from ..mechanics.checks import real_number as check_number
 
 # re-exported: the environments' pose cap is the trajectories' (each pose a solve at a reset)
 from ..mechanics.trajectory import MAX_POSES as MAX_POSES
@@ -33,31 +37,6 @@ MUJOCO_K_MAX_RATIO_RANGE = (1e-3, 40.0)
 ALPHA_RANGE_DEG = (-180.0, 180.0)
 #: The most sub-environments a vector environment may have.
 MAX_ENVS = 1 << 20
-
-
-def _is_real(value: Any) -> bool:
-    return isinstance(value, Real) and not isinstance(value, bool | np.bool_)
-
-
-def check_number(
-    name: str,
-    value: Any,
-    low: float = -np.inf,
-    high: float = np.inf,
-    *,
-    open_low: bool = False,
-    open_high: bool = False,
-) -> float:
-    """A finite real number in [low, high] (ends excluded with ``open_low`` / ``open_high``)."""
-    interval = f"{'(' if open_low else '['}{low:g}, {high:g}{')' if open_high else ']'}"
-    if not _is_real(value):
-        raise ValueError(f"{name} must be a finite number in {interval}, got {value!r}")
-    number = float(value)
-    below = number <= low if open_low else number < low
-    above = number >= high if open_high else number > high
-    if not np.isfinite(number) or below or above:
-        raise ValueError(f"{name} must be a finite number in {interval}, got {value!r}")
-    return number
 
 
 def check_bool(name: str, value: Any) -> bool:
@@ -127,7 +106,7 @@ def check_array(name: str, value: Any, shape: tuple[int, ...]) -> np.ndarray:
     except (TypeError, ValueError):  # ragged nesting
         raise ValueError(f"{description}, got {value!r}") from None
     if array.dtype == object:  # mixed types: every element must be a real number
-        if array.shape == shape and all(_is_real(v) for v in array.flat):
+        if array.shape == shape and all(is_real(v) for v in array.flat):
             array = array.astype(np.float64)
         else:
             raise ValueError(f"{description}, got {value!r}")
