@@ -1,9 +1,12 @@
 """A run's learning curve: held-out evaluations over training, as CSV and as a plot.
 
 ``learning_curve.csv`` has one row per evaluation: the phase (``initial``, ``imitation``, or
-the algorithm: ``ppo``, ``td3``, ``sac``), the run's environment steps so far (imitation's
-labelled states, then the algorithm's steps after them), the wall and CPU seconds of
-training, and the held-out metrics of :func:`grasp_env_agents.envs.summarise`.
+the algorithm: ``ppo``, ``td3``, ``sac``), the environment steps the evaluated weights were
+trained on (imitation's labelled states, then the algorithm's steps after them; not the steps
+collected when the evaluation ran, which for PPO include a rollout not yet learnt from), the
+wall and CPU seconds of training, and the held-out metrics of
+:func:`grasp_env_agents.envs.summarise`. The last row of a finished run is its final model
+(``model.zip``, which the run's report evaluates on the same scenes).
 ``learning_curve.png`` draws the mean and p90 gap and the success rate against steps and
 against wall time, the phases shaded.
 """

@@ -64,7 +64,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         nargs="+",
         metavar="RUN",
         help="run directories written by grasp-env train; with several, also the report across"
-        " them (IQM and 95%% bootstrap intervals over seeds, runs grouped by config)",
+        " them (IQM and 95%% bootstrap intervals over seeds, runs grouped by config; two runs"
+        " of one config and seed are refused)",
     )
     parser.add_argument(
         "--episodes",
@@ -95,6 +96,10 @@ def run(args: argparse.Namespace) -> int:
             same = "twice" if first == run_dir else f"twice (as {first} and {run_dir})"
             raise ValueError(f"RUN {first} is given {same}: give each run once")
     check_episodes(args.episodes)
+    if len(runs) > 1:  # before evaluating any: runs of one config and seed are not two seeds
+        from .results import group_dirs
+
+        group_dirs(runs)
     for run_dir in runs:
         out = args.out if len(runs) == 1 else None
         if out is None:

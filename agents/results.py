@@ -1,7 +1,9 @@
 """Results across runs: interquartile means with 95% stratified-bootstrap confidence intervals
 (rliable, Agarwal et al. 2021) and aggregate learning curves with bands.
 
-A *group* is a set of runs of one recipe that differ only in their seed. For each group:
+A *group* is a set of runs of one recipe that differ only in their seed (two runs of one
+seed are the same experiment twice, not two seeds: a group that has them is refused). For each
+group:
 
 - the final held-out metrics of every run (``comparison.csv``, which ``grasp-env evaluate``
   writes, on a stated number of scenes), and for each metric the interquartile mean (IQM: the
@@ -68,6 +70,9 @@ AGENT = "trained agent"
 GAP_FLOOR_DEG = 0.01
 #: Learning-curve fields drawn in the aggregate plot.
 CURVE_METRICS = {"mean_gap_deg": "mean gap (deg)", "success_rate": "held-out success"}
+#: A run whose CPU time is below this fraction of its wall time waited for the machine's
+#: cores (CPU time counts all its threads, so this holds however many it used).
+SHARED_CPU_FRACTION = 0.8
 
 
 @dataclass(frozen=True)
@@ -231,14 +236,45 @@ def expand_runs(runs: str | Sequence[str], base: Path, episodes: int | None = No
 # --- groups ----------------------------------------------------------------------------------
 
 
+def run_seed(run_dir: Path) -> int:
+    """The seed in a run's config.yaml (its default 0 if the file has none)."""
+    path = Path(run_dir) / "config.yaml"
+    if not path.is_file():
+        raise ValueError(f"{str(run_dir)!r} is not a run directory (no config.yaml)")
+    return int((yaml.safe_load(path.read_text()) or {}).get("seed", 0))
+
+
+def check_seeds(where: str, seeds: Sequence[tuple[Path, int]], shared: str = "seed") -> None:
+    """Refuse runs of one group that share a seed: they are one experiment run twice (the same
+    config and seed train the same model), and counted as two seeds they would narrow the
+    interval. ``seeds`` holds each run's directory and seed; ``where`` begins the message."""
+    runs: dict[int, list[Path]] = {}
+    for run_dir, seed in seeds:
+        runs.setdefault(seed, []).append(Path(run_dir))
+    for seed, same in runs.items():
+        if len(same) > 1:
+            names = [repr(str(run_dir)) for run_dir in same]
+            listed = ", ".join(names[:-1]) + f" and {names[-1]}"
+            n = len(same)
+            times, count = ("twice", "two") if n == 2 else (f"{n} times", str(n))
+            raise ValueError(
+                f"{where}runs {listed} share {shared} {seed}: the same experiment run {times},"
+                f" not {count} seeds; give runs of distinct seeds"
+            )
+
+
 @dataclass
 class Group:
-    """Runs of one recipe over seeds, with their aggregate estimates."""
+    """Runs of one recipe over seeds, with their aggregate estimates (refused if two runs
+    share a seed: :func:`check_seeds`)."""
 
     label: str
     runs: list[RunResult]
     config: str = ""
     policy: str = AGENT
+
+    def __post_init__(self) -> None:
+        check_seeds(f"group {self.label!r}: ", [(r.run_dir, r.seed) for r in self.runs])
 
     @property
     def trained(self) -> bool:
@@ -287,10 +323,27 @@ def table(groups: Sequence[Group], episodes: int) -> str:
     lines.append(
         f"Interquartile mean over seeds [95% stratified-bootstrap interval, rliable, "
         f"{BOOTSTRAP_REPS:,} resamples] on {episodes:,} held-out scenes per run; wall and CPU "
-        "minutes of training from the initial evaluation on (CPU below wall: the machine was "
-        "shared)."
+        f"minutes of training from the initial evaluation on{shared_note(groups)}."
     )
     return "\n".join(lines)
+
+
+def shared_note(groups: Sequence[Group]) -> str:
+    """What the training times say of the machine: that it was shared, in how many of the
+    trained runs, if any run's CPU time is below :data:`SHARED_CPU_FRACTION` of its wall time
+    (the run was off the cores that long, whatever its threads), else nothing."""
+    runs = [run for group in groups if group.trained for run in group.runs]
+    waited = [r for r in runs if r.cpu_minutes < SHARED_CPU_FRACTION * r.wall_minutes]
+    if not waited:
+        return ""
+    if len(runs) == 1:
+        which = "the run"
+    elif len(waited) == len(runs):
+        which = f"all {len(runs)} runs"
+    else:
+        which = f"{len(waited)} of {len(runs)} runs"
+    below = f"{SHARED_CPU_FRACTION:.0%} of wall time"
+    return f" (CPU time below {below} in {which}: the machine was shared)"
 
 
 def plot_curves(groups: Sequence[Group], path: Path) -> None:
@@ -380,17 +433,18 @@ def build_groups(spec: Path) -> tuple[int, list[Group]]:
     held-out scenes per run and the groups."""
     episodes, final, entries = load_spec(spec)
     base = spec.parent
+    found = [expand_runs(entry["runs"], base, episodes) for entry in entries]
+    for entry, runs in zip(entries, found, strict=True):  # before evaluating any run
+        where = f"results spec {spec}: group {entry['label']!r}: "
+        check_seeds(where, [(run, run_seed(run)) for run in runs])
     groups = [
         Group(
             entry["label"],
-            [
-                read_run(run, episodes, final, entry.get("policy", AGENT))
-                for run in expand_runs(entry["runs"], base, episodes)
-            ],
+            [read_run(run, episodes, final, entry.get("policy", AGENT)) for run in runs],
             entry.get("config", ""),
             entry.get("policy", AGENT),
         )
-        for entry in entries
+        for entry, runs in zip(entries, found, strict=True)
     ]
     if final == "curve":
         config = yaml.safe_load((groups[0].runs[0].run_dir / "config.yaml").read_text())
@@ -398,26 +452,42 @@ def build_groups(spec: Path) -> tuple[int, list[Group]]:
     return episodes, groups
 
 
-def group_runs(run_dirs: Sequence[Path], episodes: int | None = None) -> list[Group]:
-    """Runs grouped by their config without the seed (one group per recipe), in order."""
-    groups: dict[str, list[RunResult]] = {}
-    for run_dir in run_dirs:
-        config = yaml.safe_load((Path(run_dir) / "config.yaml").read_text())
+def group_dirs(run_dirs: Sequence[Path]) -> list[list[Path]]:
+    """Run directories grouped by their config without the seed (one group per recipe), in
+    order; a group in which two runs share a seed is refused (:func:`check_seeds`)."""
+    groups: dict[str, list[tuple[Path, int]]] = {}
+    for run_dir in map(Path, run_dirs):
+        seed = run_seed(run_dir)  # checks that it is a run
+        config = yaml.safe_load((run_dir / "config.yaml").read_text()) or {}
         config.pop("seed", None)
-        groups.setdefault(yaml.safe_dump(config, sort_keys=True), []).append(
-            read_run(Path(run_dir), episodes)
+        groups.setdefault(yaml.safe_dump(config, sort_keys=True), []).append((run_dir, seed))
+    for seeds in groups.values():
+        check_seeds("", seeds, "their config and seed")
+    return [[run_dir for run_dir, _ in seeds] for seeds in groups.values()]
+
+
+def group_runs(run_dirs: Sequence[Path], episodes: int | None = None) -> list[Group]:
+    """Runs grouped by their config without the seed (:func:`group_dirs`), each group named by
+    what its directories' names share, its config column the first run's ``config.yaml``."""
+    return [
+        Group(
+            _common_name(dirs),
+            [read_run(run_dir, episodes) for run_dir in dirs],
+            str(dirs[0] / "config.yaml"),
         )
-    return [Group(_common_name([r.run_dir for r in runs]), runs) for runs in groups.values()]
+        for dirs in group_dirs(run_dirs)
+    ]
 
 
 def _common_name(run_dirs: Sequence[Path]) -> str:
-    """What the run directories' names share (``ppo-s0``, ``ppo-s1``: ``ppo-s``)."""
+    """What the run directories' names share (``ppo-s0``, ``ppo-s1``: ``ppo-s``; ``run a``,
+    ``run b``: ``run``), else all the names (``a, b``)."""
     names = [p.name for p in run_dirs]
     prefix = names[0]
     for name in names[1:]:
         while not name.startswith(prefix):
             prefix = prefix[:-1]
-    return prefix.rstrip("-_") or names[0]
+    return prefix.rstrip("-_. ") or ", ".join(names)
 
 
 def replace_table(readme: Path, markdown: str) -> None:

@@ -17,6 +17,9 @@ dotted keys::
 
 A value of the space is ``{grid: [...]}``, ``{choice: [...]}``, ``{uniform: [low, high]}``,
 ``{loguniform: [low, high]}``, ``{randint: [low, high]}`` (high excluded), or a plain value.
+A sweep that would train one config with one seed twice (a seed or a grid value listed twice,
+``num_samples`` above 1 over a space with nothing to sample) is refused before any trial: the
+report refuses such runs as one group's seeds (:func:`grasp_env_agents.results.check_seeds`).
 Every trial is one training run (:func:`grasp_env_agents.train.train`) with its own run
 directory under ``OUT/runs/`` (config, checkpoints, learning curve, model, held-out report);
 Ray Tune schedules the trials, ``cpus_per_trial`` cores each, on a local Ray with the
@@ -99,6 +102,7 @@ def load_sweep(path: Path) -> dict[str, Any]:
         check_distribution(str(key), value)
         if sweep["search"] == "optuna" and _is_grid(value):
             raise ValueError(f"space.{key}: optuna takes choice, not grid")
+    check_repeats(sweep)
     if "seed" in sweep["space"] and seeds is not None:
         raise ValueError(
             "space.seed: the seeds are given by the seeds key (every point of the space runs "
@@ -118,6 +122,33 @@ def load_sweep(path: Path) -> dict[str, Any]:
     sweep["config"] = str(config_path(config).resolve())
     base_config(sweep)  # the base config must load
     return sweep
+
+
+def check_repeats(sweep: Mapping[str, Any]) -> None:
+    """Refuse a sweep that would run one config with one seed twice: the report would refuse
+    the runs' group (the same experiment twice is not two seeds), after all the training."""
+    seeds = sweep["seeds"] or []
+    twice = sorted({seed for seed in seeds if seeds.count(seed) > 1})
+    if twice:
+        raise ValueError(f"seeds lists {twice} more than once: the same runs again, not more seeds")
+    for key, value in sweep["space"].items():
+        values = value["grid"] if _is_grid(value) else []
+        if len(values) != len({yaml_key(v) for v in values}):
+            raise ValueError(f"space.{key}.grid lists a value twice, got {values!r}")
+    sampled = any(isinstance(v, Mapping) and not _is_grid(v) for v in sweep["space"].values())
+    if sweep["num_samples"] > 1 and not sampled:
+        raise ValueError(
+            f"num_samples: {sweep['num_samples']} repeats every point of a space with nothing"
+            " to sample (grid and plain values) with the same seeds: the same runs again, not"
+            " more seeds; set num_samples: 1 and give more seeds"
+        )
+
+
+def yaml_key(value: Any) -> str:
+    """A value as comparable text (a grid's values may be lists or mappings)."""
+    import yaml
+
+    return yaml.safe_dump(value, sort_keys=True)
 
 
 def _is_grid(value: Any) -> bool:

@@ -12,7 +12,9 @@ One run, top to bottom (:func:`train`):
    minimax expert into the same policy network (:mod:`grasp_env_agents.imitation`), each round
    evaluated, logged and checkpointed;
 5. the algorithm for ``total_timesteps`` environment steps with evaluation and checkpoint
-   callbacks; Ctrl-C (or SIGTERM, from `grasp-env train`) saves a checkpoint before stopping;
+   callbacks (each evaluation labelled with the steps its weights were trained on, the last
+   one of the final model); Ctrl-C (or SIGTERM, from `grasp-env train`) saves a checkpoint
+   before stopping;
 6. save the model, the learning curve (CSV and PNG) and print the comparison with the expert
    and the baselines (:mod:`grasp_env_agents.evaluate`).
 
@@ -37,6 +39,7 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback, EvalCallback
 from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.logger import Logger
+from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 from stable_baselines3.common.utils import set_random_seed
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize, sync_envs_normalization
 
@@ -193,6 +196,7 @@ def train(
         return metrics
 
     algo = config.algo
+    trained = TrainedSteps()
     learning = start.model_steps > 0 or (start.checkpoint is not None and start.round < 0)
     try:
         # 4. The expert as teacher: behaviour cloning and DAgger rounds, then a checkpoint.
@@ -210,16 +214,18 @@ def train(
         if start.checkpoint is None and config.imitation is None:
             evaluate_now("initial", 0, model.logger, 0)
         if remaining > 0:
+            # evaluated last (its final evaluation) and checkpointed after learn() returns
             record = held_out_recorder(model, algo, held_out, curve, clock, imitation_steps)
-            learn(model, config, eval_env, run_dir, remaining, record, progress_bar)
-            steps = imitation_steps + model.num_timesteps
-            if curve.last("env_steps") != steps:
-                evaluate_now(algo, steps, model.logger, model.num_timesteps)
+            learn(model, config, eval_env, run_dir, remaining, record, progress_bar, trained)
             save_checkpoint(model, model_checkpoint(run_dir, algo, model.num_timesteps))
     except KeyboardInterrupt:
         # Save first: while learning a checkpoint that --resume continues from; mid-imitation
         # the rounds done are checkpointed already (the round under way is lost).
         if learning:
+            if isinstance(model, OnPolicyAlgorithm) and trained.steps is not None:
+                # PPO's weights are those of the rollout's start: the rollout under way is
+                # dropped (its steps are not in them), so the checkpoint's count is theirs
+                model.num_timesteps = trained.steps
             save_checkpoint(model, model_checkpoint(run_dir, algo, model.num_timesteps))
         finish(model, run_dir, curve)
         print(f"\ninterrupted: saved the model in {run_dir} at {model.num_timesteps} "
@@ -331,14 +337,14 @@ def held_out_recorder(
     curve: LearningCurve,
     clock: Clock,
     imitation_steps: int,
-) -> Callable[[], None]:
-    """What to do after each of the algorithm's evaluations: the curve's row (of ``phase``),
-    the TensorBoard scalars."""
+) -> Callable[[int], None]:
+    """What to do after each of the algorithm's evaluations, of weights trained on ``steps``
+    of the algorithm's steps: the curve's row (of ``phase``), the TensorBoard scalars."""
 
-    def record() -> None:
+    def record(steps: int) -> None:
         metrics = held_out.metrics()
-        curve.append(phase, imitation_steps + model.num_timesteps, clock(), metrics)
-        log_held_out(model.logger, metrics, clock()[0], model.num_timesteps)
+        curve.append(phase, imitation_steps + steps, clock(), metrics)
+        log_held_out(model.logger, metrics, clock()[0], steps)
 
     return record
 
@@ -349,25 +355,29 @@ def learn(
     eval_env: VecEnv,
     run_dir: Path,
     steps: int,
-    record: Callable[[], None],
+    record: Callable[[int], None],
     progress_bar: bool,
+    trained: TrainedSteps | None = None,
 ) -> None:
     """``steps`` more steps of the algorithm, evaluating (then ``record``) and checkpointing as
-    the config says."""
-    evaluation = EvalCallback(
+    the config says (:class:`Evaluations`, :class:`Checkpoints`), the last evaluation of the
+    final weights. ``trained`` follows the steps the weights were trained on."""
+    trained = TrainedSteps() if trained is None else trained
+    evaluation = Evaluations(
         eval_env,
+        config.eval_freq,
+        model.num_timesteps + steps,
+        trained,
         callback_after_eval=RecordEvaluation(record),
         n_eval_episodes=config.eval_episodes,
-        eval_freq=max(config.eval_freq // config.n_envs, 1) if config.eval_freq else 0,
         log_path=str(run_dir / "eval"),
         verbose=0,
         warn=False,
     )
     continue_evaluation_log(evaluation, model.num_timesteps)
-    callbacks: list[BaseCallback] = [evaluation]
+    callbacks: list[BaseCallback] = [trained, evaluation]  # trained first: evaluation reads it
     if config.checkpoint_freq:
-        every = max(config.checkpoint_freq // config.n_envs, 1)
-        callbacks.append(Checkpoints(every, run_dir, config.algo))
+        callbacks.append(Checkpoints(config.checkpoint_freq, run_dir, config.algo))
     with status(config.algo.upper()) as detail:
         if progress_bar:
             callbacks.append(Progress(detail, model.num_timesteps + steps))
@@ -397,17 +407,118 @@ def finish(model: BaseAlgorithm, run_dir: Path, curve: LearningCurve) -> None:
 
 
 # --- callbacks -----------------------------------------------------------------------------
+#
+# The weights do not change while a rollout is collected: PPO updates them after each rollout
+# (n_envs x n_steps steps), TD3 and SAC after each of theirs (train_freq steps). A callback's
+# ``_on_step`` runs during the collection, where ``num_timesteps`` counts the rollout's steps
+# already but the weights are those of its start. SB3's EvalCallback and CheckpointCallback act
+# there and name what they see with ``num_timesteps``: PPO's evaluation "at N steps" was of the
+# weights of the rollout's start (up to a rollout earlier), and the last one, in the last
+# rollout, not of the final model. Here every evaluation is labelled with the steps its weights
+# were trained on, the last one is of the final weights, and checkpoints are saved between
+# rollouts.
+
+
+class TrainedSteps(BaseCallback):
+    """The steps the model's weights were trained on (collected before their last update):
+    ``num_timesteps`` at the start of the rollout under way, and at the end of training."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.steps: int | None = None
+
+    def _on_training_start(self) -> None:
+        self.steps = self.model.num_timesteps
+
+    def _on_rollout_start(self) -> None:
+        self.steps = self.model.num_timesteps
+
+    def _on_training_end(self) -> None:
+        self.steps = self.model.num_timesteps
+
+    def _on_step(self) -> bool:
+        return True
+
+
+class Evaluations(EvalCallback):
+    """SB3's EvalCallback (``evaluations.npz``, the ``eval/`` scalars, then
+    ``callback_after_eval``) once ``every`` steps (0: never) have passed, each evaluation
+    labelled with the steps its weights were trained on (``trained``, which must come before
+    this callback in the list), and once more at the end of training, of the final weights,
+    unless they were the last evaluated.
+
+    PPO evaluates at the start of the first rollout after each multiple of ``every``, after the
+    previous rollout's update: its evaluations fall on the multiples when they are multiples of
+    the rollout. TD3 and SAC, which update every ``train_freq`` steps, evaluate where SB3 does,
+    in the step that passes the multiple (before its update: labelled with the steps before it),
+    but not in the last step, whose update the final evaluation follows.
+    """
+
+    def __init__(
+        self, eval_env: VecEnv, every: int, end: int, trained: TrainedSteps, **kwargs: Any
+    ) -> None:
+        super().__init__(eval_env, eval_freq=1, **kwargs)  # every _evaluate evaluates
+        self.every = every
+        self.end = end  # the steps learn() ends at
+        self.trained = trained
+        self.reached = 0  # num_timesteps when it last evaluated
+        self.evaluated = 0  # the steps of the weights it last evaluated
+
+    def _on_training_start(self) -> None:
+        super()._on_training_start()
+        # evaluated before learn(): the initial evaluation, the imitation's last round, or, when
+        # resumed, the steps of the checkpoint (the curve keeps its evaluations up to them)
+        self.reached = self.evaluated = self.model.num_timesteps
+
+    def _due(self) -> bool:
+        steps, every = self.model.num_timesteps, self.every
+        return every > 0 and steps // every > self.reached // every
+
+    def _on_rollout_start(self) -> None:
+        if isinstance(self.model, OnPolicyAlgorithm) and self._due():
+            self._evaluate()
+
+    def _on_step(self) -> bool:
+        if not isinstance(self.model, OnPolicyAlgorithm) and self._due():
+            if self.model.num_timesteps < self.end:
+                self._evaluate()
+        return True
+
+    def _on_training_end(self) -> None:
+        if self.evaluated != self.model.num_timesteps:
+            self._evaluate()
+
+    def _evaluate(self) -> None:
+        assert self.trained.steps is not None
+        self.reached = self.model.num_timesteps
+        self.num_timesteps = self.evaluated = self.trained.steps
+        # Write the evaluation alone at its step: what the algorithm recorded (PPO's train/
+        # values of the update just made) it dumps itself at the end of the rollout, as
+        # without this evaluation (else a scalar could get two values at one step).
+        logger = self.logger
+        pending = (logger.name_to_value, logger.name_to_count, logger.name_to_excluded)
+        kept = [dict(values) for values in pending]
+        for values in pending:
+            values.clear()
+        try:
+            super()._on_step()  # EvalCallback's evaluation (eval_freq 1: every call)
+        finally:
+            for values, saved in zip(pending, kept, strict=True):
+                values.clear()
+                values.update(saved)
 
 
 class RecordEvaluation(BaseCallback):
-    """Called by SB3's EvalCallback after each evaluation: records the held-out metrics."""
+    """Called by :class:`Evaluations` after each evaluation: records the held-out metrics at
+    the steps of the evaluated weights (the evaluation's ``num_timesteps``)."""
 
-    def __init__(self, record: Callable[[], None]) -> None:
+    def __init__(self, record: Callable[[int], None]) -> None:
         super().__init__()
         self.record = record
 
     def _on_step(self) -> bool:
-        self.record()
+        assert self.parent is not None
+        self.record(self.parent.num_timesteps)
         return True
 
 
@@ -426,16 +537,25 @@ class Progress(BaseCallback):
 
 
 class Checkpoints(BaseCallback):
-    """SB3's CheckpointCallback, written atomically (:func:`checkpoints.save_checkpoint`)."""
+    """SB3's CheckpointCallback, written atomically (:func:`checkpoints.save_checkpoint`) and
+    between rollouts: at the first rollout start after every ``every`` steps, so that
+    ``<algo>_<N>_steps.zip`` holds the weights N steps trained."""
 
     def __init__(self, every: int, run_dir: Path, algo: str) -> None:
         super().__init__()
         self.every = every
         self.run_dir = run_dir
         self.algo = algo
+        self.saved = 0
+
+    def _on_training_start(self) -> None:
+        self.saved = self.model.num_timesteps
+
+    def _on_rollout_start(self) -> None:
+        steps = self.model.num_timesteps
+        if steps // self.every > self.saved // self.every:
+            save_checkpoint(self.model, model_checkpoint(self.run_dir, self.algo, steps))
+            self.saved = steps
 
     def _on_step(self) -> bool:
-        if self.n_calls % self.every == 0:
-            path = model_checkpoint(self.run_dir, self.algo, self.model.num_timesteps)
-            save_checkpoint(self.model, path)
         return True

@@ -324,6 +324,86 @@ def test_interrupt_saves_and_resume_continues_the_step_count(tmp_path, monkeypat
     assert (run / "vecnormalize.pkl").is_file()
 
 
+#: The held-out metrics of a learning curve's row and of an evaluation's.
+HELD_OUT = ("mean_gap_deg", "p90_gap_deg", "worst_gap_deg", "success_rate", "mean_margin_deg")
+
+
+def final_metrics(run: Path) -> dict[str, float]:
+    """The trained agent's metrics in the run's report (model.zip on the curve's scenes)."""
+    from grasp_env_agents.evaluate import evaluate_run
+
+    agent = evaluate_run(run, physics_episodes=0).metrics["trained agent"]
+    return {key: agent[key] for key in HELD_OUT}
+
+
+def row_metrics(row: dict[str, str]) -> dict[str, float]:
+    return {key: float(row[key]) for key in HELD_OUT}
+
+
+def test_each_evaluation_is_of_the_weights_its_steps_trained(tmp_path):
+    """The audit: the curve's last point was evaluated during the last rollout, before PPO's
+    last update, yet labelled with the final steps (3.84 deg where the report said 4.29). Now a
+    point labelled N is the model trained on N steps, and the last point the final model."""
+    imitation = {"rounds": 2, "samples_per_round": 124, "epochs": 2, "n_envs": 4}
+    runs = {}
+    for steps in (128, 256):  # rollouts of 2 x 32 steps, evaluations every 128
+        runs[steps] = tmp_path / f"ppo-{steps}"
+        train(tiny(total_timesteps=steps, imitation=imitation), runs[steps], progress_bar=False)
+    rows = curve(runs[256])
+    taught = int(rows[2]["env_steps"])
+    assert [(r["phase"], int(r["env_steps"]) - taught) for r in rows[3:]] == [
+        ("ppo", 128),
+        ("ppo", 256),
+    ]
+    assert row_metrics(rows[-1]) == pytest.approx(final_metrics(runs[256]), rel=1e-9)
+    # the point at 128 PPO steps is the model of a run that stopped there
+    assert row_metrics(rows[3]) == pytest.approx(final_metrics(runs[128]), rel=1e-9)
+    assert row_metrics(rows[3]) != pytest.approx(row_metrics(rows[4]), rel=1e-9)
+    # TensorBoard's last held-out point is the final model's too, at the final steps
+    events = tensorboard_events(runs[256] / "tb" / "ppo")
+    step, gap = events["held_out/mean_gap_deg"][-1]
+    assert (step, gap) == (taught + 256, pytest.approx(float(rows[-1]["mean_gap_deg"]), 1e-6))
+    for tag, pairs in events.items():  # an evaluation between rollouts writes only its own
+        assert len({s for s, _ in pairs}) == len(pairs), tag
+
+
+def test_an_off_policy_curve_ends_with_the_final_model(tmp_path):
+    """TD3 and SAC evaluate in the step that passes eval_freq, before its update (the steps
+    before it label the point); the final weights, after the last update, are evaluated too."""
+    settings = {key: value for key, value in TINY.items() if key != "ppo"}
+    offpolicy = {"learning_starts": 32, "batch_size": 32, "buffer_size": 512}
+    run = tmp_path / "sac"
+    config = config_from_dict({**settings, "algo": "sac", "offpolicy": offpolicy})
+    train(config, run, progress_bar=False)
+    rows = curve(run)
+    assert [int(r["env_steps"]) for r in rows] == [0, 128 - TINY["n_envs"], 256]
+    assert row_metrics(rows[-1]) == pytest.approx(final_metrics(run), rel=1e-9)
+
+
+def test_an_interrupted_rollout_is_not_counted_in_the_checkpoint(tmp_path, monkeypatch):
+    """Ctrl-C in the middle of a PPO rollout saved the weights of the rollout's start under the
+    steps counted so far, so a resumed run was labelled with steps it never trained on."""
+    from grasp_env_agents.train import TrainedSteps
+
+    step = TrainedSteps._on_step
+
+    def ctrl_c_mid_rollout(self):
+        if self.model.num_timesteps == 160:  # rollouts of 64 steps: 128 < 160 < 192
+            raise KeyboardInterrupt
+        return step(self)
+
+    run = tmp_path / "run"
+    monkeypatch.setattr(TrainedSteps, "_on_step", ctrl_c_mid_rollout)
+    with pytest.raises(KeyboardInterrupt):
+        train(tiny(), run, progress_bar=False)
+    saved = sorted(checkpoint_steps(p) for p in (run / "checkpoints").glob("ppo_*_steps.zip"))
+    assert saved == [128]
+    assert PPO.load(run / "model.zip", device="cpu").num_timesteps == 128
+    monkeypatch.setattr(TrainedSteps, "_on_step", step)
+    assert train(tiny(), run, resume=True, progress_bar=False).num_timesteps == 256
+    assert [int(r["env_steps"]) for r in curve(run)] == [0, 128, 256]
+
+
 def tensorboard_events(folder: Path) -> dict[str, list[tuple[int, float]]]:
     """Every scalar's (step, value) pairs, read from the raw event files (as any reader sees
     them)."""
@@ -483,6 +563,8 @@ def test_interrupted_imitation_resumes_after_its_last_round(tmp_path, monkeypatc
     logged = tensorboard_steps(run / "tb" / "imitation")
     assert logged["imitation/labelled_states"] == [int(r["env_steps"]) for r in rows[1:]]
     assert logged["held_out/mean_gap_deg"] == [int(r["env_steps"]) for r in rows]
+    # imitation alone (total_timesteps 0): the last round's evaluation is the final model's
+    assert row_metrics(rows[-1]) == pytest.approx(final_metrics(run), rel=1e-9)
 
 
 def test_same_seed_same_first_evaluation(tmp_path):
@@ -837,8 +919,13 @@ def test_evaluate_refuses_a_run_given_twice(tmp_path, capsys, monkeypatch):
 def test_evaluate_checks_episodes_up_front(tmp_path, capsys, episodes):
     """It named an internal num_envs for too many before."""
     run = saved_run(tmp_path / "run")
-    assert cli.main(["evaluate", str(run), "--episodes", episodes]) == 2
-    assert f"--episodes must be in [1, 1048576], got {episodes}" in capsys.readouterr().err
+    try:
+        code = cli.main(["evaluate", str(run), "--episodes", episodes])
+    except SystemExit as stop:  # below 1: refused by argparse
+        code = stop.code
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "--episodes" in err and ("[1, 1048576]" in err or "integer >= 1" in err)
     assert not list(run.glob("evaluation-*"))
 
 

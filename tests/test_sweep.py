@@ -71,6 +71,31 @@ def test_iqm_without_rliable_names_the_extra(monkeypatch) -> None:
         results.iqm_interval([0.1, 0.2])
 
 
+def test_the_table_says_the_machine_was_shared_only_of_runs_that_waited() -> None:
+    """Every table ended "(CPU below wall: the machine was shared)", of anyone's runs."""
+    metrics = {"mean_gap_deg": 0.5, "p90_gap_deg": 1.0, "success_rate": 0.9}
+
+    def group(*minutes: tuple[float, float], policy: str = results.AGENT) -> results.Group:
+        runs = [
+            results.RunResult(Path(f"r{i}"), i, metrics, wall, cpu)
+            for i, (wall, cpu) in enumerate(minutes)
+        ]
+        return results.Group("g", runs, policy=policy)
+
+    idle = results.table([group((10.0, 9.9))], 8)
+    assert idle.endswith("minutes of training from the initial evaluation on.")
+    assert "shared" not in idle
+    assert results.table([group((30.0, 10.0))], 8).endswith(
+        "on (CPU time below 80% of wall time in the run: the machine was shared)."
+    )
+    # CPU above wall (two threads) is no sign; a baseline's runs (no training of their own)
+    # are not counted
+    assert results.shared_note([group((10.0, 9.9), (12.0, 12.5))]) == ""
+    note = results.shared_note([group((10.0, 9.9), (30.0, 10.0)), group((3, 1), policy="x")])
+    assert note == " (CPU time below 80% of wall time in 1 of 2 runs: the machine was shared)"
+    assert "in all 2 runs" in results.shared_note([group((10.0, 1.0), (30.0, 10.0))])
+
+
 def test_replace_table_rewrites_only_between_the_markers(tmp_path: Path) -> None:
     readme = tmp_path / "README.md"
     readme.write_text(f"intro\n{results.BEGIN}\nold table\n{results.END}\nafter\n")
@@ -142,6 +167,11 @@ def test_overrides_set_dotted_keys_without_touching_the_base() -> None:
         ({"search": "optuna", "seeds": [0, 1]}, "search the seed as a key"),
         ({"config": "no-such-config"}, "no such file"),
         ({"seeds": [0], "space": {"seed": {"grid": [0, 1]}}}, "given by the seeds key"),
+        # one config and seed run twice: the report refuses it as two seeds, after the training
+        ({"seeds": [0, 1, 0]}, r"seeds lists \[0\] more than once"),
+        ({"space": {"ppo.n_epochs": {"grid": [1, 2, 1]}}}, "space.ppo.n_epochs.grid lists a"),
+        ({"num_samples": 2, "seeds": [0, 1]}, "num_samples: 2 repeats every point"),
+        ({"num_samples": 3, "space": {"seed": {"grid": [0, 1]}}}, "num_samples: 3 repeats"),
     ],
 )
 def test_bad_sweep_files_are_refused_naming_the_key(
@@ -151,6 +181,45 @@ def test_bad_sweep_files_are_refused_naming_the_key(
     path = write(tmp_path / "sweep.yaml", {"config": "tiny.yaml", **change})
     with pytest.raises(ValueError, match=message):
         sweep.load_sweep(path)
+
+
+def test_a_sweep_repeats_a_space_it_samples(tmp_path: Path) -> None:
+    """num_samples > 1 draws new points of a sampled space: accepted (a repeated grid is not)."""
+    write(tmp_path / "tiny.yaml", TINY)
+    space = {"ppo.n_epochs": {"grid": [1, 2]}, "policy.log_std_init": {"uniform": [-4, -2]}}
+    settings = {"config": "tiny.yaml", "num_samples": 3, "seeds": [0, 1], "space": space}
+    assert sweep.load_sweep(write(tmp_path / "sweep.yaml", settings))["num_samples"] == 3
+
+
+def test_runs_of_one_seed_are_not_counted_as_seeds(tmp_path: Path, capsys) -> None:
+    """Two runs of one config and seed gave a "2 seeds" IQM with a zero-width interval."""
+    from grasp_env_agents import cli
+
+    for name in ("run a", "run b"):
+        (tmp_path / name).mkdir()
+        write(tmp_path / name / "config.yaml", TINY)
+        (tmp_path / name / "model.zip").write_bytes(b"")  # refused before it is read
+    a, b = (str(tmp_path / name) for name in ("run a", "run b"))
+    argv = ["evaluate", a, b, "--episodes", "2", "--physics-episodes", "0"]
+    assert cli.main(argv) == 2
+    assert (
+        f"grasp-env evaluate: error: runs {a!r} and {b!r} share their config and seed 0: the"
+        " same experiment run twice, not two seeds; give runs of distinct seeds"
+    ) in capsys.readouterr().err
+    groups = [{"label": "t", "runs": "run*"}]
+    spec = write(tmp_path / "spec.yaml", {"episodes": 2, "groups": groups})
+    assert cli.main(["results", str(spec)]) == 2
+    assert f"group 't': runs {a!r} and {b!r} share seed 0:" in capsys.readouterr().err
+    assert not list(tmp_path.glob("*/evaluation-*"))  # refused before evaluating either run
+    # a group built otherwise (a sweep's report) is refused too, naming the runs
+    same = [results.RunResult(Path(name), 4, {}, 0.0, 0.0) for name in ("x", "y", "z")]
+    with pytest.raises(ValueError, match=r"runs 'x', 'y' and 'z' share seed 4: .* 3 times"):
+        results.Group("g", same)
+    # distinct seeds: a group; named by what the runs' names share, not "run " or the first
+    write(tmp_path / "run b" / "config.yaml", {**TINY, "seed": 1})
+    assert results.group_dirs([Path(a), Path(b)]) == [[Path(a), Path(b)]]
+    assert results._common_name([Path(a), Path(b)]) == "run"
+    assert results._common_name([Path("first"), Path("second")]) == "first, second"
 
 
 def test_sweep_files_and_specs_are_read_as_configs_are(tmp_path: Path) -> None:
@@ -311,7 +380,7 @@ def test_evaluate_several_runs_reports_across_seeds(tmp_path: Path) -> None:
     assert {r["group"] for r in rows} == {"tiny-s"}  # one recipe: the configs differ in the seed
     gaps = [float(r["mean_gap_deg"]) for r in rows]
     report = (out / "results.md").read_text()
-    assert "| tiny-s |" in report and "| 2 |" in report
+    assert f"| tiny-s | `{runs[0] / 'config.yaml'}` | 2 |" in report
     # the IQM of two runs is their mean (both are the middle half)
     assert f"{np.mean(gaps):.2f}" in report
     assert (out / "learning_curves.png").stat().st_size > 10_000
