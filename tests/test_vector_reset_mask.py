@@ -18,6 +18,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 from gymnasium.vector import AutoresetMode, SyncVectorEnv
+from vector_policies import GAIT_TURN, gait_policy, grasp_policy
 
 import grasp_env  # noqa: F401  (registers the environments)
 from grasp_env import MinimaxExpert
@@ -27,7 +28,6 @@ GRASP = "grasp_env/CubeGrasp-v0"
 RANDOM = "grasp_env/CubeGraspRandom-v0"
 GAIT = "grasp_env/CubeGait-v0"
 MUJOCO = "grasp_env/CubeGraspMujoco-v0"
-GAIT_TURN = {"alpha_start_deg": -90.0, "alpha_end_deg": -82.0}  # 9 poses
 # Short episodes (a few poses), so that they end often and at different times.
 KWARGS = {
     GRASP: {"scene": {"trajectory": {"alpha_start_deg": -15.0, "alpha_end_deg": -9.0}}},
@@ -61,31 +61,6 @@ def make_pair(env_id: str, num_envs: int, mode, **kwargs):
     assert not isinstance(ours.unwrapped, SyncVectorEnv)
     assert ours.metadata["autoreset_mode"] == sync.metadata["autoreset_mode"] == mode
     return ours, sync
-
-
-def grasp_policy(rng: np.random.Generator):
-    """The expert's grip, perturbed in some sub-environments: some slip, others carry on."""
-    expert = MinimaxExpert()
-
-    def act(obs: np.ndarray) -> np.ndarray:
-        noise = rng.uniform(-0.6, 0.6, (len(obs), 3)) * (rng.random((len(obs), 1)) < 0.3)
-        return np.clip(expert.predict(obs)[0] + noise, -1, 1).astype(np.float32)
-
-    return act
-
-
-def gait_policy(rng: np.random.Generator):
-    """The certified gait, with random actions in some sub-environments (they drop the cube
-    or slip)."""
-    expert = GaitExpert(trajectory=GAIT_TURN)
-
-    def act(obs: np.ndarray) -> np.ndarray:
-        actions = expert.predict(obs)[0]
-        noisy = rng.random(len(obs)) < 0.15
-        actions[noisy] = rng.uniform(-1, 1, actions[noisy].shape)
-        return actions.astype(np.float32)
-
-    return act
 
 
 POLICIES = {GRASP: grasp_policy, RANDOM: grasp_policy, GAIT: gait_policy, MUJOCO: grasp_policy}

@@ -19,17 +19,16 @@ import gymnasium as gym
 import numpy as np
 import pytest
 from gymnasium.vector import AutoresetMode, SyncVectorEnv
+from vector_policies import GAIT_TURN, gait_policy, grasp_policy
 
 import grasp_env  # noqa: F401  (registers the environments)
 from grasp_env import MinimaxExpert
-from grasp_env.envs.gait import GaitExpert
 from grasp_env.physics import check_trajectories
 
 GRASP = "grasp_env/CubeGrasp-v0"
 RANDOM = "grasp_env/CubeGraspRandom-v0"
 GAIT = "grasp_env/CubeGait-v0"
 MUJOCO = "grasp_env/CubeGraspMujoco-v0"
-GAIT_TURN = {"alpha_start_deg": -90.0, "alpha_end_deg": -82.0}  # 9 poses
 # The trajectories are longer than k (GRASP: 7 poses, MUJOCO: 5, GAIT: 9) or of both kinds
 # (RANDOM: 2 to 10 poses), so that episodes are cut at k and end by themselves; the gait at
 # k = 9, its trajectory's length, is TimeLimit's rule against the gait's own (which does not
@@ -65,31 +64,6 @@ def make_pair(env_id: str, num_envs: int, mode, k: int, **kwargs):
     assert all(isinstance(env, gym.wrappers.TimeLimit) for env in sync.unwrapped.envs)
     assert ours.unwrapped.max_episode_steps == k
     return ours, sync
-
-
-def grasp_policy(rng: np.random.Generator):
-    """The expert's grip, perturbed in some sub-environments: some slip, others carry on."""
-    expert = MinimaxExpert()
-
-    def act(obs: np.ndarray) -> np.ndarray:
-        noise = rng.uniform(-0.6, 0.6, (len(obs), 3)) * (rng.random((len(obs), 1)) < 0.3)
-        return np.clip(expert.predict(obs)[0] + noise, -1, 1).astype(np.float32)
-
-    return act
-
-
-def gait_policy(rng: np.random.Generator):
-    """The certified gait, with random actions in some sub-environments (they drop the cube
-    or slip)."""
-    expert = GaitExpert(trajectory=GAIT_TURN)
-
-    def act(obs: np.ndarray) -> np.ndarray:
-        actions = expert.predict(obs)[0]
-        noisy = rng.random(len(obs)) < 0.1
-        actions[noisy] = rng.uniform(-1, 1, actions[noisy].shape)
-        return actions.astype(np.float32)
-
-    return act
 
 
 def phase_index(env) -> int:
@@ -227,7 +201,7 @@ def test_max_episode_steps_matches_sync_time_limit(case, mode):
     env_id, kwargs, k, num_envs, steps = CASES[case]
     rng = np.random.default_rng(4)
     ours, sync = make_pair(env_id, num_envs, mode, k, **kwargs)
-    policy = (gait_policy if env_id == GAIT else grasp_policy)(rng)
+    policy = gait_policy(rng, noisy=0.1) if env_id == GAIT else grasp_policy(rng)
     seen = drive(ours, sync, policy, steps, k, rng)
     assert seen["terminated before k"] >= 1, seen
     if case == "gait-at-end":
