@@ -16,7 +16,7 @@ import numpy as np
 from gymnasium.vector import AutoresetMode
 
 # the mechanics' rules for numbers, shared (check_number: a finite real number in a range)
-from ..mechanics.checks import is_real
+from ..mechanics.checks import real_array
 from ..mechanics.checks import real_number as check_number
 
 # re-exported: the environments' pose cap is the trajectories' (each pose a solve at a reset)
@@ -98,35 +98,13 @@ def check_mujoco_k_max_ratio(value: Any) -> float:
 
 
 def check_array(name: str, value: Any, shape: tuple[int, ...]) -> np.ndarray:
-    """A float64 array of ``shape`` from real numbers (no booleans, complex numbers or strings),
-    all finite."""
-    description = f"{name} must be an array of shape {shape} of finite real numbers"
-    try:
-        array = np.asarray(value)
-    except (TypeError, ValueError):  # ragged nesting
-        raise ValueError(f"{description}, got {value!r}") from None
-    if array.dtype == object:  # mixed types: every element must be a real number
-        if array.shape == shape and all(is_real(v) for v in array.flat):
-            array = array.astype(np.float64)
-        else:
-            raise ValueError(f"{description}, got {value!r}")
-    elif array.dtype.kind not in "iuf":
-        raise ValueError(f"{description}, got dtype {array.dtype} ({value!r})")
-    elif isinstance(value, list | tuple) and _has_bool(value):
-        raise ValueError(f"{description}, got booleans in {value!r}")
+    """A C-contiguous float64 array of ``shape`` from real numbers (no booleans, complex
+    numbers or strings), all finite."""
+    must = f"an array of shape {shape} of finite real numbers"
+    array = real_array(name, value, must)
     if array.shape != shape:
-        raise ValueError(f"{description}, got shape {array.shape}")
-    array = np.ascontiguousarray(array, dtype=np.float64)
-    if not np.all(np.isfinite(array)):
-        raise ValueError(f"{description}, got {array.tolist()}")
-    return array
-
-
-def _has_bool(value: Any) -> bool:
-    # numpy turns [True, 0.5] into floats silently: look for the booleans in the nesting
-    if isinstance(value, list | tuple):
-        return any(_has_bool(v) for v in value)
-    return isinstance(value, bool | np.bool_)
+        raise ValueError(f"{name} must be {must}, got shape {array.shape}")
+    return np.ascontiguousarray(array)
 
 
 def check_seed(name: str, value: Any) -> int | None:
