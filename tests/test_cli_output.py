@@ -70,7 +70,9 @@ def test_k_reads_at_the_ends_of_the_weight_range(tmp_path, capsys, weight):
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         assert main([*argv, "--alpha-start", "0", "--alpha-end", "0"]) == 0
-    assert [(str(w.message), w.filename, w.lineno) for w in caught] == []
+    # ours and matplotlib's (the record also catches other threads', e.g. an earlier test's)
+    quiet = [w for w in caught if "grasp_env" in w.filename or "matplotlib" in w.filename]
+    assert [(str(w.message), w.filename, w.lineno) for w in quiet] == []
     ((_alpha, *cells),) = table_rows(capsys.readouterr().out)
     eq8 = newtons(weight * np.tan(PHI) / (3 * np.sqrt(3)))  # every k_ij at alpha = 0
     assert eq8.startswith("2.7217e") and cells[:3] == [eq8] * 3
