@@ -33,6 +33,7 @@ the trials, grouped by everything but the seed (``OUT/results.md``, ``learning_c
 from __future__ import annotations
 
 import argparse
+import csv
 import itertools
 import os
 from collections.abc import Mapping
@@ -40,6 +41,7 @@ from pathlib import Path
 from typing import Any
 
 from .cli import folder_argument, integer_argument, path_argument
+from .curve import last_steps
 
 HELP = "a hyperparameter sweep on Ray Tune (grid, random or Optuna) over config keys and seeds"
 SEARCHES = ("grid", "random", "optuna")
@@ -281,15 +283,21 @@ def run_trial(params: dict[str, Any], sweep: dict[str, Any], out: str) -> None:
 
 
 def _finished(run_dir: Path, config: Any) -> bool:
-    """Whether the run's learning curve reached the end of its PPO steps."""
-    from .results import read_curve
-
-    curve = read_curve(run_dir / "learning_curve.csv") if run_dir.is_dir() else []
-    return (
-        bool(curve)
-        and (run_dir / "model.zip").is_file()
-        and (config.total_timesteps == 0 or curve[-1]["env_steps"] >= config.total_timesteps)
-    )
+    """Whether the run did all its imitation rounds and all its algorithm's steps (the curve's
+    steps count the imitation's labelled states first, then the algorithm's)."""
+    path = run_dir / "learning_curve.csv"
+    if not ((run_dir / "model.zip").is_file() and path.is_file()):
+        return False
+    with path.open() as file:
+        rows = list(csv.DictReader(file))
+    rounds = sum(row["phase"] == "imitation" for row in rows)
+    if config.imitation is not None and rounds < config.imitation.rounds:
+        return False
+    if config.total_timesteps == 0:
+        return bool(rows)
+    imitation_steps = last_steps(path, "imitation")
+    steps = [int(row["env_steps"]) - imitation_steps for row in rows if row["phase"] == config.algo]
+    return bool(steps) and steps[-1] >= config.total_timesteps
 
 
 def tuner(sweep: dict[str, Any], out: Path) -> Any:

@@ -222,9 +222,10 @@ def train(
         # Save first: while learning a checkpoint that --resume continues from; mid-imitation
         # the rounds done are checkpointed already (the round under way is lost).
         if learning:
-            if isinstance(model, OnPolicyAlgorithm) and trained.steps is not None:
-                # PPO's weights are those of the rollout's start: the rollout under way is
-                # dropped (its steps are not in them), so the checkpoint's count is theirs
+            if trained.steps is not None:
+                # The weights are those of the rollout's start: the checkpoint's count is
+                # theirs. PPO drops the rollout under way; TD3 and SAC keep in their buffer
+                # what it stored (an interrupt can land between a step's count and its store).
                 model.num_timesteps = trained.steps
             save_checkpoint(model, model_checkpoint(run_dir, algo, model.num_timesteps))
         finish(model, run_dir, curve)
@@ -491,6 +492,8 @@ class Evaluations(EvalCallback):
     def _evaluate(self) -> None:
         assert self.trained.steps is not None
         self.reached = self.model.num_timesteps
+        if self.trained.steps == self.evaluated:
+            return  # these weights were evaluated (a run resumed from the step that passed)
         self.num_timesteps = self.evaluated = self.trained.steps
         # Write the evaluation alone at its step: what the algorithm recorded (PPO's train/
         # values of the update just made) it dumps itself at the end of the rollout, as

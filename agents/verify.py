@@ -195,6 +195,7 @@ def run(args: argparse.Namespace) -> int:
         _imageio()  # before the rollout: say at once if the writer is missing
         existed = args.video.exists()
         try:  # before the rollout: say at once if the file cannot be written
+            args.video.parent.mkdir(parents=True, exist_ok=True)  # as --out is
             args.video.open("ab").close()
         except OSError as error:
             raise ValueError(f"--video {args.video}: cannot write it ({error.strerror})") from None

@@ -10,12 +10,14 @@
   of the same shape (the ratio is SB3's overhead); and the main job's network with the
   force-direction output against the same network outputting k (the ratio is the head's cost).
 
-    grasp-env bench training
+    grasp-env bench training [--seconds 8]
 """
 
 from __future__ import annotations
 
+import argparse
 import time
+from collections.abc import Callable
 
 import numpy as np
 import torch
@@ -27,30 +29,53 @@ from grasp_env_agents.config import CONFIG_DIR, DEFAULT_CONFIG, load_config
 from grasp_env_agents.envs import make_vec_env
 from grasp_env_agents.imitation import StateCollector, fit, grasp_of, make_teacher
 
-PPO_STEPS = 32_768
-STATES = 20_000
+STATES = 20_000  # the fits' data set
+CHUNK = 2_000  # labelled states per collection
 
 
-def ppo_steps_per_second(env, config) -> float:
+def rate(work: Callable[[], int], seconds: float) -> float:
+    """Units per second of ``work`` (which returns the units it did), repeated until at least
+    ``seconds`` have passed."""
+    done, start = 0, time.perf_counter()
+    while True:
+        done += work()
+        elapsed = time.perf_counter() - start
+        if elapsed >= seconds:
+            return done / elapsed
+
+
+def ppo_steps_per_second(env, config, seconds: float) -> float:
     model = new_model(config, env)
-    model.learn(2 * config.n_envs * config.ppo.n_steps)  # warm-up: compile, allocate
-    start = time.perf_counter()
-    model.learn(PPO_STEPS, reset_num_timesteps=False)
-    return PPO_STEPS / (time.perf_counter() - start)
+    rollout = config.n_envs * config.ppo.n_steps
+    model.learn(2 * rollout)  # warm-up: compile, allocate
+
+    def one_rollout() -> int:
+        model.learn(rollout, reset_num_timesteps=False)
+        return rollout
+
+    return rate(one_rollout, seconds)
 
 
 def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--seconds", type=float, default=8.0, help="time per measurement")
+    args = parser.parse_args()
+    if not args.seconds > 0:
+        parser.error(f"--seconds must be > 0, got {args.seconds}")
+    seconds = args.seconds
     torch.set_num_threads(1)
     config = load_config(CONFIG_DIR / "ppo.yaml")
     ours = ppo_steps_per_second(
-        make_vec_env(config.env_id, config.env_kwargs, config.n_envs, seed=0), config
+        make_vec_env(config.env_id, config.env_kwargs, config.n_envs, seed=0), config, seconds
     )
     # CartPole has no grasp to compute features from: the same MLP on its raw observation
     plain = config.replace(**{"policy.features": "observation"})
-    cartpole = ppo_steps_per_second(sb3_make_vec_env("CartPole-v1", config.n_envs, seed=0), plain)
+    cartpole = ppo_steps_per_second(
+        sb3_make_vec_env("CartPole-v1", config.n_envs, seed=0), plain, seconds
+    )
     print(
         f"PPO ({config.n_envs} envs, {config.policy.net_arch} {config.policy.activation} MLP on "
-        f"{config.policy.features} features), {PPO_STEPS} steps:"
+        f"{config.policy.features} features), {seconds:g} s each:"
     )
     print(f"  {config.env_id}: {ours:8.0f} steps/s")
     print(f"  CartPole-v1 (DummyVecEnv):  {cartpole:8.0f} steps/s   ratio {ours / cartpole:.2f}")
@@ -58,14 +83,14 @@ def main() -> None:
     kwargs = {"terminate_on_slip": False}
     teacher = make_teacher(kwargs)
     collector = StateCollector("grasp_env/CubeGraspRandom-v0", kwargs, 256, seed=0)
-    collector.collect(teacher.actions, 2_000)  # warm-up
-    start = time.perf_counter()
-    collector.collect(teacher.actions, STATES)
-    labelled = STATES / (time.perf_counter() - start)
+    collector.collect(teacher.actions, CHUNK)  # warm-up
+    labelled = rate(lambda: len(collector.collect(teacher.actions, CHUNK)[0]), seconds)
     rng = np.random.default_rng(0)
-    start = time.perf_counter()
     obs, _ = collector.collect(lambda o: rng.uniform(-1, 1, (len(o), 3)), STATES)
-    stepped = STATES / (time.perf_counter() - start)
+    stepped = rate(
+        lambda: len(collector.collect(lambda o: rng.uniform(-1, 1, (len(o), 3)), CHUNK)[0]),
+        seconds,
+    )
     print("Expert-labelled states (256 envs, the expert drives):")
     print(f"  labelled: {labelled:8.0f} states/s")
     print(f"  random actions, no labels: {stepped:8.0f} states/s   ratio {labelled / stepped:.2f}")
@@ -73,9 +98,13 @@ def main() -> None:
     model = PPO("MlpPolicy", make_vec_env(config.env_id, kwargs, 1, 0), device="cpu")
     labels = rng.uniform(-1, 1, (len(obs), 3)).astype(np.float32)
     generator = torch.Generator().manual_seed(0)
-    start = time.perf_counter()
-    fit(model.policy, obs, labels, 2, 1024, 1e-3, generator)
-    policy_rate = 2 * len(obs) / (time.perf_counter() - start)
+
+    def epoch(policy, *loss) -> int:
+        """One epoch of the supervised fit (over the data set), in samples."""
+        fit(policy, obs, labels, 1, 1024, 1e-3, generator, *loss)
+        return len(obs)
+
+    policy_rate = rate(lambda: epoch(model.policy), seconds)
     net = torch.nn.Sequential(
         torch.nn.Linear(obs.shape[1], 64),
         torch.nn.Tanh(),
@@ -85,14 +114,16 @@ def main() -> None:
     )  # fmt: skip  (SB3's default MlpPolicy actor)
     optimizer = torch.optim.Adam(net.parameters(), 1e-3)
     obs_t, labels_t = torch.as_tensor(obs), torch.as_tensor(labels)
-    start = time.perf_counter()
-    for _ in range(2):
+
+    def bare_epoch() -> int:
         for i in range(0, len(obs), 1024):
             loss = torch.nn.functional.mse_loss(net(obs_t[i : i + 1024]), labels_t[i : i + 1024])
             optimizer.zero_grad()
             loss.backward()
             optimizer.step()
-    bare_rate = 2 * len(obs) / (time.perf_counter() - start)
+        return len(obs)
+
+    bare_rate = rate(bare_epoch, seconds)
     print("Supervised fit (batch 1024, SB3's default 64 x 64 actor):")
     print(f"  through the SB3 policy: {policy_rate:8.0f} samples/s")
     ratio = policy_rate / bare_rate
@@ -100,12 +131,11 @@ def main() -> None:
 
     default = load_config(DEFAULT_CONFIG)
     rates = {}
+    grasp = grasp_of(obs)
     for output in ("k", "force_directions"):
         env = make_vec_env(default.env_id, kwargs, default.n_envs, 0)
         model = new_model(default.replace(**{"policy.output": output}), env)
-        start = time.perf_counter()
-        fit(model.policy, obs, labels, 2, 1024, 1e-3, generator, grasp_of(obs), 1.0)
-        rates[output] = 2 * len(obs) / (time.perf_counter() - start)
+        rates[output] = rate(lambda: epoch(model.policy, grasp, 1.0), seconds)  # noqa: B023
     print(f"Supervised fit of the main job ({default.policy.net_arch} MLP, angle loss):")
     print(f"  output k:                {rates['k']:8.0f} samples/s")
     ratio = rates["force_directions"] / rates["k"]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import csv
 from pathlib import Path
 
 import numpy as np
@@ -287,29 +288,31 @@ def test_off_policy_resume_restores_weights_buffer_and_step_count(
     with pytest.raises(KeyboardInterrupt):
         train(config, run, progress_bar=False)
     folder = run / "checkpoints"
+    # interrupted in the step that passed 128, before its update and its store: the weights
+    # and the buffer are those of 124 steps, and so is the checkpoint's name
     assert sorted(p.name for p in folder.glob(f"{algo}_*_steps.zip")) == [
-        f"{algo}_128_steps.zip",
+        f"{algo}_124_steps.zip",
         f"{algo}_64_steps.zip",
     ]
     # only the newest checkpoint keeps its (large) replay buffer
     (buffer_file,) = folder.glob("*_replay_buffer_*")
-    assert buffer_file.name == f"{algo}_replay_buffer_128_steps.pkl"
+    assert buffer_file.name == f"{algo}_replay_buffer_124_steps.pkl"
     start = find_start(run, False, 0, algo)
-    assert start.checkpoint == folder / f"{algo}_128_steps.zip" and start.model_steps == 128
+    assert start.checkpoint == folder / f"{algo}_124_steps.zip" and start.model_steps == 124
 
     from grasp_env_agents.algorithms import new_model
     from grasp_env_agents.checkpoints import restore
     from grasp_env_agents.envs import make_vec_env
 
     saved = load_replay_buffer(buffer_file)
-    # every transition so far but the one of the interrupted step (SB3 stores it after the
-    # callbacks, one of which raised)
-    assert saved.pos == 128 // config.n_envs - 1
+    # every transition but the interrupted step's (SB3 stores it after the callbacks, one of
+    # which raised)
+    assert saved.pos == 124 // config.n_envs
     fresh = new_model(config, make_vec_env(ENV_ID, config.env_kwargs, config.n_envs, 0))
     restore(fresh, start)
-    assert fresh.num_timesteps == 128
+    assert fresh.num_timesteps == 124
     np.testing.assert_array_equal(fresh.replay_buffer.observations, saved.observations)
-    trained = load_model_from(folder / f"{algo}_128_steps.zip", algo)
+    trained = load_model_from(folder / f"{algo}_124_steps.zip", algo)
     for a, b in zip(fresh.policy.parameters(), trained.policy.parameters(), strict=True):
         torch.testing.assert_close(a, b, rtol=0, atol=0)
     if algo == "sac":  # the entropy coefficient lives beside the weights: restored too
@@ -319,7 +322,10 @@ def test_off_policy_resume_restores_weights_buffer_and_step_count(
     monkeypatch.setattr(RecordEvaluation, "_on_step", record)
     model = train(config, run, resume=True, progress_bar=False)
     assert model.num_timesteps == 256
-    assert model.replay_buffer.pos == saved.pos + 128 // config.n_envs  # old ones and new
+    assert model.replay_buffer.pos == saved.pos + (256 - 124) // config.n_envs  # old and new
+    with (run / "learning_curve.csv").open() as file:
+        steps = [int(row["env_steps"]) for row in csv.DictReader(file)]
+    assert steps == sorted(set(steps)) and steps[-1] == 256  # each evaluation once, in order
 
 
 def load_model_from(path: Path, algo: str):

@@ -106,6 +106,18 @@ def test_bad_rotation_inputs(bad):
         quaternion_matrix([*bad, 0])
 
 
+@pytest.mark.parametrize("bad", ["1000", [True, 0, 0, 0], [1, 0, 0], [[1, 0], [0, 0]]])
+def test_a_quaternion_is_four_real_numbers(bad):
+    with pytest.raises(ValueError, match=r"quaternion \(w, x, y, z\) must be .*4-vectors"):
+        quaternion_matrix(bad)
+
+
+def test_a_quaternion_of_any_length_gives_its_rotation():
+    half_turn = quaternion_matrix([0, 0, 0, 1])
+    for scale in (1e-300, 1e300):
+        np.testing.assert_array_equal(quaternion_matrix([0, 0, 0, scale]), half_turn)
+
+
 # --- trajectory ----------------------------------------------------------------------------
 
 

@@ -311,6 +311,33 @@ def test_a_key_the_config_refuses_fails_before_any_trial(tmp_path: Path) -> None
         sweep.check_space(sweep.load_sweep(path))
 
 
+@pytest.mark.parametrize(
+    ("rounds", "phases", "finished"),
+    [
+        (0, [("initial", 0), ("ppo", 128)], False),
+        (0, [("initial", 0), ("ppo", 128), ("ppo", 256)], True),
+        # the imitation's 200 labelled states come first: 200 + 128 is not 256 PPO steps
+        (2, [("initial", 0), ("imitation", 100), ("imitation", 200), ("ppo", 328)], False),
+        (2, [("initial", 0), ("imitation", 100), ("imitation", 200), ("ppo", 456)], True),
+        (2, [("initial", 0), ("imitation", 100)], False),  # a round short, no PPO yet
+    ],
+)
+def test_a_trial_counts_as_finished_only_after_its_rounds_and_steps(
+    tmp_path: Path, rounds: int, phases: list[tuple[str, int]], finished: bool
+) -> None:
+    from grasp_env_agents.config import config_from_dict
+    from grasp_env_agents.curve import FIELDS
+
+    imitation = {"imitation": {"rounds": rounds, "samples_per_round": 100}} if rounds else {}
+    config = config_from_dict(TINY | imitation)
+    (tmp_path / "model.zip").write_bytes(b"")  # written on an interrupt too: not the test
+    with (tmp_path / "learning_curve.csv").open("w", newline="") as file:
+        writer = csv.DictWriter(file, FIELDS, restval="0")
+        writer.writeheader()
+        writer.writerows({"phase": phase, "env_steps": steps} for phase, steps in phases)
+    assert sweep._finished(tmp_path, config) is finished
+
+
 # --- a sweep on a local Ray ------------------------------------------------------------------
 
 

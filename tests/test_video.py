@@ -20,12 +20,12 @@ BELOW = (slice(100, None), slice(None))
 def test_verify_video_writes_the_rollout_with_its_overlay(tmp_path, capsys):
     import imageio
 
-    path = tmp_path / "rollout.mp4"
+    path = tmp_path / "videos" / "rollout.mp4"  # its folder is created, as --out's is
     argv = ["verify", "--alphas=-10,10,10", "--video", str(path), "--out", str(tmp_path)]
     assert main(argv) == 0
     assert f"{3 * FRAMES_PER_POSE} frames at {FPS} fps" in capsys.readouterr().out
     assert (tmp_path / "rollout.json").is_file()  # --video implies --trajectory
-    assert sorted(p.name for p in tmp_path.glob("*.mp4")) == ["rollout.mp4"]
+    assert sorted(p.name for p in path.parent.glob("*.mp4")) == ["rollout.mp4"]
     reader = imageio.get_reader(str(path), "ffmpeg")
     assert reader.get_meta_data()["fps"] == FPS
     frames = np.array(list(reader.iter_data())).astype(int)

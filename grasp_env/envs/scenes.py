@@ -150,10 +150,7 @@ def check_trajectory(spec: Mapping[str, Any]) -> Trajectory:
             raise ValueError(
                 f"unknown trajectory key {key!r}; the trajectory keys are {TRAJECTORY_KEYS}"
             )
-    axis = check_array("trajectory 'axis'", spec["axis"], (3,))
-    if not np.any(axis):
-        raise ValueError(f"trajectory 'axis' must be a non-zero 3-vector, got {axis.tolist()}")
-    axis = axis / np.max(np.abs(axis))  # its norm may overflow or underflow
+    axis = check_array("trajectory 'axis'", spec["axis"], (3,))  # Trajectory refuses zero
     start, end = (
         check_number(f"trajectory {key!r}", spec[key], *ALPHA_RANGE_DEG)
         for key in ("alpha_start_deg", "alpha_end_deg")

@@ -14,18 +14,18 @@ ORTHONORMAL_TOL = 1e-6
 _SAFE_SCALE = (1e-150, 1e150)
 
 
-def unit_vectors(name: str, vectors: ArrayLike, single: bool = False) -> np.ndarray:
-    """``vectors`` (..., 3), or (3,) with ``single``, as unit vectors: each finite and
+def unit_vectors(name: str, vectors: ArrayLike, single: bool = False, size: int = 3) -> np.ndarray:
+    """``vectors`` (..., size), or (size,) with ``single``, as unit vectors: each finite and
     non-zero, of any length. A vector too long or too short for its norm to be computed
     directly is divided by its largest |component| first, so that nothing overflows or
     underflows. A ValueError names ``name`` otherwise."""
     words = (
-        "a finite non-zero 3-vector (any length)"
+        f"a finite non-zero {size}-vector (any length)"
         if single
-        else "finite non-zero 3-vectors (any length), shape (..., 3)"
+        else f"finite non-zero {size}-vectors (any length), shape (..., {size})"
     )
     v = real_array(name, vectors, words)
-    if v.shape[-1:] != (3,) or (single and v.ndim != 1):
+    if v.shape[-1:] != (size,) or (single and v.ndim != 1):
         raise ValueError(f"{name} must be {words}, got shape {v.shape}")
     scale = np.abs(v).max(axis=-1, keepdims=True)
     if not scale.all():
@@ -137,12 +137,8 @@ def axis_angle_matrix(axis: ArrayLike, angle: ArrayLike) -> np.ndarray:
 
 
 def quaternion_matrix(quaternion: ArrayLike) -> np.ndarray:
-    """Rotation matrix of a quaternion (w, x, y, z), shape (..., 4) -> (..., 3, 3)."""
-    q = np.asarray(quaternion, dtype=float)
-    norm = np.linalg.norm(q, axis=-1, keepdims=True)
-    if np.any(~np.isfinite(q)) or np.any(norm < 1e-12):
-        raise ValueError("quaternion must be a finite, non-zero 4-vector (w, x, y, z)")
-    w, x, y, z = np.moveaxis(q / norm, -1, 0)
+    """Rotation matrix of a quaternion (w, x, y, z) of any length, (..., 4) -> (..., 3, 3)."""
+    w, x, y, z = np.moveaxis(unit_vectors("quaternion (w, x, y, z)", quaternion, size=4), -1, 0)
     return np.stack(
         [
             np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
