@@ -653,14 +653,15 @@ def test_verify_refuses_scenes_outside_the_trajectory_study(tmp_path, capsys):
 
 
 def test_verify_and_gait_say_which_path_they_cannot_write(tmp_path, capsys):
-    missing = tmp_path / "no" / "such"
-    assert main(["verify", "--video", str(missing / "x.mp4"), "--out", str(tmp_path)]) == 2
-    assert f"--video {missing / 'x.mp4'}: cannot write it" in capsys.readouterr().err
+    blocked = tmp_path / "a-file"
+    blocked.write_text("")
+    # the video's folder is created as --out's is, unless a file is in the way
+    video = blocked / "videos" / "x.mp4"
+    assert main(["verify", "--video", str(video), "--out", str(tmp_path)]) == 2
+    assert f"--video {video}: cannot write it (Not a directory)" in capsys.readouterr().err
     assert main(["verify", "--video", str(tmp_path / "x.txt"), "--out", str(tmp_path)]) == 2
     assert "the video is an MP4, name it FILE.mp4" in capsys.readouterr().err
     assert not (tmp_path / "x.txt").exists()  # refused before anything is written
-    blocked = tmp_path / "a-file"
-    blocked.write_text("")
     with pytest.raises(SystemExit, match="2"):  # refused before the gait is solved
         main(["gait", "--out", str(blocked / "out")])
     assert "argument --out: " in (err := capsys.readouterr().err)
