@@ -45,7 +45,7 @@ def _vec_env(env_id: str, env_kwargs: dict[str, Any], n_envs: int) -> VecEnv:
 
             return SB3VecEnv(env_id, num_envs=n_envs, **env_kwargs)
         return sb3_make_vec_env(env_id, n_envs=n_envs, env_kwargs=env_kwargs)
-    except TypeError as error:  # an unknown keyword: say which, as a bad config
+    except (TypeError, ValueError) as error:  # an unknown keyword or a bad value, as a config's
         raise ValueError(f"env_kwargs for {env_id}: {error}") from None
 
 

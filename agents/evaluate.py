@@ -95,6 +95,10 @@ def run(args: argparse.Namespace) -> int:
         if first is not run_dir:  # the same directory again, maybe by another path
             same = "twice" if first == run_dir else f"twice (as {first} and {run_dir})"
             raise ValueError(f"RUN {first} is given {same}: give each run once")
+        if not (run_dir / "config.yaml").is_file():  # before evaluating any
+            raise ValueError(
+                f"RUN {run_dir} is not a grasp-env train run directory (it has no config.yaml)"
+            )
     check_episodes(args.episodes)
     if len(runs) > 1:  # before evaluating any: runs of one config and seed are not two seeds
         from .results import group_dirs
@@ -176,8 +180,17 @@ def evaluate_run(
         env = make_held_out_env(config.env_id, config.env_kwargs, episodes)
         m = env.action_space.shape[0]
         k_max_ratio = config.k_max_ratio
+        agent = load_agent(run_dir, config.algo)
+        trained_on = (agent.model.observation_space.shape, agent.model.action_space.shape)
+        if trained_on != (env.observation_space.shape, env.action_space.shape):
+            raise ValueError(
+                f"{run_dir / 'model.zip'} does not fit its run's environment {config.env_id}"
+                f" (config.yaml): the model observes {trained_on[0]} and acts in"
+                f" {trained_on[1]}, the environment observes {env.observation_space.shape}"
+                f" and acts in {env.action_space.shape}"
+            )
         policies: dict[str, Any] = {
-            "trained agent": load_agent(run_dir, config.algo),
+            "trained agent": agent,
             "minimax expert": MinimaxExpert(k_max_ratio),
             "equal k (paper eq. 8)": equal_k_policy(m, k_max_ratio),
             "zero interaction": ConstantPolicy(np.zeros(m)),

@@ -52,7 +52,7 @@ from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
 from .baselines import TrainedAgent
 
-#: The algorithms a model file may be loaded as (the file does not say which wrote it).
+#: The algorithms a model file may be loaded as; its policy class says which wrote it.
 ALGORITHMS: dict[str, type[BaseAlgorithm]] = {"ppo": PPO, "td3": TD3, "sac": SAC}
 
 #: Everything a model file's pickles may name, by module. Classes are only referenced or
@@ -217,18 +217,41 @@ def _check_needed(path: Path, entries: dict[str, Any]) -> None:
             raise ValueError(f"{path}: its {key} is {entries[key]!r}, not a Box space")
 
 
-def load_model(path: str | Path, algo: str = "ppo", env: VecEnv | None = None) -> BaseAlgorithm:
+def written_by(policy: type[BasePolicy]) -> str | None:
+    """The algorithm of :data:`ALGORITHMS` whose policies ``policy`` is one of (None if none)."""
+    for algo, algorithm in ALGORITHMS.items():
+        if issubclass(policy, algorithm.policy_aliases["MlpPolicy"]):
+            return algo
+    return None
+
+
+def load_model(
+    path: str | Path, algo: str | None = None, env: VecEnv | None = None
+) -> BaseAlgorithm:
     """The SB3 model saved at ``path`` (a ``.zip``), on the CPU, without running code from it.
 
-    ``algo`` names the algorithm that wrote it (:data:`ALGORITHMS`); ``env`` (optional) is
-    checked against the model's spaces. Raises ValueError naming the file and the problem.
+    The file's policy class says which algorithm of :data:`ALGORITHMS` wrote it; ``algo``, if
+    given, must be that one. ``env`` (optional) is checked against the model's spaces. Raises
+    ValueError naming the file and the problem.
     """
-    if algo not in ALGORITHMS:
+    if algo is not None and algo not in ALGORITHMS:
         raise ValueError(f"algo must be one of {sorted(ALGORITHMS)}, got {algo!r}")
     path = Path(path)
     raw, archive = read_archive(path)
     check_tensors(path, archive)
     decoded = decode_entries(path, archive)
+    policy = decoded["policy_class"]
+    wrote = written_by(policy)
+    if wrote is None:
+        raise ValueError(
+            f"{path}: its policy class {policy.__name__} is none of {', '.join(ALGORITHMS)}'s"
+        )
+    if algo is not None and algo != wrote:
+        raise ValueError(
+            f"{path}: a {wrote.upper()} model (its policy class is {policy.__name__}), not"
+            f" {algo.upper()}"
+        )
+    algo = wrote
     try:
         return ALGORITHMS[algo].load(io.BytesIO(raw), env=env, device="cpu", custom_objects=decoded)
     except Exception as error:  # the tensors do not fit the network, or the network cannot be built
@@ -286,11 +309,13 @@ def load_replay_buffer(path: str | Path) -> ReplayBuffer:
 # --- agents --------------------------------------------------------------------------------
 
 
-def load_agent(path: str | Path, algo: str = "ppo") -> TrainedAgent:
+def load_agent(path: str | Path, algo: str | None = None) -> TrainedAgent:
     """A trained agent from a model file or a ``grasp-env train`` run directory.
 
-    A run directory's ``model.zip`` is loaded; ``vecnormalize.pkl`` beside the model file, if
-    there is one, normalises the observations (not updated while playing).
+    A run directory's ``model.zip`` is loaded (as :func:`load_model`, ``algo`` likewise);
+    ``vecnormalize.pkl`` beside the model file, if there is one, normalises the observations
+    (not updated while playing). A run whose ``config.yaml`` says ``normalize: true`` without
+    that file is refused: its model would see observations it was never trained on.
     """
     path = Path(path)
     model_file = path / "model.zip" if path.is_dir() else path
@@ -300,7 +325,21 @@ def load_agent(path: str | Path, algo: str = "ppo") -> TrainedAgent:
         model = load_model(model_file, algo)
     normalizer = None
     statistics = model_file.parent / "vecnormalize.pkl"
+    if not statistics.is_file() and _normalized_run(model_file.parent):
+        raise ValueError(
+            f"{model_file}: its run's config.yaml says normalize: true, but the observation"
+            f" statistics it was trained with ({statistics}) are missing; copy the run's"
+            " vecnormalize.pkl beside the model"
+        )
     if statistics.is_file():
         normalizer = load_vecnormalize(statistics)
         normalizer.training = False
     return TrainedAgent(model, normalizer)
+
+
+def _normalized_run(folder: Path) -> bool:
+    """Whether ``folder`` holds a run config (``config.yaml``) that says ``normalize: true``."""
+    from .config import load_config
+
+    config = folder / "config.yaml"
+    return config.is_file() and load_config(config).normalize

@@ -2,8 +2,8 @@
 (rliable, Agarwal et al. 2021) and aggregate learning curves with bands.
 
 A *group* is a set of runs of one recipe that differ only in their seed (two runs of one
-seed are the same experiment twice, not two seeds: a group that has them is refused). For each
-group:
+seed are the same experiment twice, not two seeds: a group that has them is refused, and so is
+one whose runs' configs differ in anything else). For each group:
 
 - the final held-out metrics of every run (``comparison.csv``, which ``grasp-env evaluate``
   writes, on a stated number of scenes), and for each metric the interquartile mean (IQM: the
@@ -41,6 +41,7 @@ import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import yaml
@@ -263,6 +264,42 @@ def check_seeds(where: str, seeds: Sequence[tuple[Path, int]], shared: str = "se
             )
 
 
+def recipe(run_dir: Path) -> dict[str, Any]:
+    """A run's config.yaml without its seed, as dotted keys (``ppo.learning_rate``)."""
+
+    def dotted(mapping: dict, prefix: str = "") -> dict[str, Any]:
+        keys: dict[str, Any] = {}
+        for key, value in mapping.items():
+            if isinstance(value, dict) and value:
+                keys.update(dotted(value, f"{prefix}{key}."))
+            else:
+                keys[f"{prefix}{key}"] = value
+        return keys
+
+    config = yaml.safe_load((Path(run_dir) / "config.yaml").read_text()) or {}
+    config.pop("seed", None)
+    return dotted(config)
+
+
+def check_one_recipe(where: str, runs: Sequence[Path]) -> None:
+    """Refuse a group whose runs' configs differ in more than the seed: their spread would
+    be counted as the seeds' and the row would stand for no one recipe."""
+    recipes = [recipe(run) for run in runs]
+    differ = sorted(
+        {
+            key
+            for other in recipes[1:]
+            for key in set(other) | set(recipes[0])
+            if other.get(key, ...) != recipes[0].get(key, ...)
+        }
+    )
+    if differ:
+        raise ValueError(
+            f"{where}its runs' config.yaml differ in {', '.join(differ)}, not only in the seed:"
+            " a group is one recipe over seeds (give the runs groups of their own)"
+        )
+
+
 @dataclass
 class Group:
     """Runs of one recipe over seeds, with their aggregate estimates (refused if two runs
@@ -437,6 +474,7 @@ def build_groups(spec: Path) -> tuple[int, list[Group]]:
     for entry, runs in zip(entries, found, strict=True):  # before evaluating any run
         where = f"results spec {spec}: group {entry['label']!r}: "
         check_seeds(where, [(run, run_seed(run)) for run in runs])
+        check_one_recipe(where, runs)
     groups = [
         Group(
             entry["label"],

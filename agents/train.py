@@ -27,6 +27,7 @@ evaluation log), ``learning_curve.csv`` and ``.png`` (:mod:`grasp_env_agents.cur
 from __future__ import annotations
 
 import argparse
+import shutil
 import signal
 import time
 from collections.abc import Callable
@@ -166,14 +167,20 @@ def train(
                 f" {config.algo.upper()} steps {run_dir} has done: give more to extend it"
             )
         say(f"resume: from {start.checkpoint or 'the beginning (no intact checkpoint)'}")
+    created = not run_dir.exists()
     run_dir.mkdir(parents=True, exist_ok=True)
 
     # 1. Seeding: torch, numpy, random; few threads (the machine is shared, numbers repeatable).
     torch.set_num_threads(config.torch_threads)
     set_random_seed(config.seed + start.model_steps)
 
-    with status("building the environments and the model"):
-        env, eval_env, model = build(config, start, run_dir)
+    try:
+        with status("building the environments and the model"):
+            env, eval_env, model = build(config, start, run_dir)
+    except BaseException:
+        if created:  # a config that fails to build leaves no empty run directory behind
+            shutil.rmtree(run_dir, ignore_errors=True)
+        raise
     # written once the run can start: a config that fails to build leaves no run to --resume
     save_config(config, run_dir / "config.yaml")
     held_out = find_held_out(eval_env)

@@ -115,8 +115,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--algo",
         default=None,
-        help="the algorithm that wrote a saved model (default: the run's, from its config.yaml;"
-        " ppo for a model file)",
+        help="the algorithm that wrote a saved model, checked against the file (default: the"
+        " one its policy class names)",
     )
     parser.add_argument(
         "--env",
@@ -147,7 +147,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         metavar="N",
         help=f"random scenes of the trajectory study (default {DEFAULT_SCENES}, about 3"
-        " trajectories each, plus 66 of gaits; 200 give 638)",
+        " trajectories each, plus 69 of gaits; 200 give 638)",
     )
     parser.add_argument(
         "--video",
@@ -184,7 +184,7 @@ def run(args: argparse.Namespace) -> int:
                 f"{option} is for a saved model: use it with --policy PATH (a .zip or a run"
                 " directory)"
             )
-    algo, env_id = "ppo", DEFAULT_MODEL_ENV
+    algo, env_id = None, DEFAULT_MODEL_ENV
     if saved:
         algo, env_id = model_setup(Path(args.policy), args.algo, args.env)
     if args.video is not None:
@@ -258,11 +258,12 @@ def model_name(path: Path) -> str:
     return path.parent.name if path.name == "model.zip" else path.stem
 
 
-def model_setup(path: Path, algo: str | None, env_id: str | None) -> tuple[str, str]:
+def model_setup(path: Path, algo: str | None, env_id: str | None) -> tuple[str | None, str]:
     """The algorithm that wrote the saved model at ``path`` and the environment that drives
     it: those of the run's ``config.yaml`` when ``path`` is a ``grasp-env train`` run
-    directory (or its model.zip), else ``algo`` (default ppo) and ``env_id`` (default
-    :data:`DEFAULT_MODEL_ENV`). An ``algo`` that contradicts the run's is refused."""
+    directory (or its model.zip), else ``algo`` (None: the file's policy class says) and
+    ``env_id`` (default :data:`DEFAULT_MODEL_ENV`). An ``algo`` that contradicts the run's is
+    refused."""
     from .models import ALGORITHMS
 
     if algo is not None and algo not in ALGORITHMS:
@@ -270,7 +271,7 @@ def model_setup(path: Path, algo: str | None, env_id: str | None) -> tuple[str, 
     path = Path(path)
     run_dir = path if path.is_dir() else path.parent if path.name == "model.zip" else None
     if run_dir is None or not (run_dir / "config.yaml").is_file():
-        return ("ppo" if algo is None else algo), check_model_env(env_id or DEFAULT_MODEL_ENV)
+        return algo, check_model_env(env_id or DEFAULT_MODEL_ENV)
     from .config import load_config
 
     config = load_config(run_dir / "config.yaml")
@@ -294,7 +295,7 @@ def check_model_env(env_id: str) -> str:
 
 
 def model_forces(
-    path: Path, algo: str, env_id: str, scene: Scene, trajectory: Trajectory
+    path: Path, algo: str | None, env_id: str, scene: Scene, trajectory: Trajectory
 ) -> tuple[Scene, np.ndarray]:
     """A saved model's grip, stepping ``env_id`` pinned to ``scene`` and ``trajectory``.
 
@@ -307,7 +308,7 @@ def model_forces(
 
 
 def model_grips(
-    path: Path, algo: str, env_id: str, problems: list[tuple[Scene, Trajectory]]
+    path: Path, algo: str | None, env_id: str, problems: list[tuple[Scene, Trajectory]]
 ) -> list[tuple[Scene, np.ndarray]]:
     """:func:`model_forces` on several (scene, trajectory) problems, the model loaded once."""
     model_file = path / "model.zip" if path.is_dir() else path
@@ -748,7 +749,7 @@ def _plot_agreement(sets, reports: list[PhysicsReport], path: Path) -> None:
 
 
 def learned_cases(
-    cases: list[TrajectoryCase], path: Path, algo: str, env_id: str
+    cases: list[TrajectoryCase], path: Path, algo: str | None, env_id: str
 ) -> list[TrajectoryCase]:
     """A saved model's grips (kind "learned") on the scenes and trajectories of the study's
     expert cases whose number of fingers is the environment's, driven through ``env_id``
@@ -777,7 +778,7 @@ def run_trajectory_agreement(
     scenes: int,
     out: Path,
     policy: Path | None = None,
-    algo: str = "ppo",
+    algo: str | None = None,
     env_id: str = "grasp_env/CubeGrasp-v0",
 ) -> int:
     """The trajectory study: confusion matrix, agreement by kind of grip and by distance from

@@ -583,7 +583,10 @@ def test_a_run_directory_is_not_overwritten(tmp_path, capsys):
     # a config that cannot build its environments leaves no run behind to block the retry
     with pytest.raises(ValueError, match="env_kwargs for grasp_env/CubeGrasp-v0"):
         train(tiny(env_kwargs={"bogus": 3}), run, progress_bar=False)
-    assert not (run / "config.yaml").exists()
+    # nor an empty directory, and a bad value is named as the config's too
+    with pytest.raises(ValueError, match=r"env_kwargs for grasp_env/CubeGrasp-v0: k_max_ratio"):
+        train(tiny(env_kwargs={"k_max_ratio": -1}), run, progress_bar=False)
+    assert not run.exists()
     train(tiny(total_timesteps=64), run, progress_bar=False)
     with pytest.raises(ValueError, match="already holds a run; use --resume"):
         train(tiny(total_timesteps=64), run, progress_bar=False)
@@ -913,6 +916,23 @@ def test_evaluate_refuses_a_run_given_twice(tmp_path, capsys, monkeypatch):
     assert cli.main(["evaluate", "link", "./run", "--episodes", "1"]) == 2
     assert "RUN link is given twice (as link and run)" in capsys.readouterr().err
     assert not list(run.glob("evaluation-*"))
+
+
+def test_evaluate_names_a_model_that_does_not_fit_its_runs_environment(tmp_path, capsys):
+    """SB3's "Unexpected observation shape (2, 38)" named neither the file nor the cause."""
+    run = saved_run(tmp_path / "run")  # a three-finger model
+    config = load_config(run / "config.yaml")
+    save_config(config.replace(env_id="grasp_env/CubeGrasp4-v0"), run / "config.yaml")
+    assert cli.main(["evaluate", str(run), "--episodes", "2"]) == 2
+    assert (
+        f"{run / 'model.zip'} does not fit its run's environment grasp_env/CubeGrasp4-v0"
+        " (config.yaml): the model observes (32,) and acts in (3,), the environment observes"
+        " (38,) and acts in (6,)"
+    ) in capsys.readouterr().err
+    assert cli.main(["evaluate", str(tmp_path / "nowhere")]) == 2
+    assert "is not a grasp-env train run directory (it has no config.yaml)" in (
+        capsys.readouterr().err
+    )
 
 
 @pytest.mark.parametrize("episodes", ["0", "-3", "1048577", "99999999999"])

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -248,6 +249,13 @@ def test_off_policy_run_trains_and_its_model_file_loads_safely(tmp_path: Path, a
     np.testing.assert_allclose(
         agent.predict(obs)[0], model.predict(obs, deterministic=True)[0], atol=1e-6
     )
+    # a bare model file received from someone: its policy class says which algorithm wrote it
+    shared = tmp_path / "shared.zip"
+    shutil.copy(run_dir / "model.zip", shared)
+    np.testing.assert_array_equal(load_agent(shared).predict(obs)[0], agent.predict(obs)[0])
+    policy = type(model.policy).__name__
+    with pytest.raises(ValueError, match=f"a {algo.upper()} model .*{policy}\\), not PPO"):
+        load_agent(shared, "ppo")
     comparison = evaluate_run(run_dir, 4, 0)
     assert comparison.metrics["trained agent"]["episodes"] == 4
     # the run's config.yaml holds the algorithm's sections only, and reads back the same

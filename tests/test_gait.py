@@ -332,6 +332,13 @@ def test_bad_programme_inputs():
         optimal_gait(margin, reach, start=[0, 1, 2])
     with pytest.raises(ValueError, match="fingers"):
         gait_states(2, 4)
+    for kwargs, match in (
+        ({"trajectory": {"alpha_start_deg": 0}}, "trajectory must be a Trajectory, got dict"),
+        ({"hand": 3}, "hand must be a Hand, got int"),
+        ({"scene": "paper"}, "scene must be a GaitScene, got str"),
+    ):
+        with pytest.raises(ValueError, match=match):
+            solve_gait(**kwargs)
 
 
 # ------------------------------------------------------------- the mechanics of a gait

@@ -118,6 +118,21 @@ def test_a_quaternion_of_any_length_gives_its_rotation():
         np.testing.assert_array_equal(quaternion_matrix([0, 0, 0, scale]), half_turn)
 
 
+@pytest.mark.parametrize(
+    ("bad", "what"),
+    [
+        (np.full((3, 3), np.nan), "NaN or inf"),
+        (-np.eye(3), "det = -1"),  # a reflection, not a rotation
+        (np.zeros((3, 3)), "det = 0"),
+        (2 * np.eye(3), "an entry 2"),
+        (np.eye(4), r"shape \(4, 4\)"),
+    ],
+)
+def test_matrix_quaternion_refuses_what_is_not_a_rotation(bad, what):
+    with pytest.raises(ValueError, match=f"rotation must be .*proper rotation.*{what}"):
+        matrix_quaternion(bad)
+
+
 # --- trajectory ----------------------------------------------------------------------------
 
 

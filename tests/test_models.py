@@ -251,6 +251,10 @@ def test_a_run_the_package_wrote_loads_and_predicts_the_same(tmp_path, changes):
     trained = TrainedAgent(model, model.get_vec_normalize_env())
     expected = trained.predict(obs, deterministic=True)[0]
     np.testing.assert_array_equal(agent.predict(obs, deterministic=True)[0], expected)
+    if config.normalize:  # without its statistics, the run's model would see raw observations
+        (tmp_path / "run" / "vecnormalize.pkl").rename(tmp_path / "elsewhere.pkl")
+        with pytest.raises(ValueError, match="says normalize: true, but the observation stat"):
+            load_agent(tmp_path / "run")
 
 
 def test_models_pickled_under_the_earlier_import_name_load(tmp_path, monkeypatch):

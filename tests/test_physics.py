@@ -557,6 +557,27 @@ def test_gait_windows_touch_at_most_four_sites_and_cover_the_gait():
         assert len({int(s) for s in contacts[window].ravel() if s >= 0}) <= 4
 
 
+def test_the_polish_stops_where_a_secant_would_leave_the_bisected_scale():
+    """A secant across a nearly flat stretch once jumped from the bisected scale c = 0.34 to
+    forces of 212 w, which the MuJoCo check refuses: the 200-scene study failed."""
+    from grasp_env.physics.agreement import _polished
+
+    asked = []
+
+    def largest(c: float) -> float:  # just above the target at c = 1, nearly flat
+        asked.append(c)
+        return 0.5 + 1e-8 - 1e-8 * (c - 1.0)
+
+    assert _polished(1.0, largest, 0.5) == 1.0  # the path's scale: no convergence nearby
+    assert max(asked) < 1.01  # the jump to c = 2 was never run
+
+    def steep(c: float) -> float:
+        asked.append(c)
+        return 0.5 + 1e-8 - 1e-3 * (c - 1.0)
+
+    assert abs(_polished(1.0, steep, 0.5) - 1.00001) <= 1e-12  # a near root is still polished
+
+
 def test_gait_cases_hold_slip_and_agree_with_mujoco(monkeypatch):
     """The certified gait on a short trajectory (four contacts in the model, one of them
     placed on the way), and perturbed to cross the limit or stay inside by 0.05 deg: the

@@ -93,6 +93,9 @@ def test_bad_arguments_raise_clear_errors(view):
         view.render(rotation, np.full((3, 3), np.nan))
     with pytest.raises(ValueError, match=r"shape \(3, 3\)"):
         view.render(rotation, forces[:2])
+    for text in (5, "one line", [1.5]):
+        with pytest.raises(ValueError, match="text must be a sequence of strings"):
+            view.render(rotation, forces, text=text)
 
 
 def test_closed_view_refuses_to_render():

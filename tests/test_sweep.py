@@ -222,6 +222,33 @@ def test_runs_of_one_seed_are_not_counted_as_seeds(tmp_path: Path, capsys) -> No
     assert results._common_name([Path("first"), Path("second")]) == "first, second"
 
 
+def test_a_group_of_runs_of_different_recipes_is_refused(tmp_path: Path, capsys) -> None:
+    """A spec group of a three- and a four-finger run gave one row "2 seeds"."""
+    from grasp_env_agents import cli
+
+    four = {**TINY, "env_id": "grasp_env/CubeGrasp4-v0", "seed": 1}
+    for name, config in (("run a", TINY), ("run b", four)):
+        (tmp_path / name).mkdir()
+        write(tmp_path / name / "config.yaml", config)
+        (tmp_path / name / "model.zip").write_bytes(b"")  # refused before it is read
+    groups = [{"label": "t", "runs": "run*"}]
+    spec = write(tmp_path / "spec.yaml", {"episodes": 2, "groups": groups})
+    assert cli.main(["results", str(spec)]) == 2
+    assert (
+        "group 't': its runs' config.yaml differ in env_id, not only in the seed: a group is"
+        " one recipe over seeds"
+    ) in capsys.readouterr().err
+    assert not list(tmp_path.glob("*/evaluation-*"))  # refused before evaluating either run
+    # nested keys are named by their dotted path
+    write(tmp_path / "run b" / "config.yaml", {**TINY, "seed": 1, "ppo": {"n_steps": 64}})
+    with pytest.raises(
+        ValueError, match=r"differ in ppo\.batch_size, ppo\.n_epochs, ppo\.n_steps,"
+    ):
+        results.check_one_recipe("", [tmp_path / "run a", tmp_path / "run b"])
+    write(tmp_path / "run b" / "config.yaml", {**TINY, "seed": 1})
+    results.check_one_recipe("", [tmp_path / "run a", tmp_path / "run b"])  # seeds only: one
+
+
 def test_sweep_files_and_specs_are_read_as_configs_are(tmp_path: Path) -> None:
     """The configs' YAML: a key given twice is refused, 1e-4 is a number (in the sweep file
     and in its base config); a directory is no file."""

@@ -883,6 +883,13 @@ def solve_gait(
     k_max = 2 w)."""
     scene = GaitScene() if scene is None else scene
     hand = Hand() if hand is None else hand
+    for name, value, kind in (
+        ("scene", scene, GaitScene),
+        ("hand", hand, Hand),
+        ("trajectory", trajectory, Trajectory),
+    ):
+        if not isinstance(value, kind):
+            raise ValueError(f"{name} must be a {kind.__name__}, got {type(value).__name__}")
     rotations = trajectory.rotations()
     values = set_values(scene, rotations, k_max)
     reach = site_reach(scene, hand, rotations)

@@ -150,8 +150,9 @@ def quaternion_matrix(quaternion: ArrayLike) -> np.ndarray:
 
 
 def matrix_quaternion(rotation: ArrayLike) -> np.ndarray:
-    """Unit quaternion (w, x, y, z) with w >= 0 of a rotation matrix, (..., 3, 3) -> (..., 4)."""
-    m = np.asarray(rotation, dtype=float)
+    """Unit quaternion (w, x, y, z) with w >= 0 of a rotation matrix, (..., 3, 3) -> (..., 4);
+    a ValueError unless each matrix is a proper rotation (:func:`check_rotations`)."""
+    m = check_rotations(rotation, batch=True)
     trace = m[..., 0, 0] + m[..., 1, 1] + m[..., 2, 2]
     # Four candidate magnitudes; take each component's sign from the largest one (stable).
     cand = np.stack(

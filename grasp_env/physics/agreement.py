@@ -313,7 +313,9 @@ def _polished(
 ) -> float:
     """``scale`` refined by secant steps until the run's own largest friction angle,
     ``largest(c)``, equals ``target`` radians (within 1e-10); the path's scale if they do not
-    converge (its margin is then the target to the path's sampling)."""
+    converge (its margin is then the target to the path's sampling). The run's steps differ
+    from the path's samples by little, so a step of more than 1% of ``scale`` is a secant
+    gone astray (a kink of the max), not convergence: it stops there."""
     a, fa = scale, largest(scale) - target
     b = scale * (1 + 1e-6) + 1e-9
     fb = largest(b) - target
@@ -322,7 +324,10 @@ def _polished(
             return a
         if fb == fa:
             break
-        a, fa, b, fb = a - fa * (a - b) / (fa - fb), 0.0, a, fa
+        step = fa * (a - b) / (fa - fb)
+        if not abs(a - step - scale) <= 0.01 * scale:
+            break
+        a, fa, b, fb = a - step, 0.0, a, fa
         fa = largest(a) - target
     return a if abs(fa) <= 1e-10 else scale
 

@@ -233,6 +233,11 @@ class GraspView:
             raise ValueError("this GraspView is closed")
         rotation = check_rotation(rotation)
         forces = check_forces(contact_forces, self.scene.n_contacts)
+        # a lone string would be drawn a character per line
+        if isinstance(text, str) or not (
+            isinstance(text, Sequence) and all(isinstance(line, str) for line in text)
+        ):
+            raise ValueError(f"text must be a sequence of strings (overlay lines), got {text!r}")
         n = self.scene.n_contacts
         contact = np.ones(n, dtype=bool) if in_contact is None else np.asarray(in_contact, bool)
         if contact.shape != (n,):
