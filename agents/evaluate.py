@@ -38,7 +38,7 @@ from .baselines import ConstantPolicy, RandomPolicy, equal_k_policy
 from .cli import folder_argument, integer_argument, path_argument
 from .config import load_config
 from .envs import HELD_OUT_SEED, Episode, find_held_out, make_held_out_env, summarise
-from .models import load_agent
+from .models import load_agent, misfit
 from .plotting import plot_series
 from .progress import status
 
@@ -181,13 +181,11 @@ def evaluate_run(
         m = env.action_space.shape[0]
         k_max_ratio = config.k_max_ratio
         agent = load_agent(run_dir, config.algo)
-        trained_on = (agent.model.observation_space.shape, agent.model.action_space.shape)
-        if trained_on != (env.observation_space.shape, env.action_space.shape):
+        problem = misfit(agent.model, env, config.env_id)
+        if problem:
             raise ValueError(
-                f"{run_dir / 'model.zip'} does not fit its run's environment {config.env_id}"
-                f" (config.yaml): the model observes {trained_on[0]} and acts in"
-                f" {trained_on[1]}, the environment observes {env.observation_space.shape}"
-                f" and acts in {env.action_space.shape}"
+                f"{run_dir / 'model.zip'} does not fit its run's environment (config.yaml):"
+                f" {problem}"
             )
         policies: dict[str, Any] = {
             "trained agent": agent,

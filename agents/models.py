@@ -337,6 +337,19 @@ def load_agent(path: str | Path, algo: str | None = None) -> TrainedAgent:
     return TrainedAgent(model, normalizer)
 
 
+def misfit(model: BaseAlgorithm, env: gym.Env | VecEnv, env_id: str) -> str | None:
+    """What differs between ``model``'s spaces and those of ``env`` (named ``env_id``), or
+    None if the model fits it."""
+    trained = (model.observation_space.shape, model.action_space.shape)
+    given = (env.observation_space.shape, env.action_space.shape)
+    if trained == given:
+        return None
+    return (
+        f"the model observes {trained[0]} and acts in {trained[1]}, {env_id} observes"
+        f" {given[0]} and acts in {given[1]}"
+    )
+
+
 def _normalized_run(folder: Path) -> bool:
     """Whether ``folder`` holds a run config (``config.yaml``) that says ``normalize: true``."""
     from .config import load_config

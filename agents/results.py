@@ -496,9 +496,9 @@ def group_dirs(run_dirs: Sequence[Path]) -> list[list[Path]]:
     groups: dict[str, list[tuple[Path, int]]] = {}
     for run_dir in map(Path, run_dirs):
         seed = run_seed(run_dir)  # checks that it is a run
-        config = yaml.safe_load((run_dir / "config.yaml").read_text()) or {}
-        config.pop("seed", None)
-        groups.setdefault(yaml.safe_dump(config, sort_keys=True), []).append((run_dir, seed))
+        groups.setdefault(yaml.safe_dump(recipe(run_dir), sort_keys=True), []).append(
+            (run_dir, seed)
+        )
     for seeds in groups.values():
         check_seeds("", seeds, "their config and seed")
     return [[run_dir for run_dir, _ in seeds] for seeds in groups.values()]

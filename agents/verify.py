@@ -321,18 +321,17 @@ def model_grips(
 
     import grasp_env  # noqa: F401  (registers the environments)
 
-    from .models import load_agent
+    from .models import load_agent, misfit
 
     check_model_env(env_id)
     agent = load_agent(path, algo)
     env = gym.make(env_id, terminate_on_slip=False)
-    spaces = (agent.model.observation_space.shape, agent.model.action_space.shape)
-    if spaces != (env.observation_space.shape, env.action_space.shape):
+    problem = misfit(agent.model, env, env_id)
+    if problem:
         env.close()
         raise ValueError(
-            f"--env {env_id} does not fit the model: the model observes {spaces[0]} and acts"
-            f" in {spaces[1]}, {env_id} observes {env.observation_space.shape} and acts in"
-            f" {env.action_space.shape} (give --env the environment the model was trained on)"
+            f"--env {env_id} does not fit the model: {problem} (give --env the environment the"
+            " model was trained on)"
         )
     grips = []
     for scene, trajectory in problems:

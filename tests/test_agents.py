@@ -925,9 +925,9 @@ def test_evaluate_names_a_model_that_does_not_fit_its_runs_environment(tmp_path,
     save_config(config.replace(env_id="grasp_env/CubeGrasp4-v0"), run / "config.yaml")
     assert cli.main(["evaluate", str(run), "--episodes", "2"]) == 2
     assert (
-        f"{run / 'model.zip'} does not fit its run's environment grasp_env/CubeGrasp4-v0"
-        " (config.yaml): the model observes (32,) and acts in (3,), the environment observes"
-        " (38,) and acts in (6,)"
+        f"{run / 'model.zip'} does not fit its run's environment (config.yaml): the model"
+        " observes (32,) and acts in (3,), grasp_env/CubeGrasp4-v0 observes (38,) and acts in"
+        " (6,)"
     ) in capsys.readouterr().err
     assert cli.main(["evaluate", str(tmp_path / "nowhere")]) == 2
     assert "is not a grasp-env train run directory (it has no config.yaml)" in (
