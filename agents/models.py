@@ -351,8 +351,11 @@ def misfit(model: BaseAlgorithm, env: gym.Env | VecEnv, env_id: str) -> str | No
 
 
 def _normalized_run(folder: Path) -> bool:
-    """Whether ``folder`` holds a run config (``config.yaml``) that says ``normalize: true``."""
+    """Whether ``folder`` holds a run config (``config.yaml``) that says ``normalize: true``
+    (a config.yaml of something else says nothing about the model)."""
     from .config import load_config
 
-    config = folder / "config.yaml"
-    return config.is_file() and load_config(config).normalize
+    try:
+        return load_config(folder / "config.yaml").normalize
+    except ValueError:  # none, or not a run's
+        return False
