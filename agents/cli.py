@@ -101,8 +101,8 @@ def main(argv: list[str] | None = None) -> int:
     watch_numba()  # the first command after installing compiles for a while: say so
     try:
         return int(args.run(args) or 0)
-    except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
+    except KeyboardInterrupt as stop:
+        print(f"interrupted: {stop}" if str(stop) else "interrupted", file=sys.stderr)
         return 130
     except ValueError as error:  # bad input: a clear message, not a traceback
         print(f"grasp-env {args.command}: error: {error}", file=sys.stderr)

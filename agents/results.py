@@ -414,7 +414,9 @@ def plot_curves(groups: Sequence[Group], path: Path) -> None:
     for column in range(2):
         axes[0, column].set_yscale("log")
         axes[0, column].yaxis.set_major_formatter(plain)
-        axes[0, column].yaxis.set_minor_formatter(sparse)
+        low, high = axes[0, column].get_ylim()
+        # within a factor of 5 (38 to 58 deg, say) every minor tick is needed to read it
+        axes[0, column].yaxis.set_minor_formatter(plain if high < 5 * low else sparse)
         axes[0, column].set_ylabel("held-out mean gap (deg)")
         axes[1, column].set_ylabel("held-out success (%)")
         axes[1, column].set_ylim(-1, 101)
@@ -506,15 +508,30 @@ def group_dirs(run_dirs: Sequence[Path]) -> list[list[Path]]:
 
 def group_runs(run_dirs: Sequence[Path], episodes: int | None = None) -> list[Group]:
     """Runs grouped by their config without the seed (:func:`group_dirs`), each group named by
-    what its directories' names share, its config column the first run's ``config.yaml``."""
+    :func:`group_names`, its config column the first run's ``config.yaml``."""
+    grouped = group_dirs(run_dirs)
     return [
-        Group(
-            _common_name(dirs),
-            [read_run(run_dir, episodes) for run_dir in dirs],
-            str(dirs[0] / "config.yaml"),
-        )
-        for dirs in group_dirs(run_dirs)
+        Group(name, [read_run(run_dir, episodes) for run_dir in dirs], str(dirs[0] / "config.yaml"))
+        for name, dirs in zip(group_names(grouped), grouped, strict=True)
     ]
+
+
+def group_names(grouped: Sequence[Sequence[Path]]) -> list[str]:
+    """Each group's name: what its directories' names share, unless that names another
+    group's directories too (a sweep's ``trial_...`` folders): then the config keys in which
+    the groups differ."""
+    names = [_common_name(dirs) for dirs in grouped]
+    if not any(
+        other is not dirs and any(run.name.startswith(name) for run in other)
+        for name, dirs in zip(names, grouped, strict=True)
+        for other in grouped
+    ):
+        return names
+    recipes = [recipe(dirs[0]) for dirs in grouped]
+    keys = sorted(
+        {key for r in recipes for key in r if any(o.get(key) != r.get(key) for o in recipes)}
+    )
+    return [", ".join(f"{key}={r.get(key)}" for key in keys) for r in recipes]
 
 
 def _common_name(run_dirs: Sequence[Path]) -> str:

@@ -19,15 +19,20 @@ A value of the space is ``{grid: [...]}``, ``{choice: [...]}``, ``{uniform: [low
 ``{loguniform: [low, high]}``, ``{randint: [low, high]}`` (high excluded), or a plain value.
 A sweep that would train one config with one seed twice (a seed or a grid value listed twice,
 ``num_samples`` above 1 over a space with nothing to sample) is refused before any trial: the
-report refuses such runs as one group's seeds (:func:`grasp_env_agents.results.check_seeds`).
+report refuses such runs as one group's seeds (:func:`grasp_env_agents.results.check_seeds`);
+a point a random search happens to draw twice is reported once. Every value the space can
+draw (each grid and choice value, each range's ends) is checked against the config before any
+trial.
 Every trial is one training run (:func:`grasp_env_agents.train.train`) with its own run
 directory under ``OUT/runs/`` (config, checkpoints, learning curve, model, held-out report);
 Ray Tune schedules the trials, ``cpus_per_trial`` cores each, on a local Ray with the
 machine's cores, or on an existing cluster with ``--address`` (then OUT must be a path every
 node sees). Run the same command again and an interrupted sweep resumes: Tune restores the
 experiment from ``OUT/tune`` and every unfinished trial continues its run from its newest
-checkpoint. The sweep ends with the aggregate report of :mod:`grasp_env_agents.results` over
-the trials, grouped by everything but the seed (``OUT/results.md``, ``learning_curves.png``).
+checkpoint. ``OUT/sweep.yaml`` records the sweep (its file and the base config's contents):
+another sweep into the same OUT is refused, since Tune would restore the old one. The sweep
+ends with the aggregate report of :mod:`grasp_env_agents.results` over the trials, grouped by
+everything but the seed (``OUT/results.md``, ``learning_curves.png``).
 """
 
 from __future__ import annotations
@@ -218,20 +223,27 @@ def trial_config(sweep: Mapping[str, Any], params: Mapping[str, Any]) -> Any:
 
 
 def check_space(sweep: Mapping[str, Any]) -> None:
-    """Every config the space can produce must load: check each grid point at its first
-    value of any distribution (a bad key fails here, not in a trial an hour later)."""
+    """Every config the space can produce must load (a bad key or value fails here, not in a
+    trial an hour later): each grid point with every other key at its first value, then every
+    value of each choice and both ends of each range in turn."""
     space = dict(sweep["space"])
     grids = {k: v["grid"] for k, v in space.items() if _is_grid(v)}
-    plain = {k: _first(v) for k, v in space.items() if not _is_grid(v)}
+    plain = {k: _values(v)[0] for k, v in space.items() if not _is_grid(v)}
     for values in itertools.product(*grids.values()):
         trial_config(sweep, {**plain, **dict(zip(grids, values, strict=True))})
+    first = {**plain, **{k: v[0] for k, v in grids.items()}}
+    for key in plain:
+        for value in _values(space[key])[1:]:
+            trial_config(sweep, {**first, key: value})
 
 
-def _first(value: Any) -> Any:
+def _values(value: Any) -> list[Any]:
+    """A plain value, a choice's values, or the values at a range's ends (randint's high is
+    excluded)."""
     if not isinstance(value, Mapping):
-        return value
-    (args,) = value.values()
-    return args[0]
+        return [value]
+    (kind, args), *_ = value.items()
+    return [args[0], args[1] - 1] if kind == "randint" else list(args)
 
 
 # --- Ray Tune --------------------------------------------------------------------------------
@@ -345,7 +357,7 @@ def sweep(path: Path, out: Path, address: str | None = None, num_cpus: int | Non
     from .results import Group, plot_curves, read_run, table, write_csv
 
     out = out.resolve()
-    out.mkdir(parents=True, exist_ok=True)
+    check_same_sweep(spec, out)
     if address is None:
         ray.init(num_cpus=num_cpus, include_dashboard=False)
     else:
@@ -357,21 +369,56 @@ def sweep(path: Path, out: Path, address: str | None = None, num_cpus: int | Non
     errors = [result.error for result in grid if result.error is not None]
     if errors:
         raise ValueError(f"{len(errors)} trial(s) failed; the first: {errors[0]}")
+    unfinished = sum("run_dir" not in (result.metrics or {}) for result in grid)
+    if unfinished:  # Tune stops cleanly on Ctrl-C, with the trials under way unreported
+        raise KeyboardInterrupt(
+            f"{unfinished} of {len(grid)} trials unfinished: run the same command again to"
+            " resume the sweep"
+        )
     searched = [k for k, v in spec["space"].items() if isinstance(v, Mapping) and k != "seed"]
-    groups: dict[str, list[Any]] = {}
+    groups: dict[str, dict[int, Any]] = {}
     for result in grid:  # one group per point of the search (the seeds and fixed keys pooled)
         params = {k: v for k, v in result.config.items() if k in searched}
         label = ", ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}"
                           for k, v in sorted(params.items())) or "base config"  # fmt: skip
-        run_dir = Path(result.metrics["run_dir"])
-        groups.setdefault(label, []).append(read_run(run_dir, spec["episodes"]))
-    ordered = [Group(label, runs, _shown(spec["config"])) for label, runs in groups.items()]
+        run = read_run(Path(result.metrics["run_dir"]), spec["episodes"])
+        seeds = groups.setdefault(label, {})
+        if run.seed in seeds:  # a random search drew a point twice: one experiment, twice
+            print(f"{run.run_dir.name} repeats {seeds[run.seed].run_dir.name} ({label}, seed"
+                  f" {run.seed}): reported once")  # fmt: skip
+            continue
+        seeds[run.seed] = run
+    ordered = [
+        Group(label, list(runs.values()), _shown(spec["config"])) for label, runs in groups.items()
+    ]
     markdown = table(ordered, spec["episodes"])
     (out / "results.md").write_text(markdown + "\n")
     write_csv(ordered, out / "results.csv")
     plot_curves(ordered, out / "learning_curves.png")
     print(markdown)
     return ordered
+
+
+def check_same_sweep(spec: Mapping[str, Any], out: Path) -> None:
+    """Record the sweep (its file with the base config's contents) in ``out/sweep.yaml``, or,
+    if ``out`` holds one already, refuse another: Tune would restore the old experiment and
+    silently ignore the edit."""
+    import yaml
+
+    record = {**{k: v for k, v in spec.items() if k != "cpus_per_trial"}}
+    record["base_config"] = base_config(spec)
+    path = out / "sweep.yaml"
+    if path.is_file():
+        held = yaml.safe_load(path.read_text()) or {}
+        differ = sorted(k for k in record.keys() | held.keys() if record.get(k) != held.get(k))
+        if differ:
+            raise ValueError(
+                f"{out} holds another sweep (its sweep.yaml differs in {', '.join(differ)}):"
+                " run the sweep file it was made with to resume it, or give a new --out"
+            )
+        return
+    out.mkdir(parents=True, exist_ok=True)
+    path.write_text(yaml.safe_dump(record, sort_keys=True))
 
 
 def local_cpus(sweep: Mapping[str, Any], num_cpus: int | None) -> int | None:
@@ -403,7 +450,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--out", type=folder_argument, help="the sweep's folder (default: sweeps/<sweep file name>)"
     )
     parser.add_argument(
-        "--address", help="an existing Ray cluster (e.g. auto, or ray://head:10001)"
+        "--address",
+        help="an existing Ray cluster, run from one of its nodes: auto, or the head's HOST:6379",
     )
     parser.add_argument(
         "--num-cpus",

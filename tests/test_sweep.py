@@ -220,6 +220,14 @@ def test_runs_of_one_seed_are_not_counted_as_seeds(tmp_path: Path, capsys) -> No
     assert results.group_dirs([Path(a), Path(b)]) == [[Path(a), Path(b)]]
     assert results._common_name([Path(a), Path(b)]) == "run"
     assert results._common_name([Path("first"), Path("second")]) == "first, second"
+    # a sweep's trial folders share their prefix across groups: the differing keys name them
+    for name, rate, seed in (("trial_0", 1e-4, 0), ("trial_1", 3e-4, 0), ("trial_2", 1e-4, 1)):
+        (tmp_path / name).mkdir()
+        write(
+            tmp_path / name / "config.yaml", {**TINY, "seed": seed, "ppo": {"learning_rate": rate}}
+        )
+    grouped = results.group_dirs([tmp_path / n for n in ("trial_0", "trial_1", "trial_2")])
+    assert results.group_names(grouped) == ["ppo.learning_rate=0.0001", "ppo.learning_rate=0.0003"]
 
 
 def test_a_group_of_runs_of_different_recipes_is_refused(tmp_path: Path, capsys) -> None:
@@ -363,6 +371,103 @@ def test_a_trial_counts_as_finished_only_after_its_rounds_and_steps(
         writer.writeheader()
         writer.writerows({"phase": phase, "env_steps": steps} for phase, steps in phases)
     assert sweep._finished(tmp_path, config) is finished
+
+
+def test_every_value_a_search_can_draw_is_checked_before_any_trial(tmp_path: Path) -> None:
+    """A bad value after a choice's first failed only inside trials, with Ray's tracebacks."""
+    write(tmp_path / "tiny.yaml", TINY)
+    for space, bad in (
+        ({"ppo.n_epochs": {"choice": [1, 0]}}, "n_epochs"),
+        ({"ppo.n_epochs": {"randint": [1, 2000]}}, "n_epochs"),  # high - 1 is drawn
+        ({"ppo.gamma": {"uniform": [0.5, 1.5]}}, "gamma"),
+    ):
+        settings = {"config": "tiny.yaml", "search": "random", "num_samples": 4, "space": space}
+        study = sweep.load_sweep(write(tmp_path / "sweep.yaml", settings))
+        with pytest.raises(ValueError, match=bad):
+            sweep.check_space(study)
+    settings["space"] = {"ppo.n_epochs": {"choice": [1, 2]}, "ppo.gamma": {"uniform": [0, 1]}}
+    sweep.check_space(sweep.load_sweep(write(tmp_path / "sweep.yaml", settings)))
+
+
+def test_a_sweep_folder_holds_one_sweep(tmp_path: Path) -> None:
+    """An edited sweep file run into the same --out restored the old experiment silently."""
+    write(tmp_path / "tiny.yaml", TINY)
+    settings = {"config": "tiny.yaml", "seeds": [0, 1], "space": {"ppo.n_epochs": 1}}
+    out = tmp_path / "out"
+    sweep.check_same_sweep(sweep.load_sweep(write(tmp_path / "sweep.yaml", settings)), out)
+    assert (out / "sweep.yaml").is_file()
+    sweep.check_same_sweep(sweep.load_sweep(tmp_path / "sweep.yaml"), out)  # the same: resumes
+    edited = {**settings, "seeds": [0, 1, 2], "space": {"ppo.n_epochs": 2}}
+    with pytest.raises(ValueError, match=r"holds another sweep \(its sweep.yaml differs in seeds,"
+                       r" space\)"):  # fmt: skip
+        sweep.check_same_sweep(sweep.load_sweep(write(tmp_path / "sweep.yaml", edited)), out)
+    write(tmp_path / "tiny.yaml", {**TINY, "n_envs": 8})  # the base config edited
+    with pytest.raises(ValueError, match=r"differs in base_config\)"):
+        sweep.check_same_sweep(sweep.load_sweep(write(tmp_path / "sweep.yaml", settings)), out)
+
+
+class FakeResult:
+    """What Tune's ResultGrid yields for a trial."""
+
+    def __init__(self, config: dict, run_dir: Path | None) -> None:
+        self.config, self.error = config, None
+        self.metrics = {} if run_dir is None else {"run_dir": str(run_dir)}
+
+
+def fake_sweep(tmp_path: Path, monkeypatch, results: list[FakeResult]) -> Path:
+    """A sweep file whose Tune experiment yields ``results`` (no Ray, no training)."""
+    import ray
+
+    write(tmp_path / "tiny.yaml", TINY)
+    settings = {"config": "tiny.yaml", "search": "random", "num_samples": 3, "seeds": [0],
+                "episodes": 4, "space": {"ppo.n_epochs": {"choice": [1, 2]}}}  # fmt: skip
+    monkeypatch.setattr(ray, "init", lambda **_: None)
+    monkeypatch.setattr(ray, "shutdown", lambda: None)
+
+    class Experiment:
+        def fit(self) -> list[FakeResult]:
+            return results
+
+    monkeypatch.setattr(sweep, "tuner", lambda *_: Experiment())
+    return write(tmp_path / "sweep.yaml", settings)
+
+
+def test_an_interrupted_sweep_says_how_to_resume(tmp_path: Path, monkeypatch, capsys) -> None:
+    """Ctrl-C: Tune stopped cleanly and the report died on KeyError: 'run_dir'."""
+    from grasp_env_agents import cli
+
+    done = FakeResult({"ppo.n_epochs": 1, "seed": 0}, tmp_path / "trial_1")
+    path = fake_sweep(tmp_path, monkeypatch, [done, FakeResult({"seed": 0}, None)])
+    argv = ["sweep", str(path), "--out", str(tmp_path / "out"), "--num-cpus", "1"]
+    assert cli.main(argv) == 130
+    assert (
+        "interrupted: 1 of 2 trials unfinished: run the same command again to resume the sweep"
+    ) in capsys.readouterr().err
+
+
+def test_a_point_a_random_search_draws_twice_is_reported_once(
+    tmp_path: Path, monkeypatch, capsys
+) -> None:
+    """The report refused the sweep's own repeats as "the same experiment run twice"."""
+    runs = {name: tmp_path / name for name in ("trial_1", "trial_2", "trial_3")}
+    metrics = {"mean_gap_deg": 1.0, "p90_gap_deg": 2.0, "success_rate": 0.5}
+    read = {d: results.RunResult(d, 0, metrics, 1.0, 1.0) for d in runs.values()}
+    monkeypatch.setattr(results, "read_run", lambda run_dir, _: read[Path(run_dir)])
+    monkeypatch.setattr(results, "plot_curves", lambda groups, path: None)
+    drawn = [
+        FakeResult({"ppo.n_epochs": 2, "seed": 0}, runs["trial_1"]),
+        FakeResult({"ppo.n_epochs": 1, "seed": 0}, runs["trial_2"]),
+        FakeResult({"ppo.n_epochs": 2, "seed": 0}, runs["trial_3"]),  # trial_1 again
+    ]
+    path = fake_sweep(tmp_path, monkeypatch, drawn)
+    groups = sweep.sweep(path, tmp_path / "out", num_cpus=1)
+    assert {g.label: [r.run_dir.name for r in g.runs] for g in groups} == {
+        "ppo.n_epochs=2": ["trial_1"],
+        "ppo.n_epochs=1": ["trial_2"],
+    }
+    assert "trial_3 repeats trial_1 (ppo.n_epochs=2, seed 0): reported once" in (
+        capsys.readouterr().out
+    )
 
 
 # --- a sweep on a local Ray ------------------------------------------------------------------
