@@ -285,10 +285,14 @@ def run_trial(params: dict[str, Any], sweep: dict[str, Any], out: str) -> None:
     run_dir = Path(out) / "runs" / tune.get_context().get_trial_name()
     torch.set_num_threads(config.torch_threads)
     started = (run_dir / "config.yaml").is_file()
-    if not (run_dir / "model.zip").is_file() or not _finished(run_dir, config):
+    trains = not (run_dir / "model.zip").is_file() or not _finished(run_dir, config)
+    if trains:
         train(config, run_dir, resume=started, progress_bar=False)
     episodes = sweep["episodes"]
-    evaluate_run(run_dir, episodes, 0, evaluation_dir(run_dir, episodes))
+    # a trial Tune runs again after a killed driver keeps its evaluation (report.md is
+    # written last)
+    if trains or not (evaluation_dir(run_dir, episodes) / "report.md").is_file():
+        evaluate_run(run_dir, episodes, 0, evaluation_dir(run_dir, episodes))
     result = read_run(run_dir, episodes)
     metrics = {**result.metrics, "wall_minutes": result.wall_minutes}
     tune.report({**metrics, "cpu_minutes": result.cpu_minutes, "run_dir": str(run_dir)})

@@ -373,6 +373,44 @@ def test_a_trial_counts_as_finished_only_after_its_rounds_and_steps(
     assert sweep._finished(tmp_path, config) is finished
 
 
+def test_a_trial_run_again_keeps_its_training_and_its_evaluation(tmp_path, monkeypatch) -> None:
+    """After a killed driver Tune runs finished trials again: they trained nothing but were
+    evaluated again (minutes each on 2,048 scenes)."""
+    from ray import tune
+
+    from grasp_env_agents import evaluate, train
+    from grasp_env_agents.curve import FIELDS
+
+    calls = []
+    monkeypatch.setattr(train, "train", lambda *a, **k: calls.append("train"))
+    monkeypatch.setattr(evaluate, "evaluate_run", lambda *a, **k: calls.append("evaluate"))
+    monkeypatch.setattr(results, "read_run", lambda *a: results.RunResult(Path(), 0, {}, 1, 1))
+    monkeypatch.setattr(tune, "report", lambda metrics: calls.append("report"))
+
+    class Context:
+        def get_trial_name(self) -> str:
+            return "trial_0"
+
+    monkeypatch.setattr(tune, "get_context", Context)
+    run = tmp_path / "runs" / "trial_0"
+    run.mkdir(parents=True)
+    write(run / "config.yaml", TINY)
+    (run / "model.zip").write_bytes(b"")
+    with (run / "learning_curve.csv").open("w", newline="") as file:
+        writer = csv.DictWriter(file, FIELDS, restval="0")
+        writer.writeheader()
+        writer.writerow({"phase": "ppo", "env_steps": 256})  # finished
+    write(tmp_path / "tiny.yaml", TINY)
+    study = sweep.load_sweep(write(tmp_path / "sweep.yaml", {"config": "tiny.yaml", "episodes": 4}))
+    (results.evaluation_dir(run, 4)).mkdir()
+    (results.evaluation_dir(run, 4) / "report.md").write_text("")
+    sweep.run_trial({}, study, str(tmp_path))
+    assert calls == ["report"]
+    (results.evaluation_dir(run, 4) / "report.md").unlink()  # killed while evaluating
+    sweep.run_trial({}, study, str(tmp_path))
+    assert calls == ["report", "evaluate", "report"]
+
+
 def test_every_value_a_search_can_draw_is_checked_before_any_trial(tmp_path: Path) -> None:
     """A bad value after a choice's first failed only inside trials, with Ray's tracebacks."""
     write(tmp_path / "tiny.yaml", TINY)
