@@ -41,6 +41,7 @@ import argparse
 import csv
 import itertools
 import os
+import signal
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -366,9 +367,12 @@ def sweep(path: Path, out: Path, address: str | None = None, num_cpus: int | Non
         ray.init(num_cpus=num_cpus, include_dashboard=False)
     else:
         ray.init(address=address)
+    # SIGTERM as Ctrl-C: Tune stops the trials cleanly (Ray's own handler only ends the driver)
+    terminate = signal.signal(signal.SIGTERM, lambda *_: os.kill(os.getpid(), signal.SIGINT))
     try:
         grid = tuner(spec, out).fit()
     finally:
+        signal.signal(signal.SIGTERM, terminate)
         ray.shutdown()
     errors = [result.error for result in grid if result.error is not None]
     if errors:

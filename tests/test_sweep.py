@@ -483,6 +483,26 @@ def test_an_interrupted_sweep_says_how_to_resume(tmp_path: Path, monkeypatch, ca
     ) in capsys.readouterr().err
 
 
+def test_sigterm_stops_a_sweep_as_ctrl_c_does(tmp_path: Path, monkeypatch) -> None:
+    """SIGTERM to the driver: Ray's handler printed a stack address and exited 1; as SIGINT,
+    Tune stops its trials cleanly (here, without Tune: Python's KeyboardInterrupt)."""
+    import os
+    import signal
+
+    path = fake_sweep(tmp_path, monkeypatch, [])
+
+    class Terminated:
+        def fit(self) -> list:
+            os.kill(os.getpid(), signal.SIGTERM)
+            return []
+
+    monkeypatch.setattr(sweep, "tuner", lambda *_: Terminated())
+    before = signal.getsignal(signal.SIGTERM)
+    with pytest.raises(KeyboardInterrupt):
+        sweep.sweep(path, tmp_path / "out", num_cpus=1)
+    assert signal.getsignal(signal.SIGTERM) is before  # restored
+
+
 def test_a_point_a_random_search_draws_twice_is_reported_once(
     tmp_path: Path, monkeypatch, capsys
 ) -> None:
