@@ -413,7 +413,7 @@ def check_same_sweep(spec: Mapping[str, Any], out: Path) -> None:
     silently ignore the edit."""
     import yaml
 
-    record = {**{k: v for k, v in spec.items() if k != "cpus_per_trial"}}
+    record = {k: v for k, v in spec.items() if k != "cpus_per_trial"}  # resources only
     record["base_config"] = base_config(spec)
     path = out / "sweep.yaml"
     if path.is_file():
