@@ -498,8 +498,13 @@ def test_sigterm_stops_a_sweep_as_ctrl_c_does(tmp_path: Path, monkeypatch) -> No
 
     monkeypatch.setattr(sweep, "tuner", lambda *_: Terminated())
     before = signal.getsignal(signal.SIGTERM)
-    with pytest.raises(KeyboardInterrupt):
-        sweep.sweep(path, tmp_path / "out", num_cpus=1)
+    # Python's own SIGINT handler (earlier tests' Ray may have left another in place)
+    interrupt = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            sweep.sweep(path, tmp_path / "out", num_cpus=1)
+    finally:
+        signal.signal(signal.SIGINT, interrupt)
     assert signal.getsignal(signal.SIGTERM) is before  # restored
 
 
