@@ -464,8 +464,8 @@ def test_the_solver_reads_no_positions_or_friction_limit():
     other = type(g)(np.zeros((3, 3)), g.normals, g.equilibrating, g.basis, np.float64(0.0))
     result, same = solve_minimax(g, 10.0), solve_minimax(other, 10.0)
     assert result.max_angle > 0.01  # a scene whose optimum is not trivially zero
-    for field in fields(result):
-        np.testing.assert_array_equal(getattr(same, field.name), getattr(result, field.name))
+    for a, b in zip(same, result, strict=True):
+        np.testing.assert_array_equal(a, b)
     with pytest.raises(ValueError, match="grasp friction_limit must be finite angles"):
         type(g)(g.positions, g.normals, g.equilibrating, g.basis, np.float64(np.nan))
 

@@ -47,7 +47,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -58,18 +58,16 @@ from . import codes
 from .codes import Path, Status
 
 __all__ = ["MinimaxResult", "Path", "Status", "solve_minimax"]
-from .driver import solve_batch
+from .driver import solve_batch, solve_grasp
 
 _THREADS = available_cores()
 _PARALLEL_FROM = 64  # smaller batches are not worth the hand-off to threads
 _CHUNKS_PER_THREAD = 4
-#: ``follows`` of one grasp: read by the kernel, never written, so shared between calls
-_NO_FOLLOWS = np.zeros(1, dtype=bool)
 
 
-@dataclass(frozen=True)
-class MinimaxResult:
-    """Solution of the minimax problem, batched like the grasp.
+class MinimaxResult(NamedTuple):
+    """Solution of the minimax problem, batched like the grasp (a named tuple: made once
+    per solve, and a solve of one grasp takes microseconds).
 
     Attributes:
         k: (..., m) optimal interaction scalars.
@@ -126,13 +124,16 @@ def _scalar(value: ArrayLike | None) -> bool:
 
 
 def _positive_number(name: str, value: ArrayLike) -> float:
-    try:
-        if isinstance(value, bool | np.bool_ | str | bytes):  # which float() would convert
-            raise TypeError
-        number = float(value)  # type: ignore[arg-type]
-    except (TypeError, ValueError):
-        number = math.nan
-    if not (math.isfinite(number) and number > 0):
+    if type(value) is float or type(value) is np.float64:  # the usual case, fast
+        number = value
+    else:
+        try:
+            if isinstance(value, bool | np.bool_ | str | bytes):  # which float() would convert
+                raise TypeError
+            number = float(value)  # type: ignore[arg-type]
+        except (TypeError, ValueError):
+            number = math.nan
+    if not 0 < number < math.inf:  # (NaN is not)
         raise ValueError(f"{name} must be finite and > 0 (newtons), got {value!r}")
     return number
 
@@ -237,34 +238,18 @@ def solve_minimax(
             f"got {E.shape} and {N.shape}"
         )
     if F.ndim == 2 and E.ndim == 3 and N.ndim == 2 and _scalar(k_max) and _scalar(f_max):
-        # one grasp: the lean path (numpy's per-call costs, a microsecond each for np.ndim
-        # or a reduction, would dominate the kernel's)
+        # one grasp: the lean path and entry (numpy's and numba's per-call costs, a fraction
+        # of a microsecond for each array made or passed, would rival the kernel's)
         k_lim = _positive_number("k_max", k_max)
         f_lim = math.inf if f_max is None else _positive_number("f_max", f_max)
-        k = np.empty((1, m))
-        angles = np.empty((1, n))
-        lower = np.empty(1)
-        status = np.empty(1, dtype=np.int8)
-        path = np.empty(1, dtype=np.int8)
-        solve_batch(
-            _kernel_array(F)[None],
-            _kernel_array(E)[None],
-            _kernel_array(N)[None],
-            np.array([k_lim]),
-            np.array([f_lim]),
-            k,
-            angles,
-            lower,
-            status,
-            path,
-            _NO_FOLLOWS,
-            0,
-            1,
-        )
-        if path[0] < 0:
-            raise _refused(path, F[None], N[None], np.array([k_lim]), np.array([f_lim]))
-        largest = np.float64(max(angles[0].tolist()))
-        return MinimaxResult(k[0], angles[0], largest, lower[0], status[0])
+        F, E, N = _kernel_array(F), _kernel_array(E), _kernel_array(N)
+        k = np.empty(m)
+        angles = np.empty(n)
+        lower, status, path = solve_grasp(F, E, N, k_lim, f_lim, k, angles)
+        if path < 0:
+            raise _refused(np.array([path]), F[None], N[None], np.array([k_lim]), np.array([f_lim]))
+        largest = max(angles.tolist())
+        return MinimaxResult(k, angles, np.float64(largest), np.float64(lower), np.int8(status))
     try:
         batch = np.broadcast_shapes(F.shape[:-2], N.shape[:-2], E.shape[:-3])
     except ValueError:

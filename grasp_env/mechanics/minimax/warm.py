@@ -1,7 +1,8 @@
 """Compile the solver once, ahead of its first use: ``python -m grasp_env.mechanics.minimax.warm``.
 
-The solver is one numba entry point (``driver.solve_batch``, a single signature) that links
-every kernel of this package; compiling it takes minutes of CPU, which a new user would
+The solver has two numba entry points (``driver.solve_batch`` and ``driver.solve_grasp``, for
+one grasp; a single signature each), each linking every kernel of this package; compiling them
+takes a minute or more of CPU, which a new user would
 otherwise wait through at their first command. Building the wheel runs this module in the
 build tree (``grasp_env/_build.py``), so the wheel carries numba's cache next to the sources
 (``__pycache__``, keyed on the sources' SHA-256 by :mod:`.jit`). numba loads it where the
@@ -25,6 +26,7 @@ def warm() -> float:
     scene = Scene.on_faces(offsets=[[0.3, -0.2], [0.1, 0.25], [-0.2, 0.1]])
     rotations = np.stack([pose_rotation(PAPER_AXIS, np.radians(a)) for a in (-15.0, 0.0, 15.0)])
     solve_minimax(scene_grasp(scene, rotations), 2.0 * scene.weight)
+    solve_minimax(scene_grasp(scene, rotations[0]), 2.0 * scene.weight)  # one grasp
     return time.perf_counter() - start
 
 
