@@ -130,7 +130,10 @@ def certify(a0, al, tau0, T, K, f, k, t_low, S, R, Q, fixed, lam, eta, nu):
             big = max(big, G[p, p])
             y[p] = -w[free[p]]
             residual = max(residual, abs(y[p]))
-        if residual == 0.0:
+        if K * residual <= 1e-15:
+            # the box term K |w| is then 1e-4 of the certificate's margin, about
+            # (t* - t_low) sum l_i |P_i| >= 1e-11 (sum l_i |P_i| = sum lam_i = 1): further
+            # corrections, at rounding level, would not change the verdict
             break
         for p in range(nf):
             G[p, p] += 1e-12 * big
