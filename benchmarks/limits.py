@@ -278,15 +278,29 @@ class Interpreter:
         return {kind: sum(t[i] for t in self.own.values()) for i, kind in enumerate(KINDS)}
 
     def solve(
-        self, F: np.ndarray, E: np.ndarray, N: np.ndarray, k_max: float, f_max: float
+        self,
+        F: np.ndarray,
+        E: np.ndarray,
+        N: np.ndarray,
+        k_max: float,
+        f_max: float,
+        nearby: tuple[np.ndarray, ...] | None = None,
     ) -> tuple[np.ndarray, float, int, int]:
-        """``solve_one`` on one grasp (world-frame arrays), counted: (k, lower, status, path)."""
+        """``solve_one`` on one grasp (world-frame arrays), counted: (k, lower, status, path).
+
+        nearby: (k_near, k_before, F_near, E_near, N_near), the two previous poses' optima
+        and the previous pose, to start as ``solve_batch`` does along a trajectory (secant).
+        """
         n, m = F.shape[0], E.shape[0]
         k = counted_array(np.zeros(m))
         theta = counted_array(np.zeros(n))
         grasp = counted_array(F), counted_array(E), counted_array(N)
+        near = (k, k, False, False, *grasp)
+        if nearby is not None:
+            k_near, k_before, *previous = (counted_array(np.array(x, float)) for x in nearby)
+            near = (k_near, k_before, True, True, *previous)
         lower, status, path = self.kernel("solve_one")(
-            *grasp, Counted(k_max), Counted(f_max), k, theta, k, k, False, False, *grasp
+            *grasp, Counted(k_max), Counted(f_max), k, theta, *near
         )
         return np.array(k, dtype=float), float(lower), int(status), int(path)
 
@@ -543,6 +557,24 @@ def count_solves(grasps: list[Grasp], k_max: np.ndarray, per_path: int = 3) -> S
         name: (count, flops / count if count else 0.0) for name, (count, flops) in units.items()
     }
     return result
+
+
+def count_along(along: Grasp, k_max: np.ndarray, k: np.ndarray, every: int) -> tuple[float, float]:
+    """Mean flops of a solve on the poses of trajectories after their first two, (cold,
+    warm): each pose solved on its own, and started from the two previous poses' optima ``k``
+    as ``solve_batch`` does with ``follows`` (secant). ``along`` is (scenes, poses); every
+    ``every``-th scene is counted. The ratio is what the arithmetic allows the warm start."""
+    interpreter = Interpreter()
+    cold, warm = [], []
+    for s in range(0, along.equilibrating.shape[0], every):
+        F, E, N = along.equilibrating[s], along.basis[s], along.normals[s]
+        for b in range(2, F.shape[0]):
+            previous = (k[s, b - 1], k[s, b - 2], F[b - 1], E[b - 1], N[b - 1])
+            for nearby, flops in ((None, cold), (previous, warm)):
+                interpreter.reset()
+                interpreter.solve(F[b], E[b], N[b], float(k_max[s, 0]), math.inf, nearby)
+                flops.append(interpreter.total())
+    return float(np.mean(cold)), float(np.mean(warm))
 
 
 # ----------------------------------------------------------------------------- the report

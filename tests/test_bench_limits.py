@@ -9,9 +9,10 @@ import math
 import numpy as np
 import pytest
 
-from grasp_env.mechanics import solve_minimax
+from grasp_env.mechanics import PAPER_AXIS, pose_rotation, scene_grasp, solve_minimax
+from grasp_env.mechanics.minimax import Path
 from grasp_env_agents.benchmarks import limits
-from grasp_env_agents.benchmarks.bench_solver import random_grasps
+from grasp_env_agents.benchmarks.bench_solver import random_grasps, random_scene, stacked
 from grasp_env_agents.benchmarks.limits import Counted, Interpreter, counted_array
 
 
@@ -132,3 +133,23 @@ def test_bench_refuses_seconds_that_are_not_a_finite_positive_time(value, capsys
 
     assert main(["bench", "solver", "--seconds", value]) == 2
     assert "--seconds must be a finite number > 0" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("n", [3, 4])
+def test_a_warm_interpreted_solve_is_the_compiled_one_and_costs_less(n):
+    # one scene's first five poses, 1 degree apart, as the benchmark's trajectories
+    scene = random_scene(np.random.default_rng(n), n)
+    along = stacked([scene_grasp(scene, pose_rotation(PAPER_AXIS, np.radians(range(-15, -10))))])
+    k_max = np.array([[2 * scene.weight]])
+    compiled = solve_minimax(along, k_max, follows=np.arange(5) > 0)
+    F, E, N = along.equilibrating[0], along.basis[0], along.normals[0]
+    K = float(k_max[0, 0])
+    k, lower, status, path = Interpreter().solve(
+        F[4], E[4], N[4], K, math.inf, (compiled.k[0, 3], compiled.k[0, 2], F[3], E[3], N[3])
+    )
+    assert path == Path.NEARBY  # the warm start certified it, as in the compiled batch
+    np.testing.assert_allclose(k, compiled.k[0, 4], rtol=1e-12, atol=1e-12 * K)
+    assert lower == pytest.approx(float(compiled.lower_bound[0, 4]), abs=1e-15)
+    assert status == compiled.status[0, 4]
+    cold, warm = limits.count_along(along, k_max, compiled.k, every=1)
+    assert 0 < warm < cold
