@@ -47,12 +47,12 @@ import json
 import os
 import time
 from pathlib import Path
+from typing import Any, NamedTuple
 
 import numpy as np
 
 from grasp_env import ENV_IDS
 from grasp_env.mechanics import (
-    PAPER_FACES,
     PHI,
     Scene,
     Trajectory,
@@ -184,9 +184,7 @@ def run(args: argparse.Namespace) -> int:
                 f"{option} is for a saved model: use it with --policy PATH (a .zip or a run"
                 " directory)"
             )
-    algo, env_id = None, DEFAULT_MODEL_ENV
-    if saved:
-        algo, env_id = model_setup(Path(args.policy), args.algo, args.env)
+    model = model_setup(Path(args.policy), args.algo, args.env) if saved else None
     if args.video is not None:
         if args.agreement:
             raise ValueError("--video writes the rollout: use it without --agreement")
@@ -205,16 +203,13 @@ def run(args: argparse.Namespace) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     if args.agreement:
         if args.trajectory:
-            policy = None
-            if args.policy != "expert":
-                if args.policy == "equal-k":
-                    raise ValueError(
-                        "--policy with --agreement --trajectory adds a saved model's grips:"
-                        " give its .zip or run directory (the expert and equal-k grips are"
-                        " in the study already)"
-                    )
-                policy = Path(args.policy)
-            return run_trajectory_agreement(seed, scenes, args.out, policy, algo, env_id)
+            if args.policy == "equal-k":
+                raise ValueError(
+                    "--policy with --agreement --trajectory adds a saved model's grips:"
+                    " give its .zip or run directory (the expert and equal-k grips are"
+                    " in the study already)"
+                )
+            return run_trajectory_agreement(seed, scenes, args.out, model)
         if args.policy != "expert":
             raise ValueError("--policy with --agreement is for the trajectory study (--trajectory)")
         return run_agreement(seed, args.out)
@@ -226,9 +221,14 @@ def run(args: argparse.Namespace) -> int:
     elif args.policy == "equal-k":
         forces, label = equal_k_forces(scene, trajectory), "equal-k"
     else:
-        path = Path(args.policy)
-        scene, forces = model_forces(path, algo, env_id, scene, trajectory)
-        label = f"learned ({model_name(path)})"
+        fingers = model_fingers(model)
+        if args.offsets is not None and fingers != scene.n_contacts:
+            raise ValueError(
+                f"--offsets places the paper's three fingers, and the model's {model.env_id} has"
+                f" {fingers}: drop --offsets (its fingers then sit at their faces' centres)"
+            )
+        scene, forces = model_forces(model, scene, trajectory)
+        label = f"learned ({model_name(model.path)})"
     if args.trajectory:
         return run_rollout(scene, trajectory, forces, label, args.out, args.video)
     return run_poses(scene, trajectory, forces, label, args.out)
@@ -258,12 +258,21 @@ def model_name(path: Path) -> str:
     return path.parent.name if path.name == "model.zip" else path.stem
 
 
-def model_setup(path: Path, algo: str | None, env_id: str | None) -> tuple[str | None, str]:
-    """The algorithm that wrote the saved model at ``path`` and the environment that drives
-    it: those of the run's ``config.yaml`` when ``path`` is a ``grasp-env train`` run
-    directory (or its model.zip), else ``algo`` (None: the file's policy class says) and
-    ``env_id`` (default :data:`DEFAULT_MODEL_ENV`). An ``algo`` that contradicts the run's is
-    refused."""
+class SavedModel(NamedTuple):
+    """A saved model to verify, and the environment that drives it."""
+
+    path: Path  # its .zip, or a training run's directory
+    algo: str | None  # None: the file's policy class says
+    env_id: str
+    env_kwargs: dict[str, Any]  # the run's (its grip depends on them: k_max_ratio, faces)
+
+
+def model_setup(path: Path, algo: str | None, env_id: str | None) -> SavedModel:
+    """The saved model at ``path``, the algorithm that wrote it and the environment that
+    drives it: those of the run's ``config.yaml`` (its ``env_kwargs`` too) when ``path`` is a
+    ``grasp-env train`` run directory (or its model.zip), else ``algo`` and ``env_id``
+    (default :data:`DEFAULT_MODEL_ENV`) with the environment's defaults. An ``algo`` that
+    contradicts the run's is refused."""
     from .models import ALGORITHMS
 
     if algo is not None and algo not in ALGORITHMS:
@@ -271,7 +280,7 @@ def model_setup(path: Path, algo: str | None, env_id: str | None) -> tuple[str |
     path = Path(path)
     run_dir = path if path.is_dir() else path.parent if path.name == "model.zip" else None
     if run_dir is None or not (run_dir / "config.yaml").is_file():
-        return algo, check_model_env(env_id or DEFAULT_MODEL_ENV)
+        return SavedModel(path, algo, check_model_env(env_id or DEFAULT_MODEL_ENV), {})
     from .config import load_config
 
     config = load_config(run_dir / "config.yaml")
@@ -281,7 +290,7 @@ def model_setup(path: Path, algo: str | None, env_id: str | None) -> tuple[str |
             f" config.yaml); drop --algo or give --algo {config.algo}"
         )
     trained_on = config.env_id if config.env_id in MODEL_ENV_IDS else DEFAULT_MODEL_ENV
-    return config.algo, check_model_env(env_id or trained_on)
+    return SavedModel(path, config.algo, check_model_env(env_id or trained_on), config.env_kwargs)
 
 
 def check_model_env(env_id: str) -> str:
@@ -295,37 +304,55 @@ def check_model_env(env_id: str) -> str:
 
 
 def model_forces(
-    path: Path, algo: str | None, env_id: str, scene: Scene, trajectory: Trajectory
+    model: SavedModel, scene: Scene, trajectory: Trajectory
 ) -> tuple[Scene, np.ndarray]:
-    """A saved model's grip, stepping ``env_id`` pinned to ``scene`` and ``trajectory``.
+    """A saved model's grip, stepping its environment pinned to ``scene`` and ``trajectory``.
 
-    ``path`` is the model's .zip or a training run's directory (holding ``model.zip``), read by
-    :func:`grasp_env_agents.models.load_agent` (no code from the file runs; the
-    ``vecnormalize.pkl`` beside it, if any, normalises the observations). Returns the
-    environment's scene and the contact forces it applied, (T, n, 3).
+    The model is read by :func:`grasp_env_agents.models.load_agent` (no code from the file
+    runs; the ``vecnormalize.pkl`` beside it, if any, normalises the observations). Returns
+    the environment's scene and the contact forces it applied, (T, n, 3).
     """
-    return model_grips(path, algo, env_id, [(scene, trajectory)])[0]
+    return model_grips(model, [(scene, trajectory)])[0]
+
+
+def model_env(model: SavedModel) -> Any:
+    """The model's environment, made with the run's ``env_kwargs``; episodes run past a slip
+    (the whole trajectory is verified)."""
+    import gymnasium as gym  # the RL stack only when a model is verified
+
+    import grasp_env  # noqa: F401  (registers the environments)
+
+    kwargs = {**model.env_kwargs, "terminate_on_slip": False}
+    try:
+        return gym.make(model.env_id, **kwargs)
+    except (TypeError, ValueError) as error:
+        raise ValueError(
+            f"the run's env_kwargs {model.env_kwargs} do not make {model.env_id}: {error}"
+        ) from None
+
+
+def model_fingers(model: SavedModel) -> int:
+    """The number of fingers of the model's environment."""
+    env = model_env(model)
+    env.close()
+    return len(env.unwrapped.faces)
 
 
 def model_grips(
-    path: Path, algo: str | None, env_id: str, problems: list[tuple[Scene, Trajectory]]
+    model: SavedModel, problems: list[tuple[Scene, Trajectory]]
 ) -> list[tuple[Scene, np.ndarray]]:
     """:func:`model_forces` on several (scene, trajectory) problems, the model loaded once."""
+    path, env_id = model.path, model.env_id
     model_file = path / "model.zip" if path.is_dir() else path
     if not model_file.is_file():
         raise ValueError(
             f"--policy must be 'expert', 'equal-k' or the path of a saved model; {model_file}"
             " is not a file"
         )
-    import gymnasium as gym  # the RL stack only when a model is verified
-
-    import grasp_env  # noqa: F401  (registers the environments)
-
     from .models import load_agent, misfit
 
-    check_model_env(env_id)
-    agent = load_agent(path, algo)
-    env = gym.make(env_id, terminate_on_slip=False)
+    agent = load_agent(path, model.algo)
+    env = model_env(model)
     problem = misfit(agent.model, env, env_id)
     if problem:
         env.close()
@@ -346,7 +373,7 @@ def model_grips(
                 "alpha_step_deg": trajectory.alpha_step_deg,
             },
         }
-        if env.unwrapped.faces == PAPER_FACES:
+        if scene.n_contacts == len(env.unwrapped.faces):
             options["contacts"] = scene.contacts.tolist()
         obs, _ = env.reset(seed=0, options={"scene": options})
         env_scene = env.unwrapped.scene
@@ -747,25 +774,20 @@ def _plot_agreement(sets, reports: list[PhysicsReport], path: Path) -> None:
     plt.close(fig)
 
 
-def learned_cases(
-    cases: list[TrajectoryCase], path: Path, algo: str | None, env_id: str
-) -> list[TrajectoryCase]:
+def learned_cases(cases: list[TrajectoryCase], model: SavedModel) -> list[TrajectoryCase]:
     """A saved model's grips (kind "learned") on the scenes and trajectories of the study's
-    expert cases whose number of fingers is the environment's, driven through ``env_id``
-    (:func:`model_grips`)."""
-    import gymnasium as gym
-
-    import grasp_env  # noqa: F401  (registers the environments)
-
-    env = gym.make(env_id)
-    env.reset(seed=0)
-    fingers = env.unwrapped.scene.n_contacts
-    env.close()
+    expert cases whose number of fingers is the model environment's (:func:`model_grips`)."""
+    fingers = model_fingers(model)
     experts = [
         c for c in cases
         if c.kind == "expert" and c.trajectory is not None and c.scene.n_contacts == fingers
     ]  # fmt: skip
-    grips = model_grips(path, algo, env_id, [(c.scene, c.trajectory) for c in experts])
+    if not experts:
+        raise ValueError(
+            f"--policy: no scene of the study has the model's {fingers} fingers (the scenes"
+            " alternate three and four fingers, and skip a few): give more --scenes"
+        )
+    grips = model_grips(model, [(c.scene, c.trajectory) for c in experts])
     return [
         TrajectoryCase("learned", scene, c.alphas_deg, c.rotations, forces, None, c.trajectory)
         for c, (scene, forces) in zip(experts, grips, strict=True)
@@ -776,13 +798,11 @@ def run_trajectory_agreement(
     seed: int,
     scenes: int,
     out: Path,
-    policy: Path | None = None,
-    algo: str | None = None,
-    env_id: str = "grasp_env/CubeGrasp-v0",
+    model: SavedModel | None = None,
 ) -> int:
     """The trajectory study: confusion matrix, agreement by kind of grip and by distance from
-    the edge, the disagreements, runtime and the one-line summary. With ``policy`` (a saved
-    model) its grips on the study's scenes of ``env_id``'s number of fingers are cases too."""
+    the edge, the disagreements, runtime and the one-line summary. With a saved ``model`` its
+    grips on the study's scenes of its environment's number of fingers are cases too."""
     from rich.table import Table
     from tqdm import tqdm
 
@@ -790,9 +810,9 @@ def run_trajectory_agreement(
     start = time.perf_counter()
     with status(f"generating the trajectories of {scenes} scenes and the gaits"):
         cases = trajectory_cases(seed, scenes) + gait_cases(seed)
-    if policy is not None:
-        with status(f"driving {model_name(policy)} through {env_id}"):
-            cases += learned_cases(cases, policy, algo, env_id)
+    if model is not None:
+        with status(f"driving {model_name(model.path)} through {model.env_id}"):
+            cases += learned_cases(cases, model)
     generated = time.perf_counter()
     reports = check_cases(
         cases, progress=lambda c: tqdm(c, desc="MuJoCo rollouts", unit="trajectory")

@@ -202,6 +202,19 @@ def test_released_fingers_are_not_lost_holds():
         np.testing.assert_array_equal(report.released, force <= SETTINGS["released_force"])
 
 
+def test_the_pose_study_judges_loaded_fingers_only():
+    # Seed 11 draws a four-finger layout whose optimum lets a finger go (about 3e-11 w, its
+    # direction arbitrary): counting that finger's angle made 128 sets "slip" analytically,
+    # far from the edge, where MuJoCo (which ignores released fingers) held them.
+    sets = agreement.agreement_sets(seed=11)
+    weight = np.array([case.scene.weight for case in sets])
+    force = np.array([np.linalg.norm(case.forces, axis=-1).min() for case in sets]) / weight
+    releasing = [case for case, f in zip(sets, force, strict=True) if f <= 1e-6]
+    assert len(releasing) >= 100
+    reports = check_sets(releasing)
+    assert all(r.holds == case.predicted_holds for r, case in zip(reports, releasing, strict=True))
+
+
 def test_tiny_and_huge_scales_and_friction_build_well_conditioned_models():
     # Units of w and L: a 1e-9 N, 1 mm box is the same model as the paper's (in newtons and
     # metres MuJoCo would refuse its masses, below mjMINVAL); so is a 1e9 N, 50 m one; and a
@@ -750,6 +763,30 @@ def test_verify_trajectory_agreement_adds_a_saved_models_grips(tmp_path, capsys,
     argv = ["verify", "--agreement", "--trajectory", "--policy", "equal-k"]
     assert main([*argv, "--out", str(tmp_path)]) == 2
     assert "saved model" in capsys.readouterr().err
+
+
+def test_verify_drives_a_run_with_its_own_env_kwargs(tmp_path, capsys):
+    from grasp_env_agents.config import config_from_dict, save_config
+    from grasp_env_agents.verify import model_env, model_setup
+
+    run = tmp_path / "run"
+    run.mkdir()
+    config = {"env_id": "grasp_env/CubeGrasp4-v0", "env_kwargs": {"k_max_ratio": 10.0}}
+    config["total_timesteps"] = 1024
+    save_config(config_from_dict(config), run / "config.yaml")
+    model = model_setup(run, None, None)
+    env = model_env(model)
+    # the grip the model commands is the one its run trained with (k_max = 10 w)
+    assert (model.env_id, env.unwrapped.k_max_ratio) == ("grasp_env/CubeGrasp4-v0", 10.0)
+    assert not env.unwrapped.terminate_on_slip  # the whole trajectory is verified
+    # the paper's three fingers cannot be placed on its four: refused, not ignored
+    argv = ["verify", "--policy", str(run), "--offsets", "0.1,0,0,0,0,0", "--out", str(tmp_path)]
+    assert main(argv) == 2
+    assert "--offsets places the paper's three fingers" in capsys.readouterr().err
+    # a study whose scenes have none of its four fingers says so before any rollout
+    argv = ["verify", "--agreement", "--trajectory", "--scenes", "1", "--policy", str(run)]
+    assert main([*argv, "--out", str(tmp_path)]) == 2
+    assert "no scene of the study has the model's 4 fingers" in capsys.readouterr().err
 
 
 def test_verify_rejects_a_missing_model(tmp_path, capsys):

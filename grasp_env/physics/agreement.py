@@ -155,16 +155,19 @@ def agreement_sets(seed: int = 0, directions: int = 2) -> list[ForceSet]:
                 ks = force_set_k(grasp, k_best, above, rng, 4 * scene.weight)
                 ks = np.concatenate([np.tile(k_best, (at_best.size, 1)), ks])
                 for k in ks[~np.isnan(ks[:, 0])]:
-                    sets.append(
-                        ForceSet(
-                            scene=scene,
-                            alpha_deg=alpha,
-                            rotation=rotations[a],
-                            forces=grasp.forces(k),
-                            max_angle_deg=float(np.degrees(grasp.angles(k).max())),
-                        )
-                    )
+                    forces = grasp.forces(k)
+                    angle = loaded_max_angle_deg(forces, grasp.normals, scene.weight)
+                    sets.append(ForceSet(scene, alpha, rotations[a], forces, angle))
     return sets
+
+
+def loaded_max_angle_deg(forces: np.ndarray, normals: np.ndarray, weight: float) -> float:
+    """The analytic verdict's angle: the largest friction angle of a loaded finger (one
+    released, at most ``released_force`` x w, is judged by neither verdict; its direction is
+    arbitrary: an optimum that lets a finger go leaves it at about 1e-11 w), degrees."""
+    loaded = ~released(forces, weight, SETTINGS["released_force"])
+    angles = friction_angles(forces, normals)[loaded]
+    return float(np.degrees(angles.max())) if angles.size else 0.0
 
 
 def released_sets(seed: int = 0, scenes: int = 300) -> list[ForceSet]:
@@ -181,10 +184,11 @@ def released_sets(seed: int = 0, scenes: int = 300) -> list[ForceSet]:
         grasp = scene_grasp(scene, rotation)
         optimum = solve_minimax(grasp, 2 * scene.weight)
         forces = grasp.forces(optimum.k)
-        loaded = ~released(forces, scene.weight, SETTINGS["released_force"])
-        if loaded.all() or optimum.max_angle > np.radians(60):
+        if not released(forces, scene.weight, SETTINGS["released_force"]).any():
             continue
-        angle = float(np.degrees(friction_angles(forces, grasp.normals)[loaded].max()))
+        if optimum.max_angle > np.radians(60):
+            continue
+        angle = loaded_max_angle_deg(forces, grasp.normals, scene.weight)
         limit = angle + rng.uniform(0.3, 10.0)
         scene = Scene.on_faces(
             FOUR_FINGER_FACES, offsets, cg_offset=cg, mu=float(np.tan(np.radians(limit)))
