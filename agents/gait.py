@@ -72,8 +72,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--alpha-end", type=float, default=90.0, help="last alpha, deg")
     parser.add_argument("--alpha-step", type=float, default=1.0, help="alpha step, deg")
     parser.add_argument(
-        "--k-max", type=float, default=None, help="bound on |k_ij|, N (default 2 x weight)"
-    )
+        "--k-max", type=float, default=None,
+        help="bound on |k_ij|, N, in [1e-3, 1e3] x weight (default 2 x weight)",
+    )  # fmt: skip
     parser.add_argument(
         "--cone", type=float, default=hand.cone_deg,
         help=f"half-angle of each finger's cone of normals, deg (default {hand.cone_deg:g})",
@@ -112,8 +113,17 @@ def problem(args: argparse.Namespace) -> tuple[GaitScene, Hand, Trajectory]:
     )
     hand = Hand(args.finger_azimuths, args.finger_elevation, not args.no_thumb, args.cone)
     trajectory = Trajectory(args.axis, args.alpha_start, args.alpha_end, args.alpha_step)
-    if args.k_max is not None and not (np.isfinite(args.k_max) and args.k_max > 0):
-        raise ValueError(f"--k-max must be a finite number > 0, got {args.k_max}")
+    if args.k_max is not None:
+        # the environments' k_max_ratio range: beyond it the certificate means little, and the
+        # solver takes minutes
+        from grasp_env.envs.validation import K_MAX_RATIO_RANGE
+
+        low, high = K_MAX_RATIO_RANGE
+        if not low <= args.k_max / args.weight <= high:  # NaN fails too
+            raise ValueError(
+                f"--k-max must be within [{low * args.weight:g}, {high * args.weight:g}] N"
+                f" ({low:g} to {high:g} x the weight, {args.weight:g} N here), got {args.k_max:g}"
+            )
     return scene, hand, trajectory
 
 
@@ -193,6 +203,18 @@ def summary(solution: GaitSolution, seconds: float) -> list[str]:
         f" of certified minimax, and the dynamic programme)"
     )
     return lines
+
+
+def no_gait(args: argparse.Namespace) -> str:
+    """Why there is no gait to report, and the options that change it (reach: the hand and
+    the faces' normals along the trajectory)."""
+    thumb = ", drop --no-thumb" if args.no_thumb else ""
+    return (
+        "no gait keeps three fingers on sites within reach along this trajectory (alpha"
+        f" {args.alpha_start:g} to {args.alpha_end:g} deg, --cone {args.cone:g} deg); widen"
+        f" --cone, move the fingers (--finger-azimuths, --finger-elevation{thumb}) or shorten"
+        " or turn the trajectory (--alpha-start, --alpha-end, --axis)"
+    )
 
 
 def env_kwargs(args: argparse.Namespace) -> dict[str, Any]:
@@ -463,6 +485,8 @@ def run(args: argparse.Namespace) -> int:
     ):
         solution = solve_gait(scene, hand, trajectory, args.k_max)
     seconds = time.perf_counter() - start
+    if not solution.holds:
+        raise ValueError(no_gait(args))
     print_gait(solution, solution.optimal, "Optimal gait (certified)")
     for line in summary(solution, seconds):
         print(line)

@@ -328,7 +328,7 @@ def test_bad_programme_inputs():
         optimal_gait(margin, reach, start=[0, 0, 1, 2])
     with pytest.raises(ValueError, match="no state"):
         optimal_gait(margin, reach, start=[0, -1, -1, 2])
-    with pytest.raises(ValueError, match="assignment"):
+    with pytest.raises(ValueError, match="start must give"):
         optimal_gait(margin, reach, start=[0, 1, 2])
     with pytest.raises(ValueError, match="fingers"):
         gait_states(2, 4)
@@ -405,6 +405,7 @@ def test_gait_grips_balance_the_load(coarse):
 
 
 def test_certified_on_the_default_scene(coarse):
+    assert coarse.holds and 0 <= coarse.gap <= GAP
     assert coarse.optimal.margin <= coarse.bound <= coarse.optimal.margin + GAP
     assert abs(coarse.bound_gait.margin - coarse.optimal.margin) <= GAP
     v = coarse.values
@@ -460,6 +461,52 @@ def test_gait_command_refuses_bad_options(capsys):
     assert main(["gait", "--cone", "200", "--no-plots"]) == 2
     assert "cone_deg" in capsys.readouterr().err
     assert main(["gait", "--k-max", "-1", "--no-plots"]) == 2
+
+
+def test_gait_command_refuses_when_no_gait_holds(tmp_path, capsys):
+    """A gait that drops somewhere is a result (the greedy one does); no gait at all is not:
+    a message naming the options, not NaN and an empty table."""
+    from grasp_env_agents.cli import main
+
+    out = tmp_path / "gait"
+    for option in (["--cone", "1e-9"], ["--finger-elevation", "90"]):
+        argv = ["gait", "--no-plots", "--no-thumb", "--alpha-step", "10", "--out", str(out)]
+        assert main([*argv, *option]) == 2
+        printed = capsys.readouterr()
+        assert "nan" not in printed.out and "Optimal gait" not in printed.out
+        assert "error: no gait keeps three fingers" in printed.err
+        assert all(name in printed.err for name in ("--cone", "--finger-elevation", "--no-thumb"))
+        assert not (out / "gait.csv").exists()
+    # the mechanics say so, exactly: no optimum, no arbitrary gait, no NaN gap
+    trajectory = Trajectory(PAPER_TURN.axis, -90.0, 90.0, 10.0)
+    solution = solve_gait(hand=Hand(cone_deg=1e-9), trajectory=trajectory)
+    assert not solution.holds and solution.bound == -np.inf and solution.gap == 0.0
+    assert (solution.optimal.sets == -1).all() and solution.optimal.changes == 0
+
+
+def test_gait_command_bounds_k_max(capsys):
+    """--k-max within the environments' k_max_ratio range times the weight, checked before
+    any solving and named in newtons (beyond it a solve takes minutes)."""
+    import argparse
+
+    from grasp_env_agents import gait as command
+    from grasp_env_agents.cli import main
+
+    argv = ["gait", "--no-plots", "--alpha-step", "90"]
+    assert main([*argv, "--k-max", "1e8"]) == 2
+    err = capsys.readouterr().err
+    assert "--k-max must be within [0.005, 5000] N (0.001 to 1000 x the weight, 5 N here)" in err
+    assert "got 1e+08" in err
+    for value in ("0.001", "nan", "inf"):
+        assert main([*argv, "--weight", "2", "--k-max", value]) == 2
+        assert "--k-max must be within [0.002, 2000] N" in capsys.readouterr().err
+    # with --models too: the option and its unit, not the environment's k_max_ratio
+    assert main([*argv, "--k-max", "1e5", "--models", "m.zip"]) == 2
+    assert "--k-max must be within" in capsys.readouterr().err
+    parser = argparse.ArgumentParser()
+    command.add_arguments(parser)
+    for value in ("0.005", "5000"):  # the ends are accepted
+        command.problem(parser.parse_args(["--k-max", value]))
 
 
 def test_gait_command_plays_models_beside_the_gaits(tmp_path, capsys, monkeypatch):
@@ -695,6 +742,27 @@ def test_gait_env_other_trajectory_and_bad_keywords():
         env.reset()
         rewards.append(env.step(np.full(env.action_space.shape, 0.25, dtype))[1])
     assert rewards[0] == rewards[1] == rewards[2]
+
+
+def test_gait_env_refusals_of_start_name_it():
+    """Every refusal of ``start`` names it, the environment's and the mechanics' alike."""
+    for start, match in [
+        ((6, 1, 3, 4, -1), r"^start must give each of the 5 fingers a site in \[-1, 5\]"),
+        ((0, 1, 3), r"^start must give each of the 5 fingers"),
+        ((0, 0, 3, 4, -1), r"^start \[0, 0, 3, 4, -1\] is no state of the hand"),
+        ((0, -1, -1, 4, -1), r"^start \[0, -1, -1, 4, -1\] is no state"),
+        # within reach at the first pose, but every gait from it drops (the default start holds)
+        ((4, 2, 3, -1, -1), r"^no gait from start \[4, 2, 3, -1, -1\] keeps three fingers"),
+    ]:
+        with pytest.raises(ValueError, match=match):
+            make_gait(start=start)
+    reach = np.ones((2, 4, 4), bool)
+    margin = np.zeros((2, len(site_sets(4))))
+    for start in ([2.7, 0, 1, -1], [[0, 1], [2]], [0, 1, 4, -1]):  # 2.7 is not truncated
+        with pytest.raises(ValueError, match=r"^start must give each of the 4 fingers"):
+            optimal_gait(margin, reach, start=start)
+        with pytest.raises(ValueError, match=r"^start must give"):
+            greedy_gait(margin, reach, start=start)
 
 
 def test_gait_env_through_sb3_make_vec_env():

@@ -196,11 +196,11 @@ def gait_task(
     scene = GaitScene(mu=mu)
     hand = Hand(cone_deg=cone_deg)
     table = gait_states(hand.n_fingers, scene.n_sites)
-    first = None if start is None else table.states[table.index(start)]  # ValueError if no state
+    first = None if start is None else table.states[table.index(start, "start")]
     solution = solve_gait(scene, hand, trajectory, k_max_ratio * scene.weight, first)
     F, N = table.n_fingers, table.n_sites
     X, M = len(table.states), table.n_moves
-    if solution.optimal.margin == -np.inf:
+    if not solution.holds:
         if first is not None:
             reach = solution.reach[0]
             away = [(f, int(s)) for f, s in enumerate(first) if s >= 0 and not reach[f, s]]
@@ -209,8 +209,9 @@ def gait_task(
                     f"start {list(start)}: at the first pose these (finger, site) pairs are out of"
                     f" reach (cone_deg={cone_deg}): {away}"
                 )
+        origin = "" if start is None else f" from start {list(start)}"
         raise ValueError(
-            "no gait keeps three fingers on sites within reach along this trajectory"
+            f"no gait{origin} keeps three fingers on sites within reach along this trajectory"
             f" (cone_deg={cone_deg}); widen the cone or shorten the trajectory"
         )
     x0 = int(solution.optimal.states[0])

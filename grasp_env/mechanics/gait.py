@@ -325,19 +325,30 @@ class GaitStates:
     def n_moves(self) -> int:
         return 1 + self.n_fingers * self.n_sites
 
-    def index(self, assignment: ArrayLike) -> int:
-        """The state index of an assignment (F,) of sites (-1: not touching); ValueError if it
-        is no state (a site used twice, fewer than 3 or more than 4 fingers touching)."""
-        a = np.asarray(assignment, dtype=np.int64)
-        if a.shape != (self.n_fingers,) or np.any(a < -1) or np.any(a >= self.n_sites):
+    def index(self, assignment: ArrayLike, name: str = "assignment") -> int:
+        """The state index of an assignment (F,) of sites (-1: not touching); ValueError,
+        naming it ``name`` (the caller's keyword), if it is no state (not F integer sites, a
+        site used twice, fewer than 3 or more than 4 fingers touching)."""
+        try:
+            a = np.asarray(assignment)
+        except (TypeError, ValueError):  # ragged
+            a = np.empty(0)
+        # integers only: 2.7 is refused, not truncated to site 2
+        if (
+            a.shape != (self.n_fingers,)
+            or a.dtype.kind not in "iu"
+            or np.any(a < -1)
+            or np.any(a >= self.n_sites)
+        ):
             raise ValueError(
-                f"an assignment gives each of {self.n_fingers} fingers a site in"
-                f" [-1, {self.n_sites - 1}], got {a.tolist()}"
+                f"{name} must give each of the {self.n_fingers} fingers a site in"
+                f" [-1, {self.n_sites - 1}] (-1: none), got {a.tolist() if a.size else assignment}"
             )
+        a = a.astype(np.int64)
         x = int(self.code[int(np.sum((a + 1) * (self.n_sites + 1) ** np.arange(self.n_fingers)))])
         if x < 0:
             raise ValueError(
-                f"assignment {a.tolist()} is no state of the hand: sites must differ and"
+                f"{name} {a.tolist()} is no state of the hand: sites must differ and"
                 f" {MIN_LOADED} to {MAX_TOUCHING} fingers touch"
             )
         return x
@@ -687,7 +698,7 @@ def _follow(
 
 
 def _start_index(table: GaitStates, start: ArrayLike | None) -> int:
-    return -1 if start is None else table.index(start)
+    return -1 if start is None else table.index(start, "start")
 
 
 def _policy_choices(table: GaitStates, policy: np.ndarray, start: int) -> np.ndarray:
@@ -712,16 +723,21 @@ def optimal_gait(margin: ArrayLike, reach: ArrayLike, start: ArrayLike | None = 
     Returns:
         The gait with its ``policy``, optimal from every state: a move that maximises the
         smallest margin from there on, and among those the gait's secondary choices (fewest
-        moves, largest sum) wherever the gait's own smallest margin can still be kept.
+        moves, largest sum) wherever the gait's own smallest margin can still be kept. If no
+        gait (from ``start``) keeps the rules at every pose, the best smallest margin is -inf
+        and the gait drops at the first pose (states -1, margins -inf), not at an arbitrary
+        one: check ``gait.margin > -inf``.
     """
     margin, reach = _check_inputs(margin, reach)
     table = gait_states(reach.shape[1], reach.shape[2])
-    _, policy, x, _ = _programme(
+    _, policy, x, best = _programme(
         table.states, table.ptr, table.move, table.next, table.loaded, margin, reach,
         _start_index(table, start),
     )  # fmt: skip
     policy.flags.writeable = False
-    gait = _follow(table, x, _policy_choices(table, policy, x), margin, reach)
+    # every gait drops somewhere: none is optimal, so none is followed
+    choices = _policy_choices(table, policy, x) if best > -np.inf else np.full(len(margin), -1)
+    gait = _follow(table, x, choices, margin, reach)
     return Gait(**{**gait.__dict__, "policy": policy})
 
 
@@ -737,7 +753,7 @@ def greedy_gait(margin: ArrayLike, reach: ArrayLike, start: ArrayLike | None = N
         table.states, table.ptr, table.move, table.next, table.loaded, margin, reach
     )
     policy.flags.writeable = False
-    x = int(np.argmax(score[0])) if start is None else table.index(start)
+    x = int(np.argmax(score[0])) if start is None else table.index(start, "start")
     gait = _follow(table, x, _policy_choices(table, policy, x), margin, reach)
     return Gait(**{**gait.__dict__, "policy": policy})
 
@@ -782,7 +798,8 @@ class GaitSolution:
         reach: (T, F, N) which finger reaches which site.
         optimal: the optimal gait on the attained margins.
         bound: the programme's value on the certified upper bounds: no gait has a smallest
-            margin above it; ``optimal.margin <= bound <= optimal.margin + gap``.
+            margin above it; ``optimal.margin <= bound <= optimal.margin + gap``. -inf when no
+            gait holds (:attr:`holds`).
         bound_gait: the gait the programme picks on the upper bounds (its attained margin
             agrees with the optimal gait's within the gap).
         greedy: the greedy baseline's gait.
@@ -801,9 +818,17 @@ class GaitSolution:
     fixed: Gait
 
     @property
+    def holds(self) -> bool:
+        """Whether some gait keeps the rules at every pose (three fingers on usable sites within
+        reach). If not, ``bound`` and ``optimal.margin`` are -inf and ``optimal`` drops at the
+        first pose: exactly, as reach and usable sets are no solver's estimates."""
+        return self.optimal.margin > -np.inf
+
+    @property
     def gap(self) -> float:
-        """Certificate gap of the optimal gait's margin, radians."""
-        return self.bound - self.optimal.margin
+        """Certificate gap of the optimal gait's margin, radians (0 when no gait holds: both
+        ends are -inf)."""
+        return self.bound - self.optimal.margin if self.holds else 0.0
 
     def _poses(self, gait: Gait):
         """(t, fingers in the set's site order, grasp of the set at t, its optimal k) of every
@@ -880,7 +905,8 @@ def solve_gait(
 ) -> GaitSolution:
     """The certified optimal gait, its bound, the greedy gait and the best fixed set along a
     trajectory (defaults: :class:`GaitScene`, :class:`~.hand.Hand`, :data:`PAPER_TURN`,
-    k_max = 2 w)."""
+    k_max = 2 w). Check :attr:`GaitSolution.holds`: where no gait holds there is no optimum to
+    report."""
     scene = GaitScene() if scene is None else scene
     hand = Hand() if hand is None else hand
     for name, value, kind in (
