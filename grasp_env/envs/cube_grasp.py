@@ -17,7 +17,9 @@ from .scenes import (
     SceneBatch,
     SceneSampler,
     check_faces,
+    check_mujoco_scene,
     default_scene,
+    mujoco_fits,
     parse_options,
     parse_scene,
 )
@@ -32,6 +34,20 @@ from .validation import (
 )
 
 PHYSICS_ENGINES = (None, "mujoco")
+#: A random environment checked in MuJoCo draws at most this many holdable scenes for an
+#: episode, keeping the first whose every grip in the action box the MuJoCo contact carries
+#: (the others, rare and only with wide ranges, would fail MuJoCo's force check at a step).
+MUJOCO_DRAWS = 100
+
+
+def mujoco_draws_error(k_max_ratio: float) -> ValueError:
+    """The error of a random MuJoCo environment whose :data:`MUJOCO_DRAWS` draws all failed."""
+    return ValueError(
+        f"fewer than 1 in {MUJOCO_DRAWS} holdable random scenes keeps every finger's force,"
+        " under every grip in the action box, within what the MuJoCo contact carries"
+        f" (k_max_ratio {k_max_ratio:g}): narrow contact_offset, cg_offset and the extra"
+        " load, or lower k_max_ratio"
+    )
 
 
 def check_physics(physics: str | None, render_mode: str | None, modes: Sequence[str]) -> None:
@@ -107,8 +123,12 @@ class _CubeGraspEnv(gym.Env[np.ndarray, np.ndarray]):
         raise NotImplementedError
 
     def scene_batch(self, scene: Mapping[str, Any]) -> SceneBatch:
-        """The validated scene of a ``reset(options={"scene": scene})``."""
-        return parse_scene(scene, self._defaults)
+        """The validated scene of a ``reset(options={"scene": scene})`` (with physics, one
+        whose every grip in the action box the MuJoCo contact carries)."""
+        batch = parse_scene(scene, self._defaults)
+        if self.physics is not None:
+            check_mujoco_scene("reset option 'scene'", batch, self.k_max_ratio)
+        return batch
 
     @property
     def episode(self) -> Episode:
@@ -326,7 +346,9 @@ _DOC_COMMON_ARGS = """\
       (`grasp_env.physics.StabilityChecker`, a few ms a step) and terminates on its verdict;
       at the episode's end it carries the episode's grips through one continuous rollout
       (`grasp_env.physics.TrajectoryChecker`, `info["physics_trajectory"]`); `k_max_ratio`
-      is then at most 40 (MuJoCo's contact carries at most 150 w a finger faithfully).
+      is then at most 40 (MuJoCo's contact carries at most 150 w a finger faithfully), and
+      a scene in which some grip of the action box would press a finger harder is refused
+      (`ValueError`) or, if drawn at random, drawn again.
     - `render_mode`: None, "rgb_array" or "human" (MuJoCo view of the grasp).
 """
 
@@ -390,7 +412,10 @@ class CubeGraspEnv(_CubeGraspEnv):
     ) -> None:
         super().__init__(faces, k_max_ratio, terminate_on_slip, physics, render_mode)
         base = default_scene(self.faces)
-        self._default_episode = cached_episode(parse_scene(scene, base), self.k_max_ratio)
+        scenes = parse_scene(scene, base)
+        if self.physics is not None:
+            check_mujoco_scene("scene", scenes, self.k_max_ratio)
+        self._default_episode = cached_episode(scenes, self.k_max_ratio)
         # Reset options fill missing keys from the environment's own scene.
         scene = dict(scene or {})
         self._defaults = {
@@ -502,10 +527,15 @@ class CubeGraspRandomEnv(_CubeGraspEnv):
     def _next_episode(self, scene: Mapping[str, Any] | None) -> Episode:
         if scene is not None:
             return build_episodes(self.scene_batch(scene), self.k_max_ratio).episode(0)
-        batch = sample_episodes(
-            [self.np_random], self.sampler, self.k_max_ratio, self.min_expert_margin
-        )
-        return batch.episode(0)
+        # With physics a drawn scene must fit the MuJoCo contact as an explicit one must; the
+        # vector env draws again from the same generator, so it gets the same episodes.
+        for _ in range(MUJOCO_DRAWS):
+            batch = sample_episodes(
+                [self.np_random], self.sampler, self.k_max_ratio, self.min_expert_margin
+            )
+            if self.physics is None or mujoco_fits(batch.scenes, self.k_max_ratio)[0]:
+                return batch.episode(0)
+        raise mujoco_draws_error(self.k_max_ratio)
 
 
 __all__ = ["FOUR_FINGER_FACES", "CubeGraspEnv", "CubeGraspRandomEnv"]

@@ -16,18 +16,15 @@ Gymnasium's ``TimeLimit`` cannot give (the wrapper truncates it from outside).
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from typing import Any
 
 import numpy as np
 from gymnasium.vector import AutoresetMode
 
-from ..mechanics import START_ROTATION, contact_pairs
-from .cube_grasp import physics_info
+from .cube_grasp import MUJOCO_DRAWS, mujoco_draws_error, physics_info
 from .episodes import Episode
-from .kernels import pose_geometry
-from .observation import ObservationLayout
-from .scenes import EDGE, SceneBatch
+from .scenes import SceneBatch, check_mujoco_scene, mujoco_fits, pose_arrays
 from .validation import DEFAULT_K_MAX_RATIO, check_bool, check_mujoco_k_max_ratio
 from .vector import _OPTION, CubeGraspRandomVectorEnv, CubeGraspVectorEnv, _CubeGraspVectorEnv
 
@@ -36,22 +33,8 @@ def trajectory_rotations(scenes: SceneBatch, index: np.ndarray) -> list[np.ndarr
     """The rotations (T, 3, 3) of trajectories ``index`` of ``scenes``, by the kernel that
     builds the episodes (so bit for bit the single environment's; the vector env's store
     keeps no rotations)."""
-    lengths = scenes.length[index]
-    episode = np.repeat(index, lengths)
-    step = np.arange(len(episode)) - np.repeat(np.cumsum(lengths) - lengths, lengths)
-    count, n = len(episode), scenes.contacts.shape[1]
-    pairs = contact_pairs(n)
-    layout = ObservationLayout(n)
-    rotations = np.empty((count, 3, 3))
-    pose_geometry(
-        scenes.contacts - scenes.cg_offset[:, None, :], scenes.normals, scenes.axis,
-        scenes.alpha_start, scenes.alpha_step, scenes.length, scenes.weight, scenes.mu,
-        scenes.extra_force, scenes.extra_torque, EDGE, episode, step, START_ROTATION, pairs,
-        *layout.bounds(), np.empty(count), rotations, np.empty((count, n, 3)),
-        np.empty((count, n, 3)), np.empty((count, len(pairs), 3)), np.empty((count, n, 3)),
-        np.empty((count, layout.size), np.float32), np.empty(count),
-    )  # fmt: skip
-    return np.split(rotations, np.cumsum(lengths)[:-1])
+    rotations = pose_arrays(scenes, index)["rotations"]
+    return np.split(rotations, np.cumsum(scenes.length[index])[:-1])
 
 
 class _MujocoVectorEnv(_CubeGraspVectorEnv):
@@ -78,7 +61,9 @@ class _MujocoVectorEnv(_CubeGraspVectorEnv):
 
     The info is a dict of arrays with Gymnasium's ``_key`` masks, as the numpy vector env's;
     ``info["physics"]`` is a dict of arrays (N,) or (N, n) (``holds``, ``slip``,
-    ``contact_lost``, ``released``, ``drift``, ``rotation_deg``, ``time``) with its own masks,
+    ``contact_lost``, ``released``, ``drift``, ``rotation_deg``, ``time``) with its own masks
+    (with ``SAME_STEP`` the pose checks of the episodes that ended are in
+    ``info["final_info"]["physics"]``, masked for those alone, as ``SyncVectorEnv`` has them),
     and ``info["physics_trajectory"]`` (the sub-environments whose episode ended at this step:
     terminated, at its trajectory's end or cut by ``max_episode_steps``) a dict in the layout
     Gymnasium's ``SyncVectorEnv`` gives: per-pose lists in object arrays.
@@ -86,6 +71,9 @@ class _MujocoVectorEnv(_CubeGraspVectorEnv):
     ``reset(options={"reset_mask": mask, ...})`` resets only the sub-environments where
     ``mask`` is True (as the numpy vector env's); their MuJoCo checkers and the grips of their
     rollouts start afresh, the others' carry on.
+
+    Scenes are refused, and random ones drawn again, as the single environment's: where a grip
+    in the action box would press a finger harder than the MuJoCo contact carries.
     """
 
     def __init__(
@@ -115,6 +103,8 @@ class _MujocoVectorEnv(_CubeGraspVectorEnv):
         # The checkers of scene options' episodes, by id(episode): (episode, checker).
         self._option_checkers: dict[int, tuple[Episode, Any]] = {}
         self._grips: list[list[np.ndarray]] = [[] for _ in range(self.num_envs)]
+        if self._store.default is not None:  # a fixed scene, refused as the single env's
+            check_mujoco_scene("scene", self._store.default.scenes, self.template.k_max_ratio)
 
     # -- episodes ------------------------------------------------------------------------------
 
@@ -141,6 +131,10 @@ class _MujocoVectorEnv(_CubeGraspVectorEnv):
 
     def _start(self, envs: np.ndarray, scene: Mapping[str, Any] | None) -> None:
         self._check_open()
+        if scene is not None:  # refused as the single env refuses it, before it starts
+            check_mujoco_scene(
+                "reset option 'scene'", self.template.scene_batch(scene), self.template.k_max_ratio
+            )
         super()._start(envs, scene)
         if len(envs) == 0:
             return
@@ -151,20 +145,58 @@ class _MujocoVectorEnv(_CubeGraspVectorEnv):
                 self._checkers[e].close()
             self._own[e] = False
             self._grips[e] = []
-        first = self._scenes[envs[0]]
-        if first is None:  # a shared episode, the same for all of envs
+        if self._scenes[envs[0]] is None:  # a shared episode, the same for all of envs
             episode = self._store.option if scene is not None else self._store.default
             checker = self._shared_checker(episode)
             for e in envs:
                 self._rotations[e] = episode.rotations
                 self._checkers[e] = checker
             return
-        batch = first[0]  # episodes drawn for envs in one batch
-        index = np.array([self._scenes[e][1] for e in envs])
-        for e, j, rotations in zip(envs, index, trajectory_rotations(batch, index), strict=True):
-            self._rotations[e] = rotations
-            self._checkers[e] = StabilityChecker(batch.scene(int(j)))
-            self._own[e] = True
+        self._redraw(envs)
+        for batch, members, index in self._drawn(envs):
+            for e, j, rotations in zip(
+                members, index, trajectory_rotations(batch, index), strict=True
+            ):
+                self._rotations[e] = rotations
+                self._checkers[e] = StabilityChecker(batch.scene(int(j)))
+                self._own[e] = True
+
+    def _drawn(self, envs: np.ndarray) -> list[tuple[SceneBatch, np.ndarray, np.ndarray]]:
+        """Sub-environments ``envs`` (drawn scenes) by the batch their scenes were drawn in:
+        (batch, its sub-environments, their scenes' indices in it)."""
+        groups: dict[int, list[int]] = {}
+        for e in envs:
+            groups.setdefault(id(self._scenes[e][0]), []).append(int(e))
+        return [
+            (
+                self._scenes[members[0]][0],
+                np.array(members),
+                np.array([self._scenes[e][1] for e in members]),
+            )
+            for members in groups.values()
+        ]
+
+    def _overloaded(self, envs: np.ndarray) -> np.ndarray:
+        """Those of ``envs`` (drawn scenes) whose scene the MuJoCo contact cannot carry under
+        every grip in the action box."""
+        k_max_ratio = self.template.k_max_ratio
+        return np.concatenate(
+            [
+                members[~mujoco_fits(batch.take(index), k_max_ratio)]
+                for batch, members, index in self._drawn(envs)
+            ]
+        )
+
+    def _redraw(self, envs: np.ndarray) -> None:
+        """Draw the overloaded scenes of ``envs`` again, each from its own generator, as the
+        single environment does (at most :data:`MUJOCO_DRAWS` draws in all)."""
+        for _ in range(MUJOCO_DRAWS - 1):  # the first draw is done
+            envs = self._overloaded(envs)
+            if len(envs) == 0:
+                return
+            super()._start(envs, None)
+        if len(self._overloaded(envs)):
+            raise mujoco_draws_error(self.template.k_max_ratio)
 
     # -- stepping ------------------------------------------------------------------------------
 
@@ -222,27 +254,32 @@ class _MujocoVectorEnv(_CubeGraspVectorEnv):
         acting = np.flatnonzero(active)
         poses = self._t[acting] - 1
         forces = data["contact_forces"][acting]
-        physics: dict[str, Any] = {}
-        holds = np.ones(count, bool)
         reports = self._check_poses(acting, poses, forces)
+        checks = {int(e): physics_info(r.as_dict()) for e, r in zip(acting, reports, strict=True)}
+        holds = np.ones(count, bool)
         for e, f, report in zip(acting, forces, reports, strict=True):
-            physics = self._add_info(physics, physics_info(report.as_dict()), int(e))
             holds[e] = report.holds
             self._grips[e].append(f.copy())
-        data["physics"] = physics
         terminated = ~holds if terminate else np.zeros(count, bool)
         done = terminated | truncated
         ended = np.flatnonzero(done)
-        trajectories: dict[str, Any] = {}
-        for e, report in zip(ended, self._check_trajectories(ended), strict=True):
-            trajectories = self._add_info(trajectories, report.as_dict(), int(e))
+        trajectories = self._gather(
+            zip(ended, (r.as_dict() for r in self._check_trajectories(ended)), strict=True)
+        )
         if mode == AutoresetMode.SAME_STEP:
+            # As SyncVectorEnv: an ended episode's pose check goes to final_info, a running
+            # one's to info, each dict with masks of its own.
             self._autoreset[:] = False
+            data["physics"] = self._gather((e, checks[e]) for e in np.flatnonzero(active & ~done))
             info = {**data, **{f"_{key}": active & ~done for key in data}}
             if ended.size:
                 final_obs = np.full(count, None, dtype=object)
                 final_obs[ended] = list(observations[ended])
-                final = {**data, "physics_trajectory": trajectories}
+                final = {
+                    **data,
+                    "physics": self._gather((e, checks[e]) for e in ended),
+                    "physics_trajectory": trajectories,
+                }
                 final_info = {**final, **{f"_{key}": done for key in final}}
                 self._start(ended, None)
                 observations[ended] = self._store.arrays["observations"][self._base[ended]]
@@ -251,10 +288,19 @@ class _MujocoVectorEnv(_CubeGraspVectorEnv):
                 )
         else:  # NEXT_STEP resets the ended episodes at the next step, DISABLED never
             self._autoreset = done
+            data["physics"] = self._gather(checks.items())
             info = {**data, **{f"_{key}": active for key in data}}
             if ended.size:
                 info.update(physics_trajectory=trajectories, _physics_trajectory=done)
         return observations, reward, terminated, truncated, info
+
+    def _gather(self, infos: Iterable[tuple[int, dict[str, Any]]]) -> dict[str, Any]:
+        """Sub-environments' info dicts gathered as SyncVectorEnv gathers them (Gymnasium's
+        ``_add_info``): arrays whose masks, nested ones too, are set for these alone."""
+        gathered: dict[str, Any] = {}
+        for e, info in infos:
+            gathered = self._add_info(gathered, info, int(e))
+        return gathered
 
     def close_extras(self, **kwargs: Any) -> None:
         own = [c for c, mine in zip(self._checkers, self._own, strict=True) if mine]

@@ -3,6 +3,7 @@ and random ones (drawn by a :class:`SceneSampler`)."""
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -14,10 +15,14 @@ from ..mechanics import (
     DEFAULT_WEIGHT,
     FACES,
     PAPER_FACES,
+    START_ROTATION,
     Scene,
     Trajectory,
+    contact_pairs,
     face_point,
 )
+from .kernels import evaluate_grips, pose_geometry
+from .observation import ObservationLayout
 from .validation import (
     ALPHA_RANGE_DEG,
     MAX_POSES,
@@ -269,6 +274,101 @@ def layout_ok(contacts: np.ndarray) -> np.ndarray:
     else:
         spread = np.abs(np.linalg.det(d)) > 1e-6 * EDGE**3
     return apart & spread
+
+
+# ----------------------------------------------------------- what the MuJoCo contact carries
+
+
+def pose_arrays(scenes: SceneBatch, index: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """The world-frame arrays of every pose of trajectories ``index`` (default: all) of
+    ``scenes``, one trajectory after the other, by the kernel that builds the episodes (so bit
+    for bit theirs): ``rotations`` (P, 3, 3), equilibrating ``forces`` F_i / w and ``normals``
+    (P, n, 3), ``directions`` u_ij (P, m, 3), ``limit`` and ``weight`` (P,)."""
+    index = np.arange(len(scenes)) if index is None else np.asarray(index)
+    lengths = scenes.length[index]
+    episode = np.repeat(index, lengths)
+    step = np.arange(len(episode)) - np.repeat(np.cumsum(lengths) - lengths, lengths)
+    count, n = len(episode), scenes.contacts.shape[1]
+    pairs = contact_pairs(n)
+    layout = ObservationLayout(n)
+    out = {
+        "rotations": np.empty((count, 3, 3)),
+        "forces": np.empty((count, n, 3)),
+        "directions": np.empty((count, len(pairs), 3)),
+        "normals": np.empty((count, n, 3)),
+        "limit": np.empty(count),
+    }
+    pose_geometry(
+        scenes.contacts - scenes.cg_offset[:, None, :], scenes.normals, scenes.axis,
+        scenes.alpha_start, scenes.alpha_step, scenes.length, scenes.weight, scenes.mu,
+        scenes.extra_force, scenes.extra_torque, EDGE, episode, step, START_ROTATION, pairs,
+        *layout.bounds(), np.empty(count), out["rotations"], np.empty((count, n, 3)),
+        out["forces"], out["directions"], out["normals"],
+        np.empty((count, layout.size), np.float32), out["limit"],
+    )  # fmt: skip
+    return {**out, "weight": scenes.weight[episode]}
+
+
+def grip_forces(scenes: SceneBatch, k_max_ratio: float) -> tuple[np.ndarray, np.ndarray]:
+    """At every pose of the batch's trajectories (one after the other, P poses): each finger's
+    largest force over the action box, max |F_i + sum_j k_ij e_ij| / w over |k_ij| <= k_max,
+    and its equilibrating force |F_i| / w, both (P, n).
+
+    The force is convex in the grip, so its largest is at a corner of the box. The corners are
+    stepped by the step's own kernel, so that these are the very numbers that a step's MuJoCo
+    check (``grasp_env.physics.motion``) compares with what the contact carries.
+    """
+    poses = pose_arrays(scenes)
+    forces, weight = poses["forces"], poses["weight"]
+    count, n = forces.shape[:2]
+    pairs = contact_pairs(n)
+    rows = np.arange(count)
+    largest = np.zeros((count, n))
+    for corner in itertools.product((-1.0, 1.0), repeat=len(pairs)):
+        _, _, net, *_ = evaluate_grips(
+            forces, poses["directions"], poses["normals"], pairs, rows,
+            np.tile(corner, (count, 1)), k_max_ratio, weight, poses["limit"],
+        )  # fmt: skip
+        # newtons over w, as the MuJoCo check divides them
+        np.maximum(largest, np.linalg.norm(net, axis=-1) / weight[:, None], out=largest)
+    return largest, np.linalg.norm(forces, axis=-1)
+
+
+def _mujoco_max_force() -> float:
+    from ..physics.model import MAX_FORCE  # imported only by the MuJoCo environments
+
+    return MAX_FORCE
+
+
+def mujoco_fits(scenes: SceneBatch, k_max_ratio: float) -> np.ndarray:
+    """(E,) bool: every grip in the action box keeps every finger along the scene's whole
+    trajectory within the force that the MuJoCo contact carries
+    (``grasp_env.physics.model.MAX_FORCE``), so that MuJoCo can check any step of it."""
+    largest, _ = grip_forces(scenes, k_max_ratio)
+    starts = np.cumsum(scenes.length) - scenes.length
+    return np.maximum.reduceat(largest.max(-1), starts) <= _mujoco_max_force()
+
+
+def check_mujoco_scene(name: str, scenes: SceneBatch, k_max_ratio: float) -> None:
+    """A ValueError naming ``name`` unless the scene (a batch of one) :func:`mujoco_fits`.
+
+    Every grip in the box, not only the zero grip: an environment that accepts a scene then
+    steps any action of its action space, so no step of it can fail MuJoCo's force check.
+    """
+    largest, equilibrating = grip_forces(scenes, k_max_ratio)
+    limit = _mujoco_max_force()
+    if largest.max() <= limit:
+        return
+    t, i = np.unravel_index(np.argmax(largest), largest.shape)
+    n = largest.shape[1]
+    raise ValueError(
+        f"{name} with physics='mujoco': its equilibrating forces reach"
+        f" {equilibrating.max():.4g} w along the trajectory, and with the action box (which"
+        f" adds up to (n - 1) k_max = {(n - 1) * k_max_ratio:g} w a finger) a grip presses"
+        f" finger {i} with {largest[t, i]:.4g} w at pose {t}, but the MuJoCo contact carries"
+        f" at most {limit:g} w a finger: choose contacts around the centre of gravity that"
+        " need smaller equilibrating forces, or a lower k_max_ratio"
+    )
 
 
 # --------------------------------------------------------------------------- random scenes

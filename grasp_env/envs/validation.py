@@ -32,7 +32,8 @@ WEIGHT_RANGE = (1e-6, 1e6)  # N
 MU_RANGE = (1e-3, 1e3)  # theta_lim from 0.057 deg to 89.94 deg
 K_MAX_RATIO_RANGE = (1e-3, 1e3)  # k_max / w
 #: k_max / w with physics="mujoco": a finger's force is at most |F_i| + 3 k_max (four fingers),
-#: which then stays below the MuJoCo contact's grasp_env.physics.model.MAX_FORCE (150 w).
+#: which leaves room below the MuJoCo contact's grasp_env.physics.model.MAX_FORCE (150 w) for
+#: the equilibrating forces F_i; scenes that overstep it are refused (scenes.check_mujoco_scene).
 MUJOCO_K_MAX_RATIO_RANGE = (1e-3, 40.0)
 ALPHA_RANGE_DEG = (-180.0, 180.0)
 #: The most sub-environments a vector environment may have.
