@@ -53,6 +53,7 @@ from grasp_env.physics.agreement import (
     trajectory_cases,
 )
 from grasp_env.physics.model import G, build_mjcf, model_cg, model_contacts
+from grasp_env.physics.motion import released as motion_released
 from grasp_env.physics.simulation import PhysicsModel, available_cores
 from grasp_env_agents.cli import main
 
@@ -213,6 +214,33 @@ def test_the_pose_study_judges_loaded_fingers_only():
     assert len(releasing) >= 100
     reports = check_sets(releasing)
     assert all(r.holds == case.predicted_holds for r, case in zip(reports, releasing, strict=True))
+
+
+def test_the_analytic_verdict_needs_forces_that_balance_the_load():
+    # The cones judge a grip (equilibrating plus interaction forces); forces that do not
+    # balance the load push the object away, and the analytic verdict says so too.
+    scene, rotations = Scene(mu=1.0), Trajectory().rotations()[:3]
+    grasp = scene_grasp(scene, rotations)
+    grip = grasp.forces(solve_minimax(grasp, 2 * scene.weight).k)
+    checker = TrajectoryChecker(scene)
+    assert checker.check(rotations, grip).predicted_holds
+    for forces in (np.zeros_like(grip), 0.5 * grip):
+        report = checker.check(rotations, forces)
+        assert not report.predicted_holds and not report.holds
+        assert report.predicted_first_failure == 0.0 and not report.pose_predicted.any()
+
+
+def test_thin_boxes_and_extreme_forces_are_named():
+    with pytest.raises(ValueError, match=r"smallest edge is at least 0.05 x their largest"):
+        StabilityChecker(Scene.on_faces(size=(0.01, 1.0, 1.0)))
+    with pytest.raises(ValueError, match="smallest edge"):
+        TrajectoryChecker(Scene.on_faces(size=(1.0, 1.0, 1e-4)))
+    StabilityChecker(Scene.on_faces(size=(0.05, 1.0, 1.0))).close()
+    # magnitudes without squares: neither inf for 1e300 N nor "released" for 1e-299 N at w 1e-300
+    with pytest.raises(ValueError, match=r"is 3.464e\+299 w"):
+        StabilityChecker(Scene()).check(START_ROTATION, np.full((3, 3), 1e300))
+    tiny = np.full((1, 3, 3), 1e-299)
+    assert not motion_released(tiny, 1e-300, SETTINGS["released_force"]).any()
 
 
 def test_tiny_and_huge_scales_and_friction_build_well_conditioned_models():

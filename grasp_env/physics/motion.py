@@ -118,6 +118,15 @@ class Motion:
         angles = friction_angles(self.forces, scene.normals)
         return np.where(self.contact, angles, 0.0)
 
+    def imbalance(self, scene: Scene) -> np.ndarray:
+        """(N,) how far each step's forces miss balancing its load: the largest component of
+        the net wrench, in w and w L. A grip balances it exactly (paper eq. 4), but for the
+        released fingers' forces that the motion leaves out (each at most ``released_force``
+        x w); forces given otherwise do not."""
+        positions = model_contacts(scene) - model_cg(scene)
+        wrench = self.forces.reshape(len(self.forces), -1) @ grasp_matrix(positions).T
+        return np.abs(wrench + self.load).max(axis=-1)
+
 
 def _load(scene: Scene, rotations: np.ndarray) -> np.ndarray:
     """The load (..., 6) in the object frame at world orientations (..., 3, 3), model units."""
@@ -206,9 +215,17 @@ def path_settings(settings: dict[str, float], density: int = 8) -> dict[str, flo
     )
 
 
+def magnitudes(forces: np.ndarray, weight: float) -> np.ndarray:
+    """|P_i| / w, (..., n), without squaring what may underflow or overflow (a 1e-300 N force,
+    a 1e300 N one): each vector is scaled by its largest component first."""
+    scale = np.abs(forces).max(axis=-1, keepdims=True)
+    unit = forces / np.where(scale > 0, scale, 1.0)
+    return (scale[..., 0] / weight) * np.linalg.norm(unit, axis=-1)
+
+
 def released(forces: np.ndarray, weight: float, released_force: float) -> np.ndarray:
     """Fingers whose force is at most ``released_force`` x w: they carry no load."""
-    return np.linalg.norm(forces, axis=-1) <= released_force * weight
+    return magnitudes(forces, weight) <= released_force
 
 
 def _check_contact(
@@ -217,11 +234,11 @@ def _check_contact(
     """``in_contact`` (T, n) for ``forces`` (T, n, 3) (None: every finger), or a ValueError:
     a finger out of contact must carry no force, and none more than :data:`MAX_FORCE` w."""
     n_poses, n = forces.shape[:2]
-    magnitudes = np.linalg.norm(forces, axis=-1) / scene.weight
-    if np.any(magnitudes > MAX_FORCE):
-        t, i = np.argwhere(magnitudes > MAX_FORCE)[0]
+    force = magnitudes(forces, scene.weight)
+    if np.any(force > MAX_FORCE):
+        t, i = np.argwhere(force > MAX_FORCE)[0]
         raise ValueError(
-            f"finger {i}'s force at pose {t} is {magnitudes[t, i]:.4g} w: the MuJoCo contact"
+            f"finger {i}'s force at pose {t} is {force[t, i]:.4g} w: the MuJoCo contact"
             f" carries at most {MAX_FORCE:g} w a finger faithfully (a tip pressed harder sinks"
             " through the face)"
         )
@@ -238,7 +255,7 @@ def _check_contact(
         t, i = np.argwhere(pushing)[0]
         raise ValueError(
             f"finger {i} is out of contact at pose {t} but its force is"
-            f" {np.linalg.norm(forces[t, i]):.6g} N: a finger out of contact carries none"
+            f" {magnitudes(forces[t, i], 1.0):.6g} N: a finger out of contact carries none"
         )
     return contact
 

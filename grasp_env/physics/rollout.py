@@ -36,8 +36,8 @@ class RolloutReport:
         holds: MuJoCo's verdict on the whole run: no fingertip in contact slid or lifted off
             more than the slip threshold since it was placed, and the object's drift and
             rotation since the settle stayed within their thresholds.
-        predicted_holds: the analytic verdict: at every step, every finger in contact within
-            its friction cone.
+        predicted_holds: the analytic verdict: at every step, the forces balance the load and
+            every finger in contact is within its friction cone.
         pose_holds: (T,) MuJoCo's verdict within each pose's interval (the increments there).
         pose_predicted: (T,) the analytic verdict within each pose's interval.
         max_angle_deg: (T,) the largest friction angle of a finger in contact over each pose's
@@ -50,7 +50,7 @@ class RolloutReport:
         first_failure: the pose coordinate (t + s between poses t and t + 1) where MuJoCo's
             accumulated measures first crossed a threshold; None if they never did.
         predicted_first_failure: the pose coordinate where a friction angle first passed the
-            limit; None if none did.
+            limit (or the forces first missed balancing the load); None if none did.
         time: simulated seconds after the settle.
         motion, trace: the run's steps and measurements (for plots and video).
     """
@@ -118,12 +118,16 @@ def rollout_report(
     )
     if trace.diverged:
         failing[-1] = True
-    passing_limit = largest > limit
+    # The cones judge a grip: forces that do not balance the load (beyond the released
+    # fingers' left out) fail the analytic verdict, as the object they push away fails MuJoCo's.
+    unbalanced = motion.imbalance(scene)[settle:] > scene.n_contacts * settings["released_force"]
+    passing_limit = (largest > limit) | unbalanced
 
     # Per pose: the steps of its interval, measured from the step before it.
     starts = np.searchsorted(index, np.arange(n_poses))
     ends = np.searchsorted(index, np.arange(n_poses), side="right")
     pose_holds = np.ones(n_poses, dtype=bool)
+    pose_predicted = np.ones(n_poses, dtype=bool)
     max_angle = np.zeros(n_poses)
     for t, (a, b) in enumerate(zip(starts, ends, strict=True)):
         before = max(a - 1, 0)
@@ -137,6 +141,7 @@ def rollout_report(
             or (trace.diverged and b == len(index))
         )
         max_angle[t] = largest[a:b].max()
+        pose_predicted[t] = not passing_limit[a:b].any()
     last = ends - 1
 
     def first(flags: np.ndarray) -> float | None:
@@ -146,7 +151,7 @@ def rollout_report(
         holds=not failing.any(),
         predicted_holds=not passing_limit.any(),
         pose_holds=pose_holds,
-        pose_predicted=max_angle <= limit,
+        pose_predicted=pose_predicted,
         max_angle_deg=np.degrees(max_angle),
         margin_deg=float(np.degrees(limit - largest.max())),
         slip=length * np.maximum.accumulate(slip, axis=0)[last],
