@@ -68,8 +68,8 @@ SOLIMP = "0.95 0.99 0.001 0.5 2"
 #: The thinnest box the model checks faithfully: its smallest edge over its largest. The tips
 #: scale with the smallest edge (TIP_RADIUS), the contact's impedance width (SOLIMP) and the
 #: tips' mass do not. Measured with the expert's grip at mu = 1 on random contacts, thin along
-#: each axis: 0.01 gave false slips (2 of 33 poses, 1 of 8 trajectories), 0.005 4 of 12 poses,
-#: 0.02 to 0.05 none (160 poses, 24 trajectories); below about 1e-4 MuJoCo refuses the tips'
+#: each axis: 0.01 gave false slips (2 of 45 poses, 1 of 8 trajectories), 0.005 4 of 12 poses,
+#: 0.02 to 0.05 none (217 poses, 32 trajectories); below about 1e-4 MuJoCo refuses the tips'
 #: inertia. The limit keeps a factor 2.5 from the thinnest clean ratio.
 MIN_ASPECT = 0.05
 
