@@ -36,6 +36,7 @@ from grasp_env.physics import (
     StabilityChecker,
     TrajectoryChecker,
     agreement,
+    check_poses,
 )
 from grasp_env.physics.agreement import (
     CROSSINGS_DEG,
@@ -228,6 +229,23 @@ def test_the_analytic_verdict_needs_forces_that_balance_the_load():
         report = checker.check(rotations, forces)
         assert not report.predicted_holds and not report.holds
         assert report.predicted_first_failure == 0.0 and not report.pose_predicted.any()
+
+
+def test_batch_checks_and_study_generators_name_bad_arguments():
+    for forces, message in (
+        ([[1, 2, 3], [1, 2], [1, 2, 3]], "case 0's contact_forces must be finite real numbers"),
+        (np.zeros((2, 3, 3)), r"case 0's contact_forces must have shape \(3, 3\)"),
+    ):
+        with pytest.raises(ValueError, match=message):
+            check_poses([(Scene(), START_ROTATION, forces, None)])
+    for call, message in (
+        (lambda: agreement.agreement_sets(directions=1.5), "directions must be an integer >= 1"),
+        (lambda: agreement.agreement_sets(seed=-1), "seed must be an integer >= 0"),
+        (lambda: trajectory_cases(scenes=-3), "scenes must be an integer >= 0"),
+        (lambda: released_sets(scenes=True), "scenes must be an integer >= 0"),
+    ):
+        with pytest.raises(ValueError, match=message):
+            call()
 
 
 def test_thin_boxes_and_extreme_forces_are_named():

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, replace
+from numbers import Integral
 
 import numpy as np
 
@@ -132,9 +133,17 @@ def force_set_k(
     return ks
 
 
+def _integer(name: str, value: int, low: int) -> int:
+    """``value`` as an int >= ``low`` (not a boolean, a float or a string), or a ValueError."""
+    if not isinstance(value, Integral) or isinstance(value, bool | np.bool_) or value < low:
+        raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
+    return int(value)
+
+
 def agreement_sets(seed: int = 0, directions: int = 2) -> list[ForceSet]:
     """The study's force sets, ``directions`` per target and pose (deterministic for a seed)."""
-    rng = np.random.default_rng(seed)
+    rng = np.random.default_rng(_integer("seed", seed, 0))
+    directions = _integer("directions", directions, 1)
     sets = []
     for limit in LIMITS_DEG:
         edge = [limit + sign * offset for offset in EDGE_OFFSETS_DEG for sign in (-1, 1)]
@@ -174,7 +183,8 @@ def released_sets(seed: int = 0, scenes: int = 300) -> list[ForceSet]:
     """Four-finger optima that release a finger (its force vanishes, docs/design.md §1): random
     scenes and poses, each at its minimax optimum with the scene's mu a random 0.3 to 10 deg
     above it. They hold; a checker that counts the released finger as a lost hold says not."""
-    rng = np.random.default_rng(seed)
+    rng = np.random.default_rng(_integer("seed", seed, 0))
+    scenes = _integer("scenes", scenes, 0)
     sets = []
     for _ in range(scenes):
         offsets, cg = rng.uniform(-0.5, 0.5, (4, 2)), rng.uniform(-0.1, 0.1, 3)
@@ -451,7 +461,8 @@ def trajectory_cases(seed: int = 0, scenes: int = 200) -> list[TrajectoryCase]:
     expert's largest friction angle, the expert's grip, a perturbed grip crossing the limit and
     one staying just inside (:data:`CROSSINGS_DEG`); the paper's equal-k grip at several mu;
     and an expert grip on coarse steps that holds at every pose but slips between two."""
-    rng = np.random.default_rng(seed)
+    rng = np.random.default_rng(_integer("seed", seed, 0))
+    scenes = _integer("scenes", scenes, 0)
     cases = []
     for index in range(scenes):
         faces = PAPER_FACES if index % 2 == 0 else FOUR_FINGER_FACES
@@ -595,7 +606,7 @@ def gait_cases(seed: int = 0) -> list[TrajectoryCase]:
     optimal gait along each of :data:`GAIT_TRAJECTORIES`, as planned ("gait") and perturbed
     to cross the limit ("gait crossing") or stay just inside it ("gait inside") by
     :data:`CROSSINGS_DEG` in turn (deterministic for a seed)."""
-    rng = np.random.default_rng(seed)
+    rng = np.random.default_rng(_integer("seed", seed, 0))
     cases = []
     for trajectory in GAIT_TRAJECTORIES:
         solution = solve_gait(trajectory=trajectory)

@@ -143,16 +143,17 @@ def check_rotation(rotation: ArrayLike) -> np.ndarray:
     return check_rotations(rotation, single=True)
 
 
-def check_forces(forces: ArrayLike, n_contacts: int, leading: tuple[int, ...] = ()) -> np.ndarray:
+def check_forces(
+    forces: ArrayLike, n_contacts: int, leading: tuple[int, ...] = (), name: str = "contact_forces"
+) -> np.ndarray:
     """``forces`` as a (*leading, n, 3) float array of finite real numbers (no string or
-    boolean converted), or a ValueError saying what is wrong."""
+    boolean converted), or a ValueError naming ``name`` and saying what is wrong."""
     shape = (*leading, n_contacts, 3)
     must = f"finite real numbers of shape {shape}, one world-frame force per finger"
-    forces = real_array("contact_forces", forces, must)
+    forces = real_array(name, forces, must)
     if forces.shape != shape:
         raise ValueError(
-            f"contact_forces must have shape {shape}, one world-frame force per finger, got"
-            f" {forces.shape}"
+            f"{name} must have shape {shape}, one world-frame force per finger, got {forces.shape}"
         )
     return forces
 

@@ -265,7 +265,8 @@ def check_poses(
     threads = check_threads(threads)
     trajectories = [
         (scene, check_rotations(rotation, single=True, name=f"case {c}'s rotation")[None],
-         np.asarray(forces)[None], None if contact is None else np.asarray(contact)[None])
+         check_forces(forces, scene.n_contacts, name=f"case {c}'s contact_forces")[None],
+         None if contact is None else np.asarray(contact)[None])
         for c, (scene, rotation, forces, contact) in enumerate(check_cases(cases, "rotation"))
     ]  # fmt: skip
     return [
