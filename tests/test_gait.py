@@ -80,11 +80,27 @@ def test_reach_is_batched():
         ({"finger_azimuths_deg": (0.0, np.nan)}, "azimuths"),
         ({"finger_azimuths_deg": "abc"}, "azimuths"),
         ({"finger_azimuths_deg": tuple(range(6))}, "at most 6"),
+        # refused, not converted: "no" is truthy, "123" three fingers at 1, 2 and 3 deg
+        ({"thumb": "no"}, "thumb must be True or False, got 'no'"),
+        ({"thumb": 1}, "thumb must be True or False, got 1"),
+        ({"finger_azimuths_deg": "123"}, "finger_azimuths_deg must be a sequence"),
+        ({"finger_azimuths_deg": (0.0, True)}, r"finger_azimuths_deg must be .* booleans"),
+        ({"finger_azimuths_deg": 30.0}, "finger_azimuths_deg must be a sequence"),
+        ({"cone_deg": "60"}, r"cone_deg must be a finite number in \(0, 180\), got '60'"),
+        ({"cone_deg": True}, r"cone_deg must be a finite number in \(0, 180\), got True"),
+        ({"cone_deg": None}, r"cone_deg must be a finite number in \(0, 180\), got None"),
+        ({"finger_elevation_deg": "30"}, r"finger_elevation_deg must be .* in \[-90, 90\]"),
     ],
 )
 def test_bad_hands(kwargs, match):
     with pytest.raises(ValueError, match=match):
         Hand(**kwargs)
+
+
+def test_hands_take_numpy_numbers():
+    hand = Hand(np.array([0, 90, 180]), np.float32(30), np.bool_(False), np.int64(45))
+    assert hand.finger_azimuths_deg == (0.0, 90.0, 180.0) and hand.thumb is False
+    assert type(hand.finger_elevation_deg) is float and hand.cone_deg == 45.0
 
 
 def test_bad_reach_inputs():
@@ -127,6 +143,13 @@ def test_bad_scene_values():
         GaitScene(mu=0.0)
     with pytest.raises(ValueError, match="inside the box"):
         GaitScene(cg_offset=(0.6, 0, 0))
+    # strings are refused, not converted to numbers
+    with pytest.raises(ValueError, match=r"offsets must be an array of shape \(6, 2\)"):
+        GaitScene.on_faces(offsets=[["0.1", "0.1"]] * 6)
+    with pytest.raises(ValueError, match=r"offsets must be .* booleans"):
+        GaitScene.on_faces(offsets=[[True, 0.1]] * 6)
+    with pytest.raises(ValueError, match="faces must be a sequence"):
+        GaitScene.on_faces(faces="-x-y-z", offsets=[])
 
 
 # ----------------------------------------------------------------- brute force, all gaits
@@ -332,6 +355,24 @@ def test_bad_programme_inputs():
         optimal_gait(margin, reach, start=[0, 1, 2])
     with pytest.raises(ValueError, match="fingers"):
         gait_states(2, 4)
+    # refused, not converted: a reach of 0.5, margins of strings
+    with pytest.raises(ValueError, match=r"reach must be a .* boolean array.* got float64"):
+        optimal_gait(margin, reach.astype(float))
+    with pytest.raises(ValueError, match=r"margin must be .* real numbers.* got <U"):
+        optimal_gait(margin.astype(str), reach)
+    with pytest.raises(ValueError, match=r"margin must be .* real numbers.* got bool"):
+        optimal_gait(margin > 0, reach)
+
+
+@pytest.mark.parametrize("gait", [optimal_gait, greedy_gait, best_fixed, bottleneck_bound])
+def test_too_many_sites_are_refused_before_any_work(gait):
+    """The site count is checked before the sets are enumerated: 120 sites took 2.5 s before
+    their error, 500 ran out of memory."""
+    for reach in (np.ones((1, 5, 120), bool), np.ones((1, 5, 500), bool)):
+        with pytest.raises(ValueError, match=r"reach must be .* N in \[3, 8\], got bool"):
+            gait(np.zeros((1, 35)), reach)
+    with pytest.raises(ValueError, match=r"reach must be .* F in \[3, 6\]"):
+        gait(np.zeros((1, 35)), np.ones((1, 40, 7), bool))
     for kwargs, match in (
         ({"trajectory": {"alpha_start_deg": 0}}, "trajectory must be a Trajectory, got dict"),
         ({"hand": 3}, "hand must be a Hand, got int"),

@@ -96,6 +96,11 @@ def test_bad_arguments_raise_clear_errors(view):
     for text in (5, "one line", [1.5]):
         with pytest.raises(ValueError, match="text must be a sequence of strings"):
             view.render(rotation, forces, text=text)
+    # refused, not cast to bool (as the physics' checks refuse them): "no" is truthy
+    for in_contact in (["no", "no", "no"], [0.5, 0, 2], [1, 1, 0], [True, False], [[True]] * 3):
+        with pytest.raises(ValueError, match=r"in_contact must be a boolean array of shape \(3,\)"):
+            view.render(rotation, forces, in_contact=in_contact)
+    assert view.render(rotation, forces, in_contact=np.array([True, True, True])) is not None
 
 
 def test_closed_view_refuses_to_render():

@@ -30,6 +30,7 @@ finger (-1: not touching); move 0 keeps the state, move 1 + f N + s toggles fing
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from functools import cache
 from itertools import combinations
@@ -43,7 +44,16 @@ from .forces import Grasp, grasp, load_wrench, n_pairs
 from .hand import Hand
 from .minimax import MinimaxResult, solve_minimax
 from .rotations import check_rotations
-from .scene import DEFAULT_MU, DEFAULT_WEIGHT, FACES, Scene, box_size, face_point
+from .scene import (
+    DEFAULT_MU,
+    DEFAULT_WEIGHT,
+    FACES,
+    ArrayRecord,
+    ReadOnlyArrays,
+    Scene,
+    box_size,
+    face_point,
+)
 from .trajectory import PAPER_AXIS, Trajectory
 
 #: Fewest and most fingers that carry load at a pose.
@@ -71,8 +81,8 @@ def _default_sites() -> np.ndarray:
     return np.array([face_point(f, o) for f, o in zip(SITE_FACES, SITE_OFFSETS, strict=True)])
 
 
-@dataclass(frozen=True)
-class GaitScene:
+@dataclass(frozen=True, eq=False)
+class GaitScene(ArrayRecord):
     """The object, its load and the sites its contacts may use (object frame, box centred at
     the origin; the load in the world frame, as in :class:`~.scene.Scene`).
 
@@ -80,10 +90,14 @@ class GaitScene:
         sites: (N, 3) points on the faces of the box, 3 <= N <= 8, each on one face (not an
             edge); default one per face, off-centre (:data:`SITE_OFFSETS`).
         size, weight, mu, cg_offset, extra_force, extra_torque: as for :class:`~.scene.Scene`.
+
+    The scene keeps its sites as its own read-only array (in its pickles and copies too), its
+    numbers as floats and its vectors as tuples of floats. Like a :class:`~.scene.Scene` it
+    compares by value (every field ``np.array_equal``) and equal scenes hash alike.
     """
 
     sites: np.ndarray = field(default_factory=_default_sites)
-    size: float = 1.0
+    size: float | tuple[float, float, float] = 1.0
     weight: float = DEFAULT_WEIGHT
     mu: float = DEFAULT_MU
     cg_offset: tuple[float, float, float] = GAIT_CG_OFFSET
@@ -124,6 +138,14 @@ class GaitScene:
         except ValueError as error:
             if "collinear" not in str(error):
                 raise
+        # checked: now stored immutable, as a hashable record must be
+        size = np.asarray(self.size, dtype=float)
+        object.__setattr__(self, "size", float(size) if size.ndim == 0 else tuple(size.tolist()))
+        for name in ("weight", "mu"):
+            object.__setattr__(self, name, float(getattr(self, name)))
+        for name in ("cg_offset", "extra_force", "extra_torque"):
+            vector = np.asarray(getattr(self, name), dtype=float)
+            object.__setattr__(self, name, tuple(vector.tolist()))
 
     @classmethod
     def on_faces(
@@ -133,11 +155,15 @@ class GaitScene:
         **kwargs: float | ArrayLike,
     ) -> GaitScene:
         """One site per named face, moved from its centre by ``offsets`` (N, 2)."""
-        offsets = np.asarray(offsets, dtype=float)
-        if offsets.shape != (len(faces), 2):
-            raise ValueError(f"offsets must have shape ({len(faces)}, 2), got {offsets.shape}")
+        if isinstance(faces, str) or not isinstance(faces, Sequence):
+            raise ValueError(f"faces must be a sequence of face names from {sorted(FACES)}")
+        shape = (len(faces), 2)
+        must = f"an array of shape {shape} of finite fractions in (-1, 1)"
+        offsets = real_array("offsets", offsets, must)
+        if offsets.shape != shape:
+            raise ValueError(f"offsets must have shape {shape}, got {offsets.shape}")
         for face in faces:
-            if face not in FACES:
+            if not isinstance(face, str) or face not in FACES:
                 raise ValueError(f"unknown face {face!r}; expected one of {sorted(FACES)}")
         size = kwargs.get("size", 1.0)
         sites = np.array([face_point(f, o, size) for f, o in zip(faces, offsets, strict=True)])
@@ -299,7 +325,7 @@ def site_reach(scene: GaitScene, hand: Hand, rotations: ArrayLike) -> np.ndarray
 
 
 @dataclass(frozen=True)
-class GaitStates:
+class GaitStates(ReadOnlyArrays):
     """The hand's states (which finger touches which site) and their moves, as tables.
 
     Attributes:
@@ -421,10 +447,16 @@ def _enumerate(F, N, set_code):
     return states, code, ptr, move[:k].copy(), nxt[:k].copy(), loaded[:k].copy()
 
 
+def _size_ok(n_fingers: int, n_sites: int) -> bool:
+    """Whether a hand of F fingers on N sites is within range: the site sets and the states
+    grow combinatorially with them."""
+    return 3 <= n_fingers <= _MAX_FINGERS and 3 <= n_sites <= _MAX_SITES
+
+
 @cache
 def gait_states(n_fingers: int, n_sites: int) -> GaitStates:
     """The state and move tables of a hand of F fingers on N sites (cached)."""
-    if not 3 <= n_fingers <= _MAX_FINGERS or not 3 <= n_sites <= _MAX_SITES:
+    if not _size_ok(n_fingers, n_sites):
         raise ValueError(
             f"a gait needs 3 to {_MAX_FINGERS} fingers and 3 to {_MAX_SITES} sites,"
             f" got {n_fingers} and {n_sites}"
@@ -586,7 +618,7 @@ def _greedy(states, ptr, move, nxt, loaded, margin, reach):
 
 
 @dataclass(frozen=True)
-class Gait:
+class Gait(ReadOnlyArrays):
     """A gait along T poses.
 
     Attributes:
@@ -636,9 +668,28 @@ class Gait:
 
 
 def _check_inputs(margin: ArrayLike, reach: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
-    margin = np.ascontiguousarray(margin, dtype=float)
-    reach = np.ascontiguousarray(reach, dtype=bool)
-    if reach.ndim != 3 or margin.ndim != 2 or margin.shape[0] != reach.shape[0]:
+    # reach first: its sizes bound the work of every later step (site_sets, gait_states)
+    must = (
+        "a (T, F, N) boolean array, which of F fingers can push on which of N sites,"
+        f" F in [3, {_MAX_FINGERS}] and N in [3, {_MAX_SITES}]"
+    )
+    try:
+        reach = np.ascontiguousarray(reach)
+    except (TypeError, ValueError):  # ragged
+        raise ValueError(f"reach must be {must}") from None
+    # booleans only, as the physics' in_contact: 0.5 is no answer to "can it reach?"
+    if reach.ndim != 3 or reach.dtype != bool or not _size_ok(*reach.shape[1:]):
+        raise ValueError(f"reach must be {must}, got {reach.dtype} {reach.shape}")
+    # -inf marks an unusable set, so real_array's finite check cannot serve here
+    must = "a (T, S) array of real numbers, each finite or -inf (an unusable set)"
+    try:
+        margin = np.ascontiguousarray(margin)
+    except (TypeError, ValueError):  # ragged
+        raise ValueError(f"margin must be {must}") from None
+    if margin.dtype.kind not in "iuf":  # no strings, booleans, None or complex numbers
+        raise ValueError(f"margin must be {must}, got {margin.dtype}")
+    margin = margin.astype(float, copy=False)
+    if margin.ndim != 2 or margin.shape[0] != reach.shape[0]:
         raise ValueError(
             f"margin must be (T, S) and reach (T, F, N) with the same T, got {margin.shape}"
             f" and {reach.shape}"

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
+from .checks import real_array, real_number
 from .trajectory import PHI
 
 #: Elevation of the default fingers' approach: that of the corner faces' inward normals at the
@@ -43,6 +44,10 @@ class Hand:
             degrees in [-90, 90] (> 0: they push upwards, from below).
         thumb: add a thumb that pushes straight down (approach (0, 0, -1)).
         cone_deg: half-angle of every finger's cone of normals, degrees in (0, 180).
+
+    The angles must be finite real numbers and ``thumb`` True or False: strings, booleans as
+    numbers and numbers as booleans are refused (a ValueError naming the field), not
+    converted. At most 6 fingers in all.
     """
 
     finger_azimuths_deg: tuple[float, ...] = (-15.0, 75.0, 165.0, 255.0)
@@ -51,23 +56,17 @@ class Hand:
     cone_deg: float = 60.0
 
     def __post_init__(self) -> None:
-        try:
-            azimuths = tuple(float(a) for a in self.finger_azimuths_deg)
-        except (TypeError, ValueError) as error:
-            raise ValueError(
-                f"finger_azimuths_deg must be numbers (degrees), got {self.finger_azimuths_deg!r}"
-            ) from error
-        object.__setattr__(self, "finger_azimuths_deg", azimuths)
-        if not azimuths or not all(np.isfinite(azimuths)):
-            raise ValueError(f"finger_azimuths_deg must be >= 1 finite angles, got {azimuths}")
-        elevation = float(self.finger_elevation_deg)
-        if not -90.0 <= elevation <= 90.0:
-            raise ValueError(f"finger_elevation_deg must be in [-90, 90], got {elevation}")
+        must = "a sequence of at least one finite real number (degrees)"
+        azimuths = real_array("finger_azimuths_deg", self.finger_azimuths_deg, must)
+        if azimuths.ndim != 1 or azimuths.size == 0:
+            raise ValueError(f"finger_azimuths_deg must be {must}, got {azimuths.tolist()}")
+        object.__setattr__(self, "finger_azimuths_deg", tuple(azimuths.tolist()))
+        elevation = real_number("finger_elevation_deg", self.finger_elevation_deg, -90.0, 90.0)
         object.__setattr__(self, "finger_elevation_deg", elevation)
-        cone = float(self.cone_deg)
-        if not 0.0 < cone < 180.0:
-            raise ValueError(f"cone_deg must be in (0, 180) degrees, got {cone}")
+        cone = real_number("cone_deg", self.cone_deg, 0.0, 180.0, open_low=True, open_high=True)
         object.__setattr__(self, "cone_deg", cone)
+        if not isinstance(self.thumb, bool | np.bool_):  # "no" would be truthy
+            raise ValueError(f"thumb must be True or False, got {self.thumb!r}")
         object.__setattr__(self, "thumb", bool(self.thumb))
         if self.n_fingers > 6:
             raise ValueError(f"a hand has at most 6 fingers, got {self.n_fingers}")

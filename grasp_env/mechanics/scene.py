@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from itertools import combinations
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -67,8 +68,47 @@ def _shown(value: ArrayLike) -> str:
     return repr(value.tolist() if isinstance(value, np.ndarray) else value)
 
 
-@dataclass(frozen=True)
-class Scene:
+class ReadOnlyArrays:
+    """For frozen dataclasses holding arrays: a pickled or (deep-)copied record keeps its
+    read-only arrays read-only (numpy pickles no writeable flag)."""
+
+    def __getstate__(self) -> tuple[dict[str, Any], tuple[str, ...]]:
+        frozen = tuple(
+            name
+            for name, value in vars(self).items()
+            if isinstance(value, np.ndarray) and not value.flags.writeable
+        )
+        return vars(self), frozen
+
+    def __setstate__(self, state: tuple[dict[str, Any], tuple[str, ...]]) -> None:
+        values, frozen = state
+        vars(self).update(values)  # past the frozen dataclass's __setattr__, as unpickling does
+        for name in frozen:
+            values[name].flags.writeable = False
+
+
+class ArrayRecord(ReadOnlyArrays):
+    """A :class:`ReadOnlyArrays` record compared by value: equal when of the same class with
+    equal fields (``np.array_equal``), and hashed to match. Declare it ``eq=False``, or the
+    dataclass replaces both with its own, which fail on arrays."""
+
+    def _values(self) -> tuple[Any, ...]:
+        return tuple(getattr(self, f.name) for f in fields(self))  # type: ignore[arg-type]
+
+    def __eq__(self, other: object) -> bool:
+        if type(other) is not type(self):
+            return NotImplemented
+        pairs = zip(self._values(), other._values(), strict=True)  # type: ignore[attr-defined]
+        return all(np.array_equal(a, b) for a, b in pairs)
+
+    def __hash__(self) -> int:
+        # by value as Python floats: -0.0 and 0.0 are equal, and so are their hashes
+        values = map(np.asarray, self._values())
+        return hash((type(self), *((v.shape, tuple(v.ravel().tolist())) for v in values)))
+
+
+@dataclass(frozen=True, eq=False)
+class Scene(ArrayRecord):
     """A box held by point contacts with Coulomb friction.
 
     All vectors are in the object frame, whose origin is the box centre, except the extra load
@@ -88,7 +128,9 @@ class Scene:
     Every number must be a finite real number (Python or numpy ints and floats; booleans,
     strings and complex numbers are refused, not converted); anything else raises a
     ValueError naming the field and its accepted range. The scene stores its own read-only
-    float arrays (and floats for ``weight`` and ``mu``).
+    float arrays (and floats for ``weight`` and ``mu``), read-only in its pickles and copies
+    too. Scenes compare by value: two are equal when every field is (``np.array_equal``), and
+    equal scenes hash alike, so they serve as dictionary keys and set members.
     """
 
     contacts: np.ndarray = field(

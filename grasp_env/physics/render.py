@@ -239,9 +239,7 @@ class GraspView:
         ):
             raise ValueError(f"text must be a sequence of strings (overlay lines), got {text!r}")
         n = self.scene.n_contacts
-        contact = np.ones(n, dtype=bool) if in_contact is None else np.asarray(in_contact, bool)
-        if contact.shape != (n,):
-            raise ValueError(f"in_contact must have shape ({n},), got {contact.shape}")
+        contact = np.ones(n, dtype=bool) if in_contact is None else _check_contact(in_contact, n)
         qpos = world_qpos(self.scene, rotation, contact)
         return self.render_state(qpos, rotation, forces / self.scene.weight, contact, text)
 
@@ -299,6 +297,21 @@ class GraspView:
             self._viewer = None
         self.model = self.data = None
         self._closed = True
+
+
+def _check_contact(in_contact: ArrayLike, n: int) -> np.ndarray:
+    """``in_contact`` as (n,) bool, refused rather than cast (as the physics' checks do: "no"
+    and 0.5 are no answers)."""
+    try:
+        contact = np.asarray(in_contact)
+    except (TypeError, ValueError):  # ragged
+        contact = np.asarray(None)
+    if contact.shape != (n,) or contact.dtype != bool:
+        raise ValueError(
+            f"in_contact must be a boolean array of shape ({n},), got {contact.dtype}"
+            f" {contact.shape}: {in_contact!r}"
+        )
+    return contact
 
 
 def overlay(image: np.ndarray, lines: Sequence[str]) -> np.ndarray:
