@@ -118,6 +118,23 @@ def test_a_quaternion_of_any_length_gives_its_rotation():
         np.testing.assert_array_equal(quaternion_matrix([0, 0, 0, scale]), half_turn)
 
 
+def test_rotation_batches_must_broadcast_and_may_be_empty():
+    with pytest.raises(
+        ValueError,
+        match=r"rotation axis \(\.\.\., 3\) and rotation angle \(\.\.\.\) must have batch "
+        r"shapes that broadcast, got axis shape \(4, 3\) and angle shape \(3,\)",
+    ):
+        pose_rotation(np.tile(PAPER_AXIS, (4, 1)), np.zeros(3))
+    for empty in (
+        pose_rotation(np.zeros((0, 3)), 0.1),
+        pose_rotation(PAPER_AXIS, np.zeros(0)),
+        axis_angle_matrix(np.zeros((0, 3)), np.zeros(0)),
+        quaternion_matrix(np.zeros((0, 4))),
+    ):
+        assert empty.shape == (0, 3, 3)
+    assert matrix_quaternion(np.zeros((0, 3, 3))).shape == (0, 4)
+
+
 @pytest.mark.parametrize(
     ("bad", "what"),
     [
@@ -353,6 +370,69 @@ def test_grasp_checks_its_inputs_and_a_grasp_its_unchecked_fields():
         with pytest.raises(ValueError, match=match):
             dataclasses.replace(g, **{field: value})
     assert dataclasses.replace(g, friction_limit=0.0).margins(np.zeros(3)).shape == (3,)
+
+
+def test_grasp_refuses_contacts_that_coincide_or_lie_on_one_line():
+    scene = Scene()
+    args = (scene.normals, np.eye(3), load_wrench(5.0), 0.4)
+    corner = scene.relative_contacts()
+    line = [[-0.5, -0.2, 0.1], [-0.5, 0.0, 0.1], [-0.5, 0.2, 0.1]]
+    for contacts, match in (
+        ([[-0.5, 0, 0], [-0.5, 0, 0], [0, 0, -0.5]], "relative_contacts 0 and 1 coincide"),
+        (np.full((3, 3), 1e-300), "relative_contacts 0 and 1 coincide"),
+        (line, "relative_contacts all lie on one line"),
+        (np.stack([corner, line]), r"on one line \(within 1e-07 of their spread\) at batch index"
+         r" \(1,\)"),
+        (np.array(line) @ pose_rotation(PAPER_AXIS, 0.3).T * 1e-200, "all lie on one line"),
+    ):  # fmt: skip
+        with pytest.raises(ValueError, match=match):
+            grasp(contacts, *args)
+    with pytest.raises(ValueError, match=r"3 <= n <= 64 contacts \(two lie on one line\)"):
+        grasp(corner[:2], scene.normals[:2], *args[1:])
+    # what a Scene accepts, grasp does: here 3 contacts just beyond the Scene's "collinear"
+    for size in (1e-6, 1.0, 1e6):
+        height = 1.001e-6 / 0.9 * size  # |d_01 x d_02| = 0.9 size * height > 1e-6 size^2
+        almost = Scene(
+            contacts=[[-0.5 * size, -0.45 * size, 0], [-0.5 * size, 0.45 * size, 0],
+                      [-0.5 * size, 0.3 * size, height]],
+            size=size,
+        )  # fmt: skip
+        g = grasp(almost.relative_contacts(), almost.normals, *args[1:])
+        assert np.isfinite(g.equilibrating).all() and np.isfinite(g.basis).all()
+
+
+def scaled_scene(faces, offsets, cg, load, size: float, weight: float) -> Scene:
+    """A scene scaled to ``size`` and ``weight``: ``cg`` and the extra ``load`` (6,) are in
+    units of them."""
+    return Scene.on_faces(
+        faces, offsets=offsets, size=size, weight=weight, cg_offset=cg * size,
+        extra_force=load[:3] * weight, extra_torque=load[3:] * weight * size,
+    )  # fmt: skip
+
+
+def test_equilibrating_forces_are_scale_free_at_any_size_and_load():
+    """Sizes 1e-6 to 1e6 m and loads 1e-300 to 1e300 N: the same forces in units of the load,
+    balanced to rounding (in metres and newtons the 3 x 3 solve's terms of order L^4 w L
+    under- or overflow), and the same interaction directions."""
+    rng = np.random.default_rng(7)
+    rotation = pose_rotation(PAPER_AXIS, 0.25)
+    for faces in (PAPER_FACES, FOUR_FINGER_FACES):
+        n = len(faces)
+        layout = rng.uniform(-0.5, 0.5, (n, 2)), rng.uniform(-0.1, 0.1, 3)
+        load = rng.uniform(-0.3, 0.3, 6)
+        unit = scene_grasp(scaled_scene(faces, *layout, load, 1.0, 1.0), rotation)
+        for size in 10.0 ** np.arange(-6, 7, 3):
+            for weight in 10.0 ** np.arange(-300, 301, 100):
+                with warnings.catch_warnings():
+                    warnings.simplefilter("error")  # no under- or overflow
+                    g = scene_grasp(scaled_scene(faces, *layout, load, size, weight), rotation)
+                forces, positions = g.equilibrating / weight, g.positions / size
+                np.testing.assert_allclose(forces, unit.equilibrating, rtol=0, atol=1e-12)
+                np.testing.assert_allclose(g.basis, unit.basis, rtol=0, atol=1e-12)
+                wrench = load_wrench(1.0, load[:3], load[3:])
+                balance = forces.sum(axis=0) + wrench[:3]
+                moment = np.cross(positions, forces).sum(axis=0) + wrench[3:]
+                assert np.abs(balance).max() <= 1e-13 and np.abs(moment).max() <= 1e-13
 
 
 @pytest.mark.parametrize("count", [-1, 0, 1, 65, 2.5, 3.0, True, "3", None])

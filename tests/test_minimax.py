@@ -5,6 +5,7 @@ from __future__ import annotations
 import importlib
 import os
 import pkgutil
+import re
 import subprocess
 import sys
 from dataclasses import fields
@@ -391,6 +392,44 @@ def test_any_weight_gives_the_same_angles(n: int) -> None:
             assert result.status == unit.status and 0 <= result.gap <= GAP
             np.testing.assert_allclose(result.angles, unit.angles, rtol=0, atol=2 * GAP)
             np.testing.assert_allclose(result.k / weight, unit.k, rtol=1e-6, atol=1e-6)
+
+
+@pytest.mark.parametrize("n", [3, 4])
+def test_any_size_and_weight_give_the_same_optimum(n: int) -> None:
+    """Boxes of 1e-6 to 1e6 m with loads of 1e-300 to 1e300 N: the unit scene's optimum, to
+    rounding (the equilibrating forces are computed in units of the contacts' spread and of
+    the load; in metres and newtons they were wrong at the extremes, yet certified)."""
+    rng = np.random.default_rng(40 + n)
+    faces = PAPER_FACES if n == 3 else FOUR_FINGER_FACES
+    offsets, cg = rng.uniform(-0.5, 0.5, (n, 2)), rng.uniform(-0.1, 0.1, 3)
+    rotation = Trajectory().rotations()[rng.integers(31)]
+
+    def solve(size: float, weight: float) -> object:
+        scene = Scene.on_faces(
+            faces, offsets=offsets, size=size, weight=weight, cg_offset=cg * size
+        )
+        return solve_minimax(scene_grasp(scene, rotation), 2 * weight)
+
+    unit = solve(1.0, 1.0)
+    assert unit.max_angle > 0.05 and unit.gap <= GAP  # a scene whose optimum is not trivial
+    for size in 10.0 ** np.arange(-6, 7, 2):
+        for weight in 10.0 ** np.arange(-300, 301, 100):
+            result = solve(size, weight)
+            assert result.status == unit.status and 0 <= result.gap <= GAP
+            np.testing.assert_allclose(result.angles, unit.angles, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("weight", [1e-306, 1e308])
+def test_a_load_out_of_range_is_stated_at_its_scale(weight: float) -> None:
+    """Beyond the load's range the message states its true scale (|F_i| squared would under-
+    or overflow and read 0 or inf)."""
+    rotation = Trajectory().rotations()[3]
+    unit = scene_grasp(Scene(weight=1.0), rotation).equilibrating
+    scale = re.escape(f"{weight * np.linalg.norm(unit, axis=-1).max():.3g}")
+    g = scene_grasp(Scene(weight=weight), rotation)
+    for value in (g, stack_of(g, 2)):
+        with pytest.raises(ValueError, match=rf"within \[1e-305, 1e\+305\] N, got {scale} N"):
+            solve_minimax(value, weight)
 
 
 def test_refused_scales() -> None:

@@ -97,19 +97,38 @@ def equilibrating_forces(positions: ArrayLike, wrench: ArrayLike) -> np.ndarray:
     Closed form of G^+ = G^T (G G^T)^-1: the minimum-norm solution lies in G's row space,
     F_i = lambda + mu x p_i. With q_i = p_i - c about the contacts' centroid c, force balance
     gives F_i = -f / n + mu x q_i, and moment balance J mu = c x f - tau with the contacts'
-    "inertia" J = sum_i (|q_i|^2 I - q_i q_i^T), positive definite for every valid layout (no
-    collinear contacts). Unlike the paper's screw-pitch form it has no singularity at zero
-    torque, and it costs a 3 x 3 solve instead of a 6 x 6 one.
+    "inertia" J = sum_i (|q_i|^2 I - q_i q_i^T), positive definite unless the contacts are
+    collinear (:func:`grasp` refuses them). Unlike the paper's screw-pitch form it has no
+    singularity at zero torque, and it costs a 3 x 3 solve instead of a 6 x 6 one.
+
+    F is linear in the load and unchanged when the positions and the torque scale alike, so
+    it is computed in units of the contacts' spread and of the load: the 3 x 3 solve
+    multiplies terms of order |q|^4 by |tau|, which in metres and newtons would under- or
+    overflow at the ends of the sizes and loads accepted. Both units are powers of two, so
+    the results are those of the plain arithmetic, bit for bit, wherever that neither under-
+    nor overflows.
     """
     p = np.asarray(positions, dtype=float)
     wrench = np.asarray(wrench, dtype=float)
     force, torque = wrench[..., :3], wrench[..., 3:]
     centroid = p.mean(axis=-2)
     q = p - centroid[..., None, :]
+    length = _power_of_two(np.abs(q).max(axis=(-2, -1)))[..., None]
+    torque = torque / length  # a force
+    load = _power_of_two(np.maximum(np.abs(force).max(axis=-1), np.abs(torque).max(axis=-1)))
+    load = load[..., None]
+    force, torque = force / load, torque / load
+    q = q / length[..., None]
     qq = np.swapaxes(q, -1, -2) @ q
     inertia = np.trace(qq, axis1=-2, axis2=-1)[..., None, None] * np.eye(3) - qq
-    mu = _solve_symmetric_3x3(inertia, _cross(centroid, force) - torque)
-    return -force[..., None, :] / p.shape[-2] + _cross(mu[..., None, :], q)
+    mu = _solve_symmetric_3x3(inertia, _cross(centroid / length, force) - torque)
+    return (-force[..., None, :] / p.shape[-2] + _cross(mu[..., None, :], q)) * load[..., None, :]
+
+
+def _power_of_two(x: np.ndarray) -> np.ndarray:
+    """The power of two in (x / 2, x] (1/2 for x = 0): dividing by it is exact, and brings x
+    to [1, 2)."""
+    return np.ldexp(1.0, np.frexp(x)[1] - 1)
 
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -153,6 +172,9 @@ def interaction_basis(positions: ArrayLike) -> np.ndarray:
     p = np.asarray(positions, dtype=float)
     pairs = contact_pairs(p.shape[-2])
     d = p[..., pairs[:, 1], :] - p[..., pairs[:, 0], :]
+    # over a power of two near its largest component (exact), so that |d| cannot under- or
+    # overflow whatever the contacts' scale
+    d = d / _power_of_two(np.abs(d).max(axis=-1, keepdims=True))
     u = d / np.linalg.norm(d, axis=-1, keepdims=True)
     basis = np.zeros((*p.shape[:-2], len(pairs), p.shape[-2], 3))
     rows = np.arange(len(pairs))
@@ -253,7 +275,10 @@ def grasp(
     ``wrench`` is the world-frame load (..., 6) from :func:`load_wrench`; ``friction_limit``
     theta_lim = atan(mu) in [0, pi/2] radians. Every input must be finite real numbers and
     ``rotation`` proper rotation matrices (:func:`~.rotations.check_rotations`); the shapes
-    must broadcast. Anything else raises a ValueError naming the input.
+    must broadcast; the contacts (3 to :data:`MAX_CONTACTS` of them) must neither coincide
+    nor all lie on one line, to within 1e-7 of their spread (a pair's direction u_ij, or the
+    equilibrating forces, would be undefined). Anything else raises a ValueError naming the
+    input.
     """
     rotation = check_rotations(rotation, batch=True)
     contacts = real_array("relative_contacts", relative_contacts, "(..., n, 3) finite numbers")
@@ -261,10 +286,10 @@ def grasp(
     wrench = real_array("wrench", wrench, "(..., 6) finite numbers")
     limit = real_array("friction_limit", friction_limit, "finite angles in [0, pi/2] radians")
     n = contacts.shape[-2] if contacts.ndim >= 2 else 0
-    if contacts.shape[-1:] != (3,) or not 2 <= n <= MAX_CONTACTS:
+    if contacts.shape[-1:] != (3,) or not 3 <= n <= MAX_CONTACTS:
         raise ValueError(
-            f"relative_contacts must have shape (..., n, 3) with 2 <= n <= {MAX_CONTACTS}"
-            f" contacts, got {contacts.shape}"
+            f"relative_contacts must have shape (..., n, 3) with 3 <= n <= {MAX_CONTACTS}"
+            f" contacts (two lie on one line), got {contacts.shape}"
         )
     for name, array, item in (("object_normals", normals, (n, 3)), ("wrench", wrench, (6,))):
         if array.shape[max(array.ndim - len(item), 0) :] != item:
@@ -288,7 +313,45 @@ def grasp(
     except ValueError:
         listed = ", ".join(f"{name} {shape}" for name, shape in batches.items())
         raise ValueError(f"the inputs' batch shapes must broadcast, got {listed}") from None
+    _check_layout(contacts)
     return _grasp(contacts, normals, rotation, wrench, limit)
+
+
+#: Contacts closer than this, or all this near one line, in units of their spread, are refused
+#: by :func:`grasp`: float64 resolves far less (1e-16), and every layout a Scene accepts (it
+#: refuses them at 1e-6 of the box's edge) stays above it.
+_DEGENERATE = 1e-7
+
+
+def _check_layout(contacts: np.ndarray) -> None:
+    """A ValueError naming ``relative_contacts`` (..., n, 3) if two coincide (u_ij undefined)
+    or all lie on one line (J singular: no force resists a torque about it)."""
+    q = contacts - contacts.mean(axis=-2, keepdims=True)
+    q = q / _power_of_two(np.abs(q).max(axis=(-2, -1)))[..., None, None]  # the spread is 1 to 2
+    pairs = contact_pairs(q.shape[-2])
+    gaps = np.linalg.norm(q[..., pairs[:, 1], :] - q[..., pairs[:, 0], :], axis=-1)
+    if not (gaps > _DEGENERATE).all():
+        where = np.unravel_index(np.argmin(gaps), gaps.shape)
+        i, j = pairs[where[-1]]
+        raise ValueError(
+            f"relative_contacts {i} and {j} coincide (within {_DEGENERATE:g} of the contacts'"
+            f" spread){_in_batch(where[:-1])}: their interaction direction is undefined"
+        )
+    # the contacts' distances from the line through their centroid and the farthest of them
+    radii = np.linalg.norm(q, axis=-1)
+    far = np.take_along_axis(q, np.argmax(radii, axis=-1)[..., None, None], axis=-2)
+    off = np.linalg.norm(_cross(q, far), axis=-1).max(axis=-1) / radii.max(axis=-1)
+    if not (off > _DEGENERATE).all():
+        where = np.unravel_index(np.argmin(off), off.shape)
+        raise ValueError(
+            f"relative_contacts all lie on one line (within {_DEGENERATE:g} of their spread)"
+            f"{_in_batch(where)}: no contact force resists a torque about it, so the"
+            " equilibrating forces are undefined"
+        )
+
+
+def _in_batch(index: tuple[np.intp, ...]) -> str:
+    return f" at batch index {tuple(int(i) for i in index)}" if index else ""
 
 
 def _grasp(

@@ -31,7 +31,7 @@ def unit_vectors(name: str, vectors: ArrayLike, single: bool = False, size: int 
     if not scale.all():
         raise ValueError(f"{name} must be {words}, got a zero vector in {v.tolist()}")
     low, high = _SAFE_SCALE
-    if not (scale.min() >= low and scale.max() <= high):
+    if scale.size and not (scale.min() >= low and scale.max() <= high):  # (min() needs a size)
         v = v / scale
     return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
@@ -115,11 +115,18 @@ def axis_angle_matrix(axis: ArrayLike, angle: ArrayLike) -> np.ndarray:
     """Rotation by ``angle`` (radians) about ``axis``: Rodrigues' formula, paper eq. 5.
 
     ``axis`` has shape (..., 3), finite and non-zero, of any length (normalised here, see
-    :func:`unit_vectors`), ``angle`` shape (...), finite; the two broadcast.
-    Returns (..., 3, 3).
+    :func:`unit_vectors`), ``angle`` shape (...), finite; the two must broadcast (a ValueError
+    naming both shapes otherwise). Returns (..., 3, 3), empty for an empty batch.
     """
     r = unit_vectors("rotation axis", axis)
     angle = real_array("rotation angle", angle, "finite real numbers (radians)")
+    try:
+        np.broadcast_shapes(r.shape[:-1], angle.shape)
+    except ValueError:
+        raise ValueError(
+            "rotation axis (..., 3) and rotation angle (...) must have batch shapes that"
+            f" broadcast, got axis shape {r.shape} and angle shape {angle.shape}"
+        ) from None
     c, s = np.cos(angle)[..., None, None], np.sin(angle)[..., None, None]
     rx, ry, rz = r[..., 0], r[..., 1], r[..., 2]
     zero = np.zeros_like(rx)
