@@ -808,8 +808,11 @@ def run_trajectory_agreement(
 
     printer = console()
     start = time.perf_counter()
-    with status(f"generating the trajectories of {scenes} scenes and the gaits"):
-        cases = trajectory_cases(seed, scenes) + gait_cases(seed)
+    cases = trajectory_cases(
+        seed, scenes, progress=lambda s: tqdm(s, desc="scenes' trajectories", unit="scene")
+    )
+    with status("generating the gaits' trajectories"):
+        cases += gait_cases(seed)
     if model is not None:
         with status(f"driving {model_name(model.path)} through {model.env_id}"):
             cases += learned_cases(cases, model)

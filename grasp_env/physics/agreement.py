@@ -454,17 +454,20 @@ def _random_trajectory(index: int, rng: np.random.Generator) -> Trajectory:
     return Trajectory(axis, float(start), float(end), 2.0)
 
 
-def trajectory_cases(seed: int = 0, scenes: int = 200) -> list[TrajectoryCase]:
+def trajectory_cases(
+    seed: int = 0, scenes: int = 200, progress: Callable[[Iterable[int]], Iterable[int]] = iter
+) -> list[TrajectoryCase]:
     """The trajectory study's cases (deterministic for a seed): for each of ``scenes`` random
     scenes (three and four fingers, face centres or moved contacts and centre of gravity, the
     paper's trajectory or a random axis and range) with mu a random 0.2 to 8 deg above the
     expert's largest friction angle, the expert's grip, a perturbed grip crossing the limit and
     one staying just inside (:data:`CROSSINGS_DEG`); the paper's equal-k grip at several mu;
-    and an expert grip on coarse steps that holds at every pose but slips between two."""
+    and an expert grip on coarse steps that holds at every pose but slips between two.
+    ``progress`` wraps the scenes' indices (a progress bar)."""
     rng = np.random.default_rng(_integer("seed", seed, 0))
     scenes = _integer("scenes", scenes, 0)
     cases = []
-    for index in range(scenes):
+    for index in progress(range(scenes)):
         faces = PAPER_FACES if index % 2 == 0 else FOUR_FINGER_FACES
         layout: dict = {"faces": faces}
         if index % 5:
