@@ -225,7 +225,9 @@ def magnitudes(forces: np.ndarray, weight: float) -> np.ndarray:
 
 def released(forces: np.ndarray, weight: float, released_force: float) -> np.ndarray:
     """Fingers whose force is at most ``released_force`` x w: they carry no load."""
-    return magnitudes(forces, weight) <= released_force
+    # in units of w first, where a grip's forces are of order 1 (a 1e-299 N force on a
+    # 1e-300 N scene is no released one); beyond 1e150 w the square is inf: not released
+    return np.linalg.norm(forces / weight, axis=-1) <= released_force
 
 
 def _check_contact(
