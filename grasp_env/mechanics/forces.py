@@ -125,6 +125,14 @@ def equilibrating_forces(positions: ArrayLike, wrench: ArrayLike) -> np.ndarray:
     return (-force[..., None, :] / p.shape[-2] + _cross(mu[..., None, :], q)) * load[..., None, :]
 
 
+def vector_norms(vectors: ArrayLike) -> np.ndarray:
+    """|v| of vectors (..., 3) without squaring what would under- or overflow (a 1e-300 N
+    force, a 1e300 N one): each is scaled by a power of two near its largest component first."""
+    v = np.asarray(vectors, dtype=float)
+    scale = _power_of_two(np.abs(v).max(axis=-1, keepdims=True))
+    return scale[..., 0] * np.linalg.norm(v / scale, axis=-1)
+
+
 def _power_of_two(x: np.ndarray) -> np.ndarray:
     """The power of two in (x / 2, x] (1/2 for x = 0): dividing by it is exact, and brings x
     to [1, 2)."""

@@ -61,6 +61,7 @@ from numpy.typing import ArrayLike
 
 from grasp_env.mechanics import Scene, axis_angle_matrix, friction_angles, grasp_matrix
 from grasp_env.mechanics import matrix_quaternion as _quaternion
+from grasp_env.mechanics.forces import vector_norms
 
 from .model import (
     MAX_FORCE,
@@ -215,14 +216,6 @@ def path_settings(settings: dict[str, float], density: int = 8) -> dict[str, flo
     )
 
 
-def magnitudes(forces: np.ndarray, weight: float) -> np.ndarray:
-    """|P_i| / w, (..., n), without squaring what may underflow or overflow (a 1e-300 N force,
-    a 1e300 N one): each vector is scaled by its largest component first."""
-    scale = np.abs(forces).max(axis=-1, keepdims=True)
-    unit = forces / np.where(scale > 0, scale, 1.0)
-    return (scale[..., 0] / weight) * np.linalg.norm(unit, axis=-1)
-
-
 def released(forces: np.ndarray, weight: float, released_force: float) -> np.ndarray:
     """Fingers whose force is at most ``released_force`` x w: they carry no load."""
     # in units of w first, where a grip's forces are of order 1 (a 1e-299 N force on a
@@ -236,7 +229,7 @@ def _check_contact(
     """``in_contact`` (T, n) for ``forces`` (T, n, 3) (None: every finger), or a ValueError:
     a finger out of contact must carry no force, and none more than :data:`MAX_FORCE` w."""
     n_poses, n = forces.shape[:2]
-    force = magnitudes(forces, scene.weight)
+    force = vector_norms(forces) / scene.weight
     if np.any(force > MAX_FORCE):
         t, i = np.argwhere(force > MAX_FORCE)[0]
         raise ValueError(
@@ -257,7 +250,7 @@ def _check_contact(
         t, i = np.argwhere(pushing)[0]
         raise ValueError(
             f"finger {i} is out of contact at pose {t} but its force is"
-            f" {magnitudes(forces[t, i], 1.0):.6g} N: a finger out of contact carries none"
+            f" {vector_norms(forces[t, i]):.6g} N: a finger out of contact carries none"
         )
     return contact
 

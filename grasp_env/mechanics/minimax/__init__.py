@@ -52,7 +52,7 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..forces import Grasp, n_pairs
+from ..forces import Grasp, n_pairs, vector_norms
 from ..threads import available_cores, thread_pool
 from . import codes
 from .codes import Path, Status
@@ -162,21 +162,15 @@ def _refused(
 ) -> ValueError:
     """The ValueError for the first grasp the kernels refused (path < 0), naming the input."""
 
-    def norms(vectors: np.ndarray) -> np.ndarray:
-        # over the largest component first: squared, loads near the ends of LOAD_RANGE would
-        # under- or overflow and be stated as 0 or inf
-        top = np.abs(vectors).max()
-        return top * np.linalg.norm(vectors / top, axis=-1) if top > 0 else np.zeros(len(vectors))
-
     b = int(np.flatnonzero(path < 0)[0])
     code = int(path[b])
     where = f" (grasp {b} of the flattened batch)" if path.size > 1 else ""
-    scale = float(norms(F[b]).max()) if code != codes.INVALID else 0.0
+    scale = float(vector_norms(F[b]).max()) if code != codes.INVALID else 0.0
     low, high = codes.RATIO_RANGE
     if code == codes.BAD_NORMAL:
         return ValueError(
             f"grasp normals must be unit vectors (length within {codes.UNIT_TOL:g} of 1), "
-            f"got lengths {np.round(norms(N[b]), 9).tolist()}{where}"
+            f"got lengths {np.round(vector_norms(N[b]), 9).tolist()}{where}"
         )
     if code == codes.BAD_LOAD:
         return ValueError(
