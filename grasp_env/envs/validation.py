@@ -9,14 +9,13 @@ strings and None are refused rather than converted, and flags must be booleans.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from numbers import Integral
 from typing import Any
 
 import numpy as np
 from gymnasium.vector import AutoresetMode
 
 # the mechanics' rules for numbers, shared (check_number: a finite real number in a range)
-from ..mechanics.checks import real_array
+from ..mechanics.checks import is_integer, real_array
 from ..mechanics.checks import real_number as check_number
 
 # re-exported: the environments' pose cap is the trajectories' (each pose a solve at a reset)
@@ -49,7 +48,7 @@ def check_bool(name: str, value: Any) -> bool:
 
 def check_integer(name: str, value: Any, low: int, high: int) -> int:
     """An integer (not a boolean) in [low, high]."""
-    if not isinstance(value, Integral) or isinstance(value, bool | np.bool_):
+    if not is_integer(value):
         raise ValueError(f"{name} must be an integer in [{low}, {high}], got {value!r}")
     if not low <= int(value) <= high:
         raise ValueError(f"{name} must be an integer in [{low}, {high}], got {value!r}")
@@ -112,7 +111,7 @@ def check_seed(name: str, value: Any) -> int | None:
     """A seed: None or an integer >= 0 (numpy integers too; booleans are refused)."""
     if value is None:
         return None
-    if not isinstance(value, Integral) or isinstance(value, bool | np.bool_) or value < 0:
+    if not is_integer(value) or value < 0:
         raise ValueError(f"{name} must be None or an integer >= 0, got {value!r}")
     return int(value)
 
@@ -122,7 +121,7 @@ def check_max_episode_steps(value: Any) -> int | None:
     (none) or an integer >= 1 (numpy integers too; booleans are refused)."""
     if value is None:
         return None
-    if not isinstance(value, Integral) or isinstance(value, bool | np.bool_) or value < 1:
+    if not is_integer(value) or value < 1:
         raise ValueError(f"max_episode_steps must be None or an integer >= 1, got {value!r}")
     return int(value)
 

@@ -8,7 +8,7 @@ complex numbers, strings and None are refused rather than converted.
 from __future__ import annotations
 
 import math
-from numbers import Real
+from numbers import Integral, Real
 from typing import Any
 
 import numpy as np
@@ -20,6 +20,11 @@ def is_real(value: Any) -> bool:
     if isinstance(value, np.ndarray):
         return value.ndim == 0 and value.dtype.kind in "iuf"
     return isinstance(value, Real) and not isinstance(value, bool | np.bool_)
+
+
+def is_integer(value: Any) -> bool:
+    """Whether ``value`` is one integer (not a boolean): a Python or numpy int."""
+    return isinstance(value, Integral) and not isinstance(value, bool | np.bool_)
 
 
 def interval(low: float, high: float, *, open_low: bool = False, open_high: bool = False) -> str:

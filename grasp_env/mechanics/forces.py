@@ -9,12 +9,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 from functools import cache
 from itertools import combinations
-from numbers import Integral
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-from .checks import real_array
+from .checks import is_integer, real_array
 from .rotations import check_rotations
 from .scene import Scene
 
@@ -27,11 +26,7 @@ def _contact_count(n_contacts: int) -> int:
     """``n_contacts`` as an int: an integer (not a boolean) in [2, MAX_CONTACTS]."""
     if type(n_contacts) is int and 2 <= n_contacts <= MAX_CONTACTS:  # the usual case, fast
         return n_contacts
-    if (
-        not isinstance(n_contacts, Integral)
-        or isinstance(n_contacts, bool | np.bool_)
-        or not 2 <= n_contacts <= MAX_CONTACTS
-    ):
+    if not is_integer(n_contacts) or not 2 <= n_contacts <= MAX_CONTACTS:
         raise ValueError(
             f"n_contacts must be an integer in [2, {MAX_CONTACTS}] (a pair needs two contacts),"
             f" got {n_contacts!r}"
@@ -207,7 +202,7 @@ def friction_angles(forces: ArrayLike, normals: ArrayLike) -> np.ndarray:
     return np.arctan2(tangential, np.sum(forces * normals, axis=-1))
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # compared by identity: its arrays may be large batches
 class Grasp:
     """The contact geometry and equilibrating forces of a scene at one or many poses (world frame).
 

@@ -21,7 +21,6 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, replace
-from numbers import Integral
 
 import numpy as np
 
@@ -45,6 +44,7 @@ from grasp_env.mechanics import (
     solve_gait,
     solve_minimax,
 )
+from grasp_env.mechanics.checks import is_integer
 
 from .motion import path_settings, plan_motion, released
 from .rollout import RolloutReport, check_trajectories
@@ -135,7 +135,7 @@ def force_set_k(
 
 def _integer(name: str, value: int, low: int) -> int:
     """``value`` as an int >= ``low`` (not a boolean, a float or a string), or a ValueError."""
-    if not isinstance(value, Integral) or isinstance(value, bool | np.bool_) or value < low:
+    if not is_integer(value) or value < low:
         raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
     return int(value)
 

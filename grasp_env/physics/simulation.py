@@ -24,7 +24,6 @@ import itertools
 import threading
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from numbers import Integral
 
 import mujoco
 import mujoco.rollout
@@ -32,6 +31,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from grasp_env.mechanics import Scene, quaternion_matrix
+from grasp_env.mechanics.checks import is_integer
 from grasp_env.mechanics.threads import available_cores, in_parts
 
 from .model import (
@@ -360,7 +360,7 @@ def check_threads(threads: int | None) -> int:
     string), or a ValueError."""
     if threads is None:
         return available_cores()
-    if not isinstance(threads, Integral) or isinstance(threads, bool | np.bool_) or threads < 1:
+    if not is_integer(threads) or threads < 1:
         raise ValueError(
             f"threads must be >= 1, an integer (or None: every available core), got {threads!r}"
         )
