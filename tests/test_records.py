@@ -9,7 +9,15 @@ import pickle
 import numpy as np
 import pytest
 
-from grasp_env.mechanics import GaitScene, Scene, optimal_gait, site_sets
+from grasp_env.mechanics import (
+    PAPER_TURN,
+    GaitScene,
+    Scene,
+    Trajectory,
+    optimal_gait,
+    site_sets,
+    solve_gait,
+)
 
 
 def small_gait():
@@ -54,9 +62,8 @@ def test_copied_scenes_stay_read_only(make, how):
 def test_copied_gaits_keep_their_read_only_arrays(how):
     gait = small_gait()
     clone = COPIES[how](gait)
-    # the policy and the state tables read-only, the per-pose arrays as they were
     assert read_only_arrays(clone) == read_only_arrays(gait)
-    assert read_only_arrays(clone)["policy"]
+    assert all(read_only_arrays(clone).values())
     assert all(read_only_arrays(clone.table).values())
     with pytest.raises(ValueError, match="read-only"):
         clone.policy[0, 0] = 1
@@ -98,3 +105,20 @@ def test_gait_scenes_store_their_numbers_immutable():
     assert scene.cg_offset == (0.05, 0.0, 0.0)
     assert type(scene.size) is float and type(scene.mu) is float
     assert GaitScene.on_faces(size=[1, 2, 1]).size == (1.0, 2.0, 1.0)
+
+
+def test_gaits_compare_and_hash_by_value():
+    a, b = small_gait(), small_gait()
+    assert a == b and hash(a) == hash(b) and len({a, b}) == 1
+    assert a.table == b.table and hash(a.table) == hash(b.table)
+    fewer = optimal_gait(np.linspace(0.0, 0.1, len(site_sets(4)))[None], np.ones((1, 4, 4), bool))
+    assert a != fewer and a != "a gait"
+
+
+def test_solver_records_compare_by_identity():
+    # records of solver output hold batches: identity, not an ambiguous array comparison
+    solution = solve_gait(trajectory=Trajectory(PAPER_TURN.axis, -10.0, 10.0, 10.0))
+    grasp = solution.values.groups[0].grasp
+    for record in (solution, solution.values, solution.values.groups[0], grasp):
+        assert record == record and record != copy.copy(record)
+    assert solution.optimal == copy.deepcopy(solution.optimal)

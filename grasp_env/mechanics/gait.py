@@ -49,7 +49,6 @@ from .scene import (
     DEFAULT_WEIGHT,
     FACES,
     ArrayRecord,
-    ReadOnlyArrays,
     Scene,
     box_size,
     face_point,
@@ -200,7 +199,7 @@ def site_sets(n_sites: int) -> tuple[tuple[int, ...], ...]:
     return tuple(s for n in (MIN_LOADED, MAX_LOADED) for s in combinations(range(n_sites), n))
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # compared by identity: a record of solver output
 class SetGroup:
     """The site sets of one size n: their grasps and certified optima at every pose."""
 
@@ -210,7 +209,7 @@ class SetGroup:
     optimum: MinimaxResult  # batched (T, S_n)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # compared by identity: a record of solver output
 class SetValues:
     """The certified minimax of every usable site set at every pose of a trajectory.
 
@@ -324,8 +323,8 @@ def site_reach(scene: GaitScene, hand: Hand, rotations: ArrayLike) -> np.ndarray
 # --------------------------------------------------------------------- states and moves
 
 
-@dataclass(frozen=True)
-class GaitStates(ReadOnlyArrays):
+@dataclass(frozen=True, eq=False)
+class GaitStates(ArrayRecord):
     """The hand's states (which finger touches which site) and their moves, as tables.
 
     Attributes:
@@ -617,8 +616,8 @@ def _greedy(states, ptr, move, nxt, loaded, margin, reach):
     return policy, score
 
 
-@dataclass(frozen=True)
-class Gait(ReadOnlyArrays):
+@dataclass(frozen=True, eq=False)
+class Gait(ArrayRecord):
     """A gait along T poses.
 
     Attributes:
@@ -636,6 +635,8 @@ class Gait(ReadOnlyArrays):
     From the pose where a gait breaks the hand's rules (no allowed move is left: the hand
     would lose a site under load or drop below three fingers) its states, sets and contacts
     are -1 and its margins -inf.
+
+    The gait functions return its arrays read-only; gaits compare and hash by value.
     """
 
     states: np.ndarray
@@ -745,7 +746,10 @@ def _follow(
         sets[t] = table.loaded[k]
         margins[t] = margin[t, sets[t]]
         x = int(table.next[k])
-    return Gait(states, moves, contacts, loaded, sets, margins, table)
+    arrays = (states, moves, contacts, loaded, sets, margins)
+    for array in arrays:
+        array.flags.writeable = False  # a result, compared and hashed by value
+    return Gait(*arrays, table)
 
 
 def _start_index(table: GaitStates, start: ArrayLike | None) -> int:
@@ -839,7 +843,7 @@ def bottleneck_bound(
 # ------------------------------------------------------------------------- everything
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # compared by identity: a record of solver output
 class GaitSolution:
     """The certified gait problem along a trajectory, solved.
 
