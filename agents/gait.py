@@ -39,7 +39,7 @@ from grasp_env.mechanics.gait import GAIT_CG_OFFSET, site_sets
 
 from .cli import folder_argument, path_argument
 from .progress import console, status
-from .scene_args import floats, weight
+from .scene_args import floats, friction, weight
 
 HELP = "when to phase fingers out and in: the certified optimal gait along a long rotation"
 
@@ -52,7 +52,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--weight", type=weight, default=5.0, help="weight, N, in [1e-6, 1e6] (default 5)"
     )
-    parser.add_argument("--mu", type=float, default=0.5, help="friction coefficient (0.5)")
+    parser.add_argument(
+        "--mu", type=friction, default=0.5, help="friction coefficient, in [1e-3, 1e3] (0.5)"
+    )
     parser.add_argument(
         "--offsets", type=floats(2 * len(SITE_FACES)), default=None,
         metavar="U1,V1,...,U6,V6",

@@ -26,19 +26,29 @@ def floats(count: int) -> Callable[[str], tuple[float, ...]]:
     return parse
 
 
-def weight(text: str) -> float:
-    """An argparse type: a weight in newtons within the scenes' range (docs/environments.md;
-    far beyond it the forces in newtons overflow or underflow)."""
-    from grasp_env.envs.validation import WEIGHT_RANGE
+def within(range_name: str, unit: str = "") -> Callable[[str], float]:
+    """An argparse type: a number in the environments' range ``range_name`` of
+    ``grasp_env.envs.validation`` (docs/environments.md; far beyond them forces in newtons
+    overflow or underflow, or the friction cone closes or opens flat)."""
 
-    low, high = WEIGHT_RANGE
-    try:
-        value = float(text)
-    except ValueError:
-        value = math.nan
-    if not low <= value <= high:
-        raise argparse.ArgumentTypeError(f"must be in [{low:g}, {high:g}] N, got {text!r}")
-    return value
+    def parse(text: str) -> float:
+        from grasp_env.envs import validation  # (gymnasium: only once an option is parsed)
+
+        low, high = getattr(validation, range_name)
+        try:
+            value = float(text)
+        except ValueError:
+            value = math.nan
+        if not low <= value <= high:  # (NaN is not)
+            raise argparse.ArgumentTypeError(f"must be in [{low:g}, {high:g}]{unit}, got {text!r}")
+        return value
+
+    return parse
+
+
+#: --weight and --mu: the environments' ranges.
+weight = within("WEIGHT_RANGE", " N")
+friction = within("MU_RANGE")
 
 
 def add_scene_arguments(parser: argparse.ArgumentParser) -> None:
@@ -50,7 +60,10 @@ def add_scene_arguments(parser: argparse.ArgumentParser) -> None:
         help=f"weight, N, in [1e-6, 1e6] (default {DEFAULT_WEIGHT})",
     )
     parser.add_argument(
-        "--mu", type=float, default=DEFAULT_MU, help=f"friction coefficient (default {DEFAULT_MU})"
+        "--mu",
+        type=friction,
+        default=DEFAULT_MU,
+        help=f"friction coefficient, in [1e-3, 1e3] (default {DEFAULT_MU})",
     )
     parser.add_argument(
         "--offsets",

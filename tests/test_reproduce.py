@@ -64,6 +64,8 @@ def test_moved_contacts_break_the_zero_angle(tmp_path):
     [
         (["--weight", "0"], "weight"),
         (["--mu", "-1"], "mu"),
+        (["--mu", "1e-4"], "--mu: must be in [0.001, 1000]"),
+        (["--mu", "nan"], "--mu: must be in [0.001, 1000]"),
         (["--k-max", "-2"], "--k-max"),
         (["--alpha-step", "0"], "alpha_step_deg"),
         (["--offsets", "0.99,0,0,0,0,1.5"], "offset"),
@@ -78,3 +80,12 @@ def test_bad_options_give_clear_errors(tmp_path, capsys, args, message):
     err = capsys.readouterr().err
     assert "error" in err
     assert message in err
+
+
+@pytest.mark.parametrize("command", ["verify", "gait"])
+def test_mu_has_the_environments_range_in_every_command(tmp_path, capsys, command):
+    # verify --policy EXPERT took mu 1e-4, which its --policy RUN's environment refuses
+    with pytest.raises(SystemExit) as stop:
+        main([command, "--out", str(tmp_path), "--mu", "1e-4"])
+    assert stop.value.code == 2
+    assert "--mu: must be in [0.001, 1000], got '1e-4'" in capsys.readouterr().err
