@@ -404,6 +404,51 @@ def test_bad_option_raises(env_id, options, message):
         env.reset(seed=0, options=options)
 
 
+def generator_states(env) -> list:
+    """The states of an environment's generators (a batched vector env's: one a sub-env)."""
+    env = env.unwrapped
+    return [r.bit_generator.state for r in getattr(env, "_rngs", None) or [env.np_random]]
+
+
+REFUSED_OPTIONS = [{"bogus": 1}, {"scene": {"mu": 0.0}}]
+
+
+@pytest.mark.parametrize("options", REFUSED_OPTIONS)
+@pytest.mark.parametrize("env_id", [*FAST_IDS, "grasp_env/CubeGait-v0"])
+def test_refused_reset_changes_nothing(env_id, options):
+    """A reset refused for its options neither seeds nor advances the generator: the next
+    reset() is the one it would have been without the refused call."""
+    fresh = make(env_id)
+    want = [fresh.reset(seed=5), fresh.reset()]
+    env = make(env_id)
+    first = env.reset(seed=5)
+    with pytest.raises(ValueError, match=r"option|'mu'"):
+        env.reset(seed=6, options=options)
+    assert env.unwrapped.np_random_seed == 5
+    assert_same([first, env.reset()], want)
+    assert generator_states(env) == generator_states(fresh)
+
+
+@pytest.mark.parametrize(
+    "options", [*REFUSED_OPTIONS, {"scene": {"mu": 0.0}, "reset_mask": np.array([False, True])}]
+)
+@pytest.mark.parametrize("env_id", [*FAST_IDS, "grasp_env/CubeGait-v0"])
+def test_refused_vector_reset_changes_nothing(env_id, options):
+    """The same for the vector envs: no sub-environment's generator is seeded or advanced."""
+
+    def make_vec():
+        return gym.make_vec(env_id, num_envs=2, vectorization_mode="vector_entry_point")
+
+    fresh = make_vec()
+    want = [fresh.reset(seed=5), fresh.reset()]
+    venv = make_vec()
+    first = venv.reset(seed=5)
+    with pytest.raises(ValueError, match=r"option|'mu'"):
+        venv.reset(seed=[6, 7], options=options)
+    assert_same([first, venv.reset()], want)
+    assert generator_states(venv) == generator_states(fresh)
+
+
 @pytest.mark.parametrize(
     ("kwargs", "message"),
     [

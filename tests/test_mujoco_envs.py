@@ -409,6 +409,48 @@ def test_scene_the_contact_cannot_carry_is_refused():
     plain.step(zero)
 
 
+def generator_states(env) -> list:
+    """The states of an environment's generators (a vector env's: one a sub-env)."""
+    env = env.unwrapped
+    return [r.bit_generator.state for r in getattr(env, "_rngs", None) or [env.np_random]]
+
+
+REFUSED_OPTIONS = [
+    {"scene": corner_scene(0.499)},  # beyond what the MuJoCo contact carries
+    {"bogus": 1},
+    {"scene": corner_scene(0.499), "reset_mask": np.array([False, True])},  # vector envs
+]
+
+
+@pytest.mark.parametrize("vector", [False, True])
+@pytest.mark.parametrize(
+    "env_id", ["grasp_env/CubeGraspMujoco-v0", "grasp_env/CubeGraspRandomMujoco-v0"]
+)
+def test_refused_reset_changes_nothing(env_id, vector):
+    """A reset refused for a scene the contact cannot carry (or an unknown option) neither
+    seeds nor advances a generator, in the single and the vector envs: the next reset() is
+    the one it would have been without the refused call."""
+
+    def build():
+        return make_vec(env_id, 2) if vector else make(env_id)
+
+    fresh = build()
+    want = [fresh.reset(seed=5), fresh.reset()]
+    for options in REFUSED_OPTIONS if vector else REFUSED_OPTIONS[:2]:
+        env = build()
+        first = env.reset(seed=5)
+        with pytest.raises(ValueError, match=r"physics='mujoco'|unknown option"):
+            env.reset(seed=[6, 7] if vector else 6, options=options)
+        if not vector:
+            assert env.unwrapped.np_random_seed == 5
+        for (obs, info), (o, i) in zip([first, env.reset()], want, strict=True):
+            np.testing.assert_array_equal(obs, o)
+            assert info.keys() == i.keys() == set()  # nothing to compare
+        assert generator_states(env) == generator_states(fresh)
+        env.close()
+    fresh.close()
+
+
 def test_scene_check_is_exact_for_every_grip_in_the_box():
     """k_max 40 w: a scene whose equilibrating forces reach 122 w is accepted (the box's worst
     grip makes it 140 w, though |F_i| + 2 k_max is 202 w), and every corner of the box steps

@@ -119,8 +119,14 @@ class _CubeGraspEnv(gym.Env[np.ndarray, np.ndarray]):
 
     # -- the episode ---------------------------------------------------------------------------
 
-    def _next_episode(self, scene: Mapping[str, Any] | None) -> Episode:
+    def _next_episode(self, scene: SceneBatch | None) -> Episode:
         raise NotImplementedError
+
+    def scene_option(self, options: Mapping[str, Any] | None) -> SceneBatch | None:
+        """The validated scene of ``reset(options=...)`` (None without one): a ValueError for
+        options that the reset refuses."""
+        scene = parse_options(options)
+        return None if scene is None else self.scene_batch(scene)
 
     def scene_batch(self, scene: Mapping[str, Any]) -> SceneBatch:
         """The validated scene of a ``reset(options={"scene": scene})`` (with physics, one
@@ -150,8 +156,12 @@ class _CubeGraspEnv(gym.Env[np.ndarray, np.ndarray]):
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[np.ndarray, dict[str, Any]]:
-        super().reset(seed=check_seed("seed", seed))
-        episode = self._next_episode(parse_options(options))
+        # Everything that can refuse the call is checked before seeding: a refused reset
+        # changes nothing (neither the generator nor the running episode).
+        seed = check_seed("seed", seed)
+        scene = self.scene_option(options)
+        super().reset(seed=seed)
+        episode = self._next_episode(scene)
         self._episode = episode
         self._step = 0
         self._done = False
@@ -424,10 +434,10 @@ class CubeGraspEnv(_CubeGraspEnv):
             "trajectory": {**base["trajectory"], **scene.get("trajectory", {})},
         }
 
-    def _next_episode(self, scene: Mapping[str, Any] | None) -> Episode:
+    def _next_episode(self, scene: SceneBatch | None) -> Episode:
         if scene is None:
             return self._default_episode
-        return build_episodes(self.scene_batch(scene), self.k_max_ratio).episode(0)
+        return build_episodes(scene, self.k_max_ratio).episode(0)
 
 
 class CubeGraspRandomEnv(_CubeGraspEnv):
@@ -524,9 +534,9 @@ class CubeGraspRandomEnv(_CubeGraspEnv):
         super().__init__(self.sampler.faces, k_max_ratio, terminate_on_slip, physics, render_mode)
         self._defaults = default_scene(self.faces)
 
-    def _next_episode(self, scene: Mapping[str, Any] | None) -> Episode:
+    def _next_episode(self, scene: SceneBatch | None) -> Episode:
         if scene is not None:
-            return build_episodes(self.scene_batch(scene), self.k_max_ratio).episode(0)
+            return build_episodes(scene, self.k_max_ratio).episode(0)
         # With physics a drawn scene must fit the MuJoCo contact as an explicit one must; the
         # vector env draws again from the same generator, so it gets the same episodes.
         for _ in range(MUJOCO_DRAWS):

@@ -750,9 +750,11 @@ class CubeGaitEnv(gym.Env[np.ndarray, np.ndarray]):
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[np.ndarray, dict[str, Any]]:
-        super().reset(seed=check_seed("seed", seed))
+        # Checked before seeding: a refused reset changes nothing.
+        seed = check_seed("seed", seed)
         if options:  # None and {} are the only options
             raise ValueError(f"the gait environment takes no reset options, got {options!r}")
+        super().reset(seed=seed)
         self._x, self._t, self._done = self.task.start, 0, False
         return self._observation(self._x, 0), {}
 

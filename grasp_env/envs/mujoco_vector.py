@@ -129,12 +129,16 @@ class _MujocoVectorEnv(_CubeGraspVectorEnv):
         if self.closed:  # its MuJoCo checkers are freed
             raise RuntimeError(f"this {type(self).__name__} is closed: make a new one")
 
-    def _start(self, envs: np.ndarray, scene: Mapping[str, Any] | None) -> None:
+    def _scene_option(self, options: Mapping[str, Any] | None) -> SceneBatch | None:
+        # Checked by reset() before it seeds anything: a refused reset changes nothing.
         self._check_open()
-        if scene is not None:  # refused as the single env refuses it, before it starts
-            check_mujoco_scene(
-                "reset option 'scene'", self.template.scene_batch(scene), self.template.k_max_ratio
-            )
+        scene = super()._scene_option(options)
+        if scene is not None:  # refused as the single env refuses it
+            check_mujoco_scene("reset option 'scene'", scene, self.template.k_max_ratio)
+        return scene
+
+    def _start(self, envs: np.ndarray, scene: SceneBatch | None) -> None:
+        self._check_open()
         super()._start(envs, scene)
         if len(envs) == 0:
             return

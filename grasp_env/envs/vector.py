@@ -22,7 +22,7 @@ from ..mechanics.threads import available_cores, in_parts
 from .cube_grasp import CubeGraspEnv, CubeGraspRandomEnv, _CubeGraspEnv, action_array
 from .episodes import Episode, EpisodeBatch, build_episodes, sample_episodes
 from .kernels import step_batch
-from .scenes import parse_options
+from .scenes import SceneBatch
 from .validation import (
     MAX_ENVS,
     check_autoreset_mode,
@@ -277,16 +277,16 @@ class _CubeGraspVectorEnv(VectorEnv):
             self._rngs[env], _ = seeding.np_random()
         return self._rngs[env]  # type: ignore[return-value]
 
-    def _start(self, envs: np.ndarray, scene: Mapping[str, Any] | None) -> None:
+    def _start(self, envs: np.ndarray, scene: SceneBatch | None) -> None:
         """New episodes for sub-environments ``envs`` (from their own generators); a ``scene``
-        (from the reset options) starts for all of them."""
+        (from the reset options, validated) starts for all of them."""
         if len(envs) == 0:
             return
         template = self.template
         store = self._store
         if scene is not None or (store.default is not None):
             if scene is not None:  # one explicit scene for all of them, stored once
-                option = build_episodes(template.scene_batch(scene), template.k_max_ratio)
+                option = build_episodes(scene, template.k_max_ratio)
                 others = np.ones(self.num_envs, bool)  # the episodes of these carry on
                 others[envs] = False
                 self._where[others] = store.share_option(option.episode(0), self._where[others])
@@ -352,9 +352,11 @@ class _CubeGraspVectorEnv(VectorEnv):
         in a full reset, the seeds of the others unused; a scene option applies to them); the
         observations of all sub-environments are returned, the others' as they were.
         """
+        # Everything that can refuse the call is checked before any generator is seeded: a
+        # refused reset changes nothing.
         seeds = self._seeds(seed)
         mask, options = split_reset_mask(options, self.num_envs)
-        scene = parse_options(options)
+        scene = self._scene_option(options)
         if mask is None or mask.all():
             envs = np.arange(self.num_envs)
         elif not self._started:
@@ -366,9 +368,11 @@ class _CubeGraspVectorEnv(VectorEnv):
         self._reset(envs, seeds, scene)
         return self._store.arrays["observations"][self._base + self._t], {}
 
-    def _reset(
-        self, envs: np.ndarray, seeds: list[int | None], scene: Mapping[str, Any] | None
-    ) -> None:
+    def _scene_option(self, options: Mapping[str, Any] | None) -> SceneBatch | None:
+        """The validated scene of the reset options (None without one), or a ValueError."""
+        return self.template.scene_option(options)
+
+    def _reset(self, envs: np.ndarray, seeds: list[int | None], scene: SceneBatch | None) -> None:
         """New episodes for sub-environments ``envs``, seeded by their ``seeds``."""
         for env in envs:
             if seeds[env] is not None:
