@@ -76,13 +76,15 @@ def max_friction_angle(
     normals: torch.Tensor,
     k_max_ratio: float,
 ) -> torch.Tensor:
-    """max_i theta_i (radians) for actions (B, m), differentiable: eqs. 4 and 2 in torch.
+    """max_i theta_i (radians) for actions (..., m), differentiable: eqs. 4 and 2 in torch.
 
-    The actions are clipped to [-1, 1] and scaled by k_max / w as the environment does;
-    theta_i = atan2(|P_t|, P_n) is eq. 2's angle, with a finite gradient along the normal.
+    The grasp's forces (..., n, 3), basis (..., m, n, 3) and normals (..., n, 3) broadcast
+    against the actions' batch. The actions are clipped to [-1, 1] and scaled by k_max / w as
+    the environment does; theta_i = atan2(|P_t|, P_n) is eq. 2's angle, with a finite
+    gradient along the normal.
     """
     k = actions.clamp(-1.0, 1.0) * k_max_ratio
-    net = forces + torch.einsum("bq,bqnc->bnc", k, basis)
+    net = forces + torch.einsum("...q,...qnc->...nc", k, basis)
     normal = (net * normals).sum(-1)
     tangential = torch.linalg.vector_norm(net - normal[..., None] * normals, dim=-1)
     return torch.atan2(tangential, normal).amax(-1)

@@ -141,6 +141,27 @@ def test_grip_along_returns_the_best_of_its_solves(env, monkeypatch) -> None:
     assert np.any(best < largest_angle(1) - 1e-3)  # re-weighting does help some scenes
 
 
+def test_grip_along_solves_the_least_squares_of_the_components_across_the_directions(
+    env, monkeypatch
+) -> None:
+    """One solve (equal weights) is the least squares of (I - d_i d_i^T)(F_i + B_i k) = 0 over
+    all fingers, as numpy's lstsq of the stacked rows gives it."""
+    rng = np.random.default_rng(1)
+    obs = np.concatenate([env.reset() for _ in range(16)])
+    features = GraspFeatures(env_space(obs))(torch.as_tensor(obs))
+    forces, basis, normals = (t.double() for t in object_frame_grasp(features, 3))
+    tilts = torch.as_tensor(rng.normal(scale=0.3, size=normals.shape))
+    directions = force_directions(tilts, normals)
+    monkeypatch.setattr(policy_module, "SOLVES", 1)
+    k = grip_along(directions, forces, basis, normals, K_MAX_RATIO).numpy()
+    for b in range(len(k)):
+        d, F, E = directions[b].numpy(), forces[b].numpy(), basis[b].numpy()  # E: (m, n, 3)
+        across = np.eye(3) - d[:, :, None] * d[:, None, :]  # (n, 3, 3)
+        rows = np.einsum("nij,qnj->niq", across, E).reshape(-1, E.shape[0])
+        expected = np.linalg.lstsq(rows, -np.einsum("nij,nj->ni", across, F).ravel())[0]
+        np.testing.assert_allclose(k[b], expected, atol=1e-7)
+
+
 def env_space(obs: np.ndarray):
     import gymnasium as gym
 
