@@ -54,7 +54,7 @@ from grasp_env.envs.validation import DEFAULT_K_MAX_RATIO
 
 from .config import ImitationConfig
 from .features import grasp_tensors, max_friction_angle
-from .progress import status
+from .progress import say, status
 
 #: Final learning rate of each round's cosine decay, as a fraction of the initial one.
 LR_FLOOR = 0.01
@@ -63,6 +63,9 @@ WARMUP_EPOCHS = 1
 WARMUP_START = 1e-3
 #: Gradient-norm clip of the fit's Adam steps.
 MAX_GRAD_NORM = 1.0
+#: An epoch's mean loss this much (relative) above the fit's best is a spike: the fit goes back
+#: to the best epoch's weights and halves its learning rate.
+SPIKE = 0.05
 #: States of the validation set, and the seed of its scenes (held-out evaluations draw from
 #: 1,000,000 on, training collectors from the run's seed).
 VALIDATION_STATES = 20_000
@@ -209,15 +212,19 @@ def fit(
     # where 3% of states get a near-released finger (gap 2 deg, worst 107 deg); a ramp lets
     # Adam's moment estimates settle first
     warmup = min(WARMUP_EPOCHS, epochs - 1) * batches
-    decay = torch.optim.lr_scheduler.CosineAnnealingLR(
-        optimizer, T_max=epochs * batches - warmup, eta_min=learning_rate * LR_FLOOR
-    )
-    schedule = decay
-    if warmup:
-        ramp = torch.optim.lr_scheduler.LinearLR(optimizer, WARMUP_START, 1.0, warmup)
-        schedule = torch.optim.lr_scheduler.SequentialLR(optimizer, [ramp, decay], [warmup])
+    decay = epochs * batches - warmup
+    scale = 1.0  # halved at each rollback
+
+    def rate(step: int) -> float:
+        """The learning rate's factor: the linear ramp, then the cosine decay to LR_FLOOR."""
+        if step < warmup:
+            return scale * (WARMUP_START + (1.0 - WARMUP_START) * step / warmup)
+        cosine = 0.5 * (1.0 + math.cos(math.pi * min(step - warmup, decay) / decay))
+        return scale * (LR_FLOOR + (1.0 - LR_FLOOR) * cosine)
+
+    schedule = torch.optim.lr_scheduler.LambdaLR(optimizer, rate)
     policy.set_training_mode(True)
-    loss_sum = 0.0
+    best, kept, epoch_loss = math.inf, None, math.inf
     with status(f"fitting the policy to {len(inputs):,} labelled states") as detail:
         for epoch in range(epochs):
             detail(f"epoch {epoch + 1}/{epochs}")
@@ -238,8 +245,24 @@ def fit(
                 optimizer.step()
                 schedule.step()
                 loss_sum += float(loss.detach()) * len(index)
+            # A loss spike is a collapse under way (Adam's steps at a large rate can push every
+            # unit of the last layer into SiLU's flat negative tail: one grip for every state,
+            # and no gradient back); go back to the best epoch's weights at half the rate.
+            epoch_loss = loss_sum / len(inputs)
+            if epoch_loss > best * (1.0 + SPIKE) and kept is not None:
+                policy.load_state_dict(kept[0])
+                optimizer.load_state_dict(kept[1])
+                scale /= 2.0
+                say(
+                    f"fit: epoch {epoch + 1}'s loss {epoch_loss:.4g} spiked above the best"
+                    f" {best:.4g}: back to that epoch's weights, at half the learning rate"
+                )
+                epoch_loss = best  # the loss of the weights the fit now holds
+            elif epoch_loss < best:
+                best = epoch_loss
+                kept = (copy.deepcopy(policy.state_dict()), copy.deepcopy(optimizer.state_dict()))
     policy.set_training_mode(False)
-    return loss_sum / len(inputs)
+    return epoch_loss
 
 
 def imitate(

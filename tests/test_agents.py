@@ -656,6 +656,50 @@ def test_a_round_that_leaves_the_policy_worse_is_undone(tmp_path, monkeypatch, c
     assert kept == [1.0, 0.0, 1.0]
 
 
+def test_a_fit_whose_loss_spikes_goes_back_to_its_best_epoch(tmp_path, monkeypatch, capsys):
+    """A collapse under way shows as a loss spike: the fit returns the best epoch's weights."""
+    import contextlib
+
+    import torch
+
+    import grasp_env_agents.imitation as imitation
+    from grasp_env_agents.train import Start, build
+
+    config = tiny(total_timesteps=0, imitation={"rounds": 1, "n_envs": 4})
+    _, _, model = build(config, Start(), tmp_path)
+    policy, teacher = model.policy, imitation.make_teacher({})
+    collector = imitation.StateCollector(config.env_id, {}, 4, 0)
+    obs, labels = collector.collect(teacher.actions, 256)
+    collector.close()
+    grasp = imitation.grasp_of(obs)
+    epoch, snapshots = [0], {}
+
+    @contextlib.contextmanager
+    def status(message):
+        def detail(text):
+            if text.startswith("epoch ") and "/" in text:  # the start of an epoch
+                snapshots[epoch[0]] = {k: v.clone() for k, v in policy.state_dict().items()}
+                epoch[0] = int(text.split()[1].split("/")[0])
+
+        yield detail
+
+    angle = imitation.max_friction_angle
+
+    def spiking_in_epoch_4(*args, **kwargs):
+        return angle(*args, **kwargs) + (1.0 if epoch[0] == 4 else 0.0)
+
+    monkeypatch.setattr(imitation, "status", status)
+    monkeypatch.setattr(imitation, "max_friction_angle", spiking_in_epoch_4)
+    loss = imitation.fit(
+        policy, obs, labels, 4, 64, 1e-3, torch.Generator().manual_seed(0), grasp, 1.0, 2.0
+    )
+    assert "epoch 4's loss" in capsys.readouterr().out
+    after_epoch_3 = snapshots[3]
+    for name, value in policy.state_dict().items():
+        assert torch.equal(value, after_epoch_3[name]), name
+    assert loss < 1.0  # the best epoch's loss, not the spike's
+
+
 # --- baselines -----------------------------------------------------------------------------
 
 
