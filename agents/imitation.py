@@ -13,7 +13,9 @@ environment:
 3. After each round the policy's mean action (the deterministic action SB3 plays) is fitted to
    the labels by mean squared error, Adam, a one-epoch learning-rate warm-up then cosine
    decay. Only the actor is trained; its log std (the exploration noise PPO starts from) is
-   left as configured.
+   left as configured. An epoch whose mean loss spikes (5% above the fit's best epoch) marks
+   a collapse under way: the fit goes back to the best epoch's weights and Adam state and
+   halves its learning rate (docs/rl.md, "The main job in five minutes").
 4. A round whose fit leaves the policy worse on a fixed validation set (states of scenes no
    training or held-out seed draws, labelled by the expert; the measure is the mean largest
    friction angle the policy's grip gives there) is undone: the policy goes back to the
