@@ -36,6 +36,7 @@ from ..mechanics import (
     contact_pairs,
     solve_gait,
 )
+from ..mechanics.checks import is_integer
 from ..mechanics.gait import MIN_LOADED, GaitStates, gait_states
 from ..mechanics.threads import available_cores, in_parts
 from .cube_grasp import action_array
@@ -586,10 +587,7 @@ def _task(
     k_max_ratio = check_k_max_ratio(k_max_ratio)
     if start is not None:
         sites = isinstance(start, Sequence | np.ndarray) and not isinstance(start, str | bytes)
-        if not sites or not all(
-            isinstance(s, Integral) and not isinstance(s, bool | np.bool_) and -1 <= s < 1 << 31
-            for s in start
-        ):
+        if not sites or not all(is_integer(s) and -1 <= s < 1 << 31 for s in start):
             raise ValueError(
                 f"start must be a site (0-5, or -1 for none) for each finger, got {start!r}"
             )
