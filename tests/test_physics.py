@@ -562,7 +562,11 @@ def test_a_finger_phased_out_ramps_to_zero_lifts_and_is_placed_again():
 def test_rollouts_are_the_same_alone_in_a_batch_and_on_any_number_of_threads():
     scene, rotations, optimum, equal_k = paper_grips(0.1)
     checker = TrajectoryChecker(scene)
-    grips = [(rotations[:8], optimum[:8], None), (rotations[:8], equal_k[:8], None)]
+    grips = [
+        (rotations[:8], optimum[:8], None),
+        (rotations[:8], equal_k[:8], None),
+        (rotations[3:6], equal_k[3:6], None),  # more grips than threads: taken in turn
+    ]
     alone = [checker.check(*grip).as_dict() for grip in grips]
     for threads in sorted({1, 2, available_cores()}):
         assert [r.as_dict() for r in checker.check_batch(grips, threads=threads)] == alone

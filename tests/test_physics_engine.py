@@ -55,6 +55,23 @@ def test_batched_pose_plans_are_the_one_pose_plans(paper):
         plan_poses(scene, rotations, forces, bad, SETTINGS)
 
 
+@pytest.mark.parametrize("size", [None, 1, 3])
+@pytest.mark.parametrize("threads", [1, 2, 3])
+def test_parts_in_parallel_keep_the_items_order(threads, size):
+    from grasp_env.physics.simulation import in_parallel
+
+    calls = []
+
+    def work(part):
+        calls.append(len(part))
+        return [10 * x for x in part]
+
+    items = list(range(7))
+    assert in_parallel(work, items, threads, size) == [10 * x for x in items]
+    assert sum(calls) == 7 and (size is None or max(calls) <= size)
+    assert in_parallel(work, [], threads, size) == []
+
+
 def test_initial_states_are_cached_but_handed_out_as_copies(paper):
     scene = paper[0]
     physics = PhysicsModel(scene, SETTINGS["timestep"], SETTINGS["settle_mu"])

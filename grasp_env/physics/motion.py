@@ -53,7 +53,6 @@ its force has ramped above it.
 
 from __future__ import annotations
 
-import itertools
 from dataclasses import dataclass
 
 import numpy as np
@@ -137,16 +136,6 @@ def _load(scene: Scene, rotations: np.ndarray) -> np.ndarray:
     return np.concatenate(
         [(force / w) @ rotations, (scene.extra_torque / (w * length)) @ rotations], axis=-1
     )
-
-
-def _axis_angle(q: np.ndarray) -> tuple[np.ndarray | None, float]:
-    """The unit axis (None for no turn) and angle, radians, of the turn of the unit quaternion
-    ``q`` with w >= 0 (the turn of at most pi)."""
-    sine = float(np.linalg.norm(q[1:]))
-    angle = 2.0 * float(np.arctan2(sine, q[0]))
-    if sine < 1e-15:
-        return None, 0.0
-    return q[1:] / sine, angle
 
 
 #: Path samples per base step from which a segment's timing is computed.
@@ -329,40 +318,30 @@ def plan_motion(
             pinvs[key] = np.linalg.pinv(grasp_matrix(positions[active]))
         return (-load @ pinvs[key].T).reshape(len(load), -1, 3)
 
-    parts: dict[str, list[np.ndarray]] = {
-        name: [] for name in ("forces", "load", "contact", "pose", "rotations")
-    }
-
-    def hold_at(t: int, count: int) -> None:
-        """``count`` steps holding pose t's grip."""
-        parts["forces"].append(np.repeat(pose_forces[t : t + 1], count, 0))
-        parts["load"].append(np.repeat(pose_load[t : t + 1], count, 0))
-        parts["contact"].append(np.repeat(contact[t : t + 1], count, 0))
-        parts["pose"].append(np.full(count, float(t)))
-        parts["rotations"].append(np.repeat(rotations[t : t + 1], count, 0))
-
-    hold_at(0, settle)
     dwell = max(1, round(settings["pose_hold_time"] / dt))
     total = settle + hold + (n_poses - 1) * dwell
-    # The turns between poses: their quaternions at once, then each segment's duration.
+    # The turns between poses, each as a unit axis (zero for none) and an angle of at most pi
+    # (from its quaternion with w >= 0), and each segment's base duration.
     relative = np.swapaxes(rotations[:-1], -1, -2) @ rotations[1:]
     quaternions = _quaternion(relative) if n_poses > 1 else np.zeros((0, 4))
-    turns, base_steps = [], []
-    for t in range(n_poses - 1):
-        axis, angle = _axis_angle(quaternions[t])
-        duration = max(
-            settings["min_segment_time"], np.degrees(angle) * settings["time_per_degree"]
+    # |q_xyz| as the norm of each vector alone computes it (a dot product), bit for bit
+    vectors = quaternions[:, None, 1:]
+    sines = np.sqrt(vectors @ np.swapaxes(vectors, -1, -2))[:, 0, 0]
+    angles = 2.0 * np.arctan2(sines, quaternions[:, 0])
+    turning = sines >= 1e-15
+    angles[~turning] = 0.0
+    axes = np.zeros((n_poses - 1, 3))
+    axes[turning] = quaternions[turning, 1:] / sines[turning, None]
+    durations = np.maximum(
+        settings["min_segment_time"], np.degrees(angles) * settings["time_per_degree"]
+    )
+    base_steps = np.maximum(1, np.round(durations / dt)).astype(int)
+    if total + base_steps.sum() > MAX_STEPS:
+        raise ValueError(
+            f"the run would take more than {MAX_STEPS} steps: lower time_per_degree,"
+            " min_segment_time, pose_hold_time or the number of poses"
         )
-        turns.append((axis, angle))
-        base_steps.append(max(1, round(duration / dt)))
-        if total + sum(base_steps) > MAX_STEPS:
-            raise ValueError(
-                f"the run would take more than {MAX_STEPS} steps: lower time_per_degree,"
-                " min_segment_time, pose_hold_time or the number of poses"
-            )
-    # Each segment's turn as an axis (zero for none) and angle, and its fingers sharing the load.
-    axes = np.array([np.zeros(3) if axis is None else axis for axis, _ in turns]).reshape(-1, 3)
-    angles = np.array([angle for _, angle in turns])
+    # Each segment's fingers sharing the load.
     active = carrying[:-1] | carrying[1:]  # (T - 1, n)
     # For each set A of load-sharing fingers: its segments, and the pose forces' parts in the
     # null space of G_A (T, |A|, 3), interpolated along them.
@@ -437,15 +416,27 @@ def plan_motion(
             " of poses"
         )
     turned, load, step_forces = path(segments)
-    bounds = np.cumsum([0] + [len(s) for s in segments])
-    for t, (lo, hi) in enumerate(itertools.pairwise(bounds)):
-        hold_at(t, dwell)
-        parts["forces"].append(step_forces[lo:hi])
-        parts["load"].append(load[lo:hi])
-        parts["contact"].append(np.repeat((contact[t] | contact[t + 1])[None], hi - lo, 0))
-        parts["pose"].append(t + segments[t])
-        parts["rotations"].append(turned[lo:hi])
-    hold_at(n_poses - 1, hold)
-    steps = {name: np.concatenate(values) for name, values in parts.items()}
+    # The run block by block: the settle, then each pose's dwell and the segment after it,
+    # then the final hold. A step is a row of the poses (held) stacked on the segments' steps.
+    lengths = np.array([len(s) for s in segments], dtype=int)
+    seg = np.repeat(np.arange(n_poses - 1), lengths)
+    counts = np.empty(2 * n_poses, dtype=int)
+    first = np.empty(2 * n_poses, dtype=int)
+    counts[0], counts[1:-1:2], counts[2:-1:2], counts[-1] = settle, dwell, lengths, hold
+    first[0], first[1:-1:2], first[-1] = 0, np.arange(n_poses - 1), n_poses - 1
+    first[2:-1:2] = n_poses + np.cumsum(lengths) - lengths
+    stride = np.zeros(2 * n_poses, dtype=int)
+    stride[2:-1:2] = 1  # a segment's steps are consecutive rows; a held pose is one row
+    block_start = np.cumsum(counts) - counts
+    within = np.arange(counts.sum()) - np.repeat(block_start, counts)
+    row = np.repeat(first, counts) + np.repeat(stride, counts) * within
+    s = np.concatenate(segments) if segments else np.zeros(0)
+    steps = {
+        "forces": np.concatenate([pose_forces, step_forces])[row],
+        "load": np.concatenate([pose_load, load])[row],
+        "contact": np.concatenate([contact, contact[seg] | contact[seg + 1]])[row],
+        "pose": np.concatenate([np.arange(n_poses, dtype=float), seg + s])[row],
+        "rotations": np.concatenate([rotations, turned])[row],
+    }
     steps["contact"] &= ~released(steps["forces"], 1.0, settings["released_force"])
     return Motion(**steps, settle_steps=settle)

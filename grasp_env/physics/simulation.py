@@ -1,8 +1,9 @@
 """Running motions in MuJoCo, many at once: ``mujoco.rollout`` steps them in C (it releases the
 GIL), and the measurements are taken afterwards from the states of every step. A batch is split
-into one contiguous part per thread (:func:`in_parallel`), and each part is planned, stepped
-and measured by its own thread: one part's Python then overlaps another's stepping, where a
-rollout thread pool alone would leave the cores idle while the Python plans and measures.
+into parts (:func:`in_parallel`: one contiguous part per thread, or, for trajectories, one run
+at a time taken by the threads in turn), and each part is planned, stepped and measured by its
+own thread: one part's Python then overlaps another's stepping, where a rollout thread pool
+alone would leave the cores idle while the Python plans and measures.
 
 A batch of runs steps in lockstep through chunks of steps. Chunks end where the settle ends (the
 settle runs on a copy of the model with a high friction coefficient) and where a finger is
@@ -61,14 +62,30 @@ def _runner() -> mujoco.rollout.Rollout:
     return _local.runner
 
 
-def in_parallel(work: Callable[[Sequence], list], items: Sequence, threads: int) -> list:
-    """``work`` of ``threads`` contiguous parts of ``items``, each on its own thread, the
-    results in order. Each part plans, simulates and measures its runs by itself: MuJoCo's
-    stepping releases the GIL, so one part's Python overlaps another's stepping (a rollout
-    thread pool alone leaves the cores idle while the Python plans and measures). A run's
-    result does not depend on its part (see :func:`simulate`)."""
-    parts = in_parts("grasp-physics", len(items), lambda lo, hi: work(items[lo:hi]), threads)
-    return [result for part in parts for result in part]
+def in_parallel(
+    work: Callable[[Sequence], list], items: Sequence, threads: int, size: int | None = None
+) -> list:
+    """``work`` of parts of ``items`` on ``threads`` threads, the results in order. Each part
+    plans, simulates and measures its runs by itself: MuJoCo's stepping releases the GIL, so
+    one part's Python overlaps another's stepping (a rollout thread pool alone leaves the cores
+    idle while the Python plans and measures). ``size`` None: one contiguous part per thread
+    (the most whole-batch array work per call); else the threads take parts of ``size`` items
+    in turn, so that while one thread's Python holds the GIL the other steps (for runs whose
+    own Python is a large share, such as planned trajectories). A run's result does not depend
+    on its part (see :func:`simulate`)."""
+    if size is None:
+        parts = in_parts("grasp-physics", len(items), lambda lo, hi: work(items[lo:hi]), threads)
+        return [result for part in parts for result in part]
+    starts = range(0, len(items), size)
+    results: list[list] = [[] for _ in starts]
+    taken = itertools.count()  # next() on it is atomic under the GIL
+
+    def take(_lo: int, _hi: int) -> None:
+        while (p := next(taken)) < len(results):
+            results[p] = work(items[starts[p] : starts[p] + size])
+
+    in_parts("grasp-physics", len(results), take, threads)
+    return [result for part in results for result in part]
 
 
 class PhysicsModel:
@@ -433,7 +450,7 @@ def simulate_cases(
         runs = [(physics[id(scene)], m) for (scene, *_), m in zip(part, motions, strict=True)]
         return list(zip(motions, _simulate_serial(runs), strict=True))
 
-    return in_parallel(run, cases, threads)
+    return in_parallel(run, cases, threads, size=1)
 
 
 def _simulate_batch(

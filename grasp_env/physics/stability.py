@@ -172,13 +172,18 @@ class Checker:
         self.physics = None
 
     def _in_parallel(
-        self, report: Callable[[Sequence], list], items: Sequence, threads: int | None
+        self,
+        report: Callable[[Sequence], list],
+        items: Sequence,
+        threads: int | None,
+        size: int | None = None,
     ) -> list:
-        """``report`` of parts of ``items`` on ``threads`` threads (default: the checker's)."""
+        """``report`` of parts of ``items`` (of ``size``, see :func:`in_parallel`) on
+        ``threads`` threads (default: the checker's)."""
         if self.physics is None:
             raise ValueError(f"this {type(self).__name__} is closed")
         return in_parallel(
-            report, items, check_threads(self.threads if threads is None else threads)
+            report, items, check_threads(self.threads if threads is None else threads), size
         )
 
     def _simulate(self, motions: Sequence[Motion]) -> list[Trace]:
