@@ -218,8 +218,9 @@ def batched(targets: Targets) -> None:
             f" runs {bare:.2f}x (the machine's ceiling); ours / bare = {ours / bare:.2f}"
         )
     print(
-        f"  what bounds the rollouts: their planning (the path and its timing, numpy on the"
-        f" GIL) scales {ratios[f'{grip_name}, their planning alone']:.2f}x on 2 threads"
+        f"  what bounds the rollouts: their own Python, planning and measuring, on the GIL"
+        f" (the planning alone, the path and its timing, scales"
+        f" {ratios[f'{grip_name}, their planning alone']:.2f}x on 2 threads)"
     )
 
 
