@@ -1,6 +1,6 @@
 """The motion a MuJoCo run carries out, step by step, in the model's frame and units.
 
-Pure numpy (no MuJoCo here): the same per-step forces are judged analytically (friction angles)
+Numpy, and one numba kernel (no MuJoCo here): the same per-step forces are judged analytically (friction angles)
 and simulated, so both verdicts judge the same forces (docs/physics.md, "The motion").
 
 A trajectory of T poses R_t with per-pose finger forces P_t (world frame) becomes:
@@ -25,7 +25,7 @@ every step, exactly as the analytic grasp does, and for the same finger set this
 interpolation of the interaction scalars k. Forces that do not balance the load at the poses do
 not at the steps between either (their residual is interpolated too).
 
-**The timing between poses** (:func:`warped_steps`). The base timing runs each segment's path
+**The timing between poses** (:func:`timed_segments`). The base timing runs each segment's path
 coordinate s uniformly in time. Where a touching finger's normal force N_i would change faster
 than ``force_rate`` x max(|P_i|, ``force_floor``) per second, the segment is slowed there: its
 path is sampled ``FINE`` times per base step, each sample interval gets the time the bound
@@ -55,6 +55,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 from numpy.typing import ArrayLike
 
@@ -142,59 +143,82 @@ def _load(scene: Scene, rotations: np.ndarray) -> np.ndarray:
 FINE = 8
 
 
-def warped_steps(
-    fine: list[np.ndarray],
-    forces: np.ndarray,
+@numba.njit(nogil=True, cache=True)
+def timed_segments(
+    terms: np.ndarray,
+    angles: np.ndarray,
+    base_steps: np.ndarray,
     normals: np.ndarray,
     touching: np.ndarray,
-    durations: np.ndarray,
-    settings: dict[str, float],
-) -> list[np.ndarray]:
-    """The path coordinates s in (0, 1] of each segment's steps: the base timing (``duration``
-    seconds, s uniform in time) slowed wherever a touching finger's normal force N_i would
-    change faster than ``force_rate`` x max(|P_i|, ``force_floor``) per second (|P_i| rather
-    than N_i: a finger pushing nearly along its face is far outside its cone anyway, and
-    must not stall the run). ``fine`` holds each segment's path coordinates from 0 to 1,
-    ``forces`` (K, n, 3) the forces there (units of w), segment after segment, ``normals``
-    (n, 3) the inward normals, ``touching`` (S, n) each segment's fingers in contact,
-    ``durations`` (S,) their base times.
+    timestep: float,
+    released_force: float,
+    force_floor: float,
+    force_rate: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The path coordinates s in (0, 1] of every segment's steps, one segment after another,
+    and each segment's number of steps: the base timing (``base_steps`` x ``timestep`` seconds,
+    s uniform in time) slowed wherever a touching finger's normal force N_i would change
+    faster than ``force_rate`` x max(|P_i|, ``force_floor``) per second (|P_i| rather than
+    N_i: a finger pushing nearly along its face is far outside its cone anyway, and must not
+    stall the run). Each segment's path is sampled :data:`FINE` times per base step, its
+    forces (units of w) there given by ``terms`` (S, 5, n x 3) as
+    (cos phi, 1 - cos phi, sin phi, 1 - s, s) @ terms[t] with phi = s x ``angles``[t];
+    ``normals`` (n, 3) are the inward normals, ``touching`` (S, n) each segment's fingers in
+    contact. Each sample interval takes the time the bound needs (at least its base time),
+    and the steps are spaced evenly in that clock (s interpolated between the samples).
 
-    Only the timing changes: the steps are points of the same path (interpolated in s between
-    the fine samples), so the forces both verdicts judge are the path's. The soft contact
-    needs this: a tip's penetration follows its normal force, and a light tip moved fast
-    lags, so its contact's normal force falls below the commanded one (docs/physics.md)."""
-    if not fine:
-        return []
-    lengths = np.array([len(x) for x in fine])
-    # Every segment at once, each row padded by repeating its last sample: the padding's
-    # intervals take no time, so each row's clock ends where its segment's does.
-    starts = np.cumsum(lengths) - lengths
-    rows = starts[:, None] + np.minimum(np.arange(lengths.max()), lengths[:, None] - 1)
-    normal = np.einsum("knc,nc->kn", forces, normals)[rows]
-    magnitude = np.linalg.norm(forces, axis=-1)[rows]
-    path = np.concatenate(fine)[rows]
-    loaded = magnitude > settings["released_force"]
-    judged = touching[:, None] & (loaded[:, :-1] | loaded[:, 1:])  # in contact in the interval
-    size = np.maximum(np.minimum(magnitude[:, :-1], magnitude[:, 1:]), settings["force_floor"])
-    rate = np.abs(np.diff(normal, axis=1)) / (settings["force_rate"] * size)
-    need = np.where(judged, rate, 0.0)
-    base = np.diff(path, axis=1) * durations[:, None]
-    times = np.maximum(base, need.max(axis=2, initial=0.0))
-    clocks = np.concatenate([np.zeros((len(fine), 1)), np.cumsum(times, axis=1)], axis=1)
-    ends = clocks[:, -1]
-    steps = np.maximum(1, np.round(ends / settings["timestep"])).astype(int)
-    segments = []
-    for t, (x, clock) in enumerate(zip(fine, clocks, strict=True)):
-        s = np.interp(np.arange(1, steps[t] + 1) * (ends[t] / steps[t]), clock[: len(x)], x)
+    Only the timing changes: the steps are points of the same path, so the forces both
+    verdicts judge are the path's. The soft contact needs this: a tip's penetration follows
+    its normal force, and a light tip moved fast lags, so its contact's normal force falls
+    below the commanded one (docs/physics.md). Compiled, and without the GIL: it is most of
+    a rollout's planning, which threads then plan in parallel."""
+    segments, n = len(base_steps), normals.shape[0]
+    counts = np.empty(segments, dtype=np.int64)
+    parts = []
+    for t in range(segments):
+        samples = FINE * base_steps[t] + 1
+        x = np.linspace(0.0, 1.0, samples)
+        normal = np.empty((samples, n))
+        magnitude = np.empty((samples, n))
+        for j in range(samples):
+            phi = x[j] * angles[t]
+            q = (np.cos(phi), 1.0 - np.cos(phi), np.sin(phi), 1.0 - x[j], x[j])
+            for i in range(n):
+                along, squared = 0.0, 0.0
+                for c in range(3):
+                    force = 0.0
+                    for k in range(5):
+                        force += q[k] * terms[t, k, 3 * i + c]
+                    along += force * normals[i, c]
+                    squared += force * force
+                normal[j, i], magnitude[j, i] = along, np.sqrt(squared)
+        clock = np.zeros(samples)
+        duration = base_steps[t] * timestep
+        for j in range(samples - 1):
+            need = (x[j + 1] - x[j]) * duration
+            for i in range(n):
+                loaded = magnitude[j, i] > released_force or magnitude[j + 1, i] > released_force
+                if touching[t, i] and loaded:  # in contact in the interval
+                    size = max(min(magnitude[j, i], magnitude[j + 1, i]), force_floor)
+                    need = max(need, abs(normal[j + 1, i] - normal[j, i]) / (force_rate * size))
+            clock[j + 1] = clock[j] + need
+        steps = max(1, int(np.rint(clock[-1] / timestep)))
+        s = np.interp(np.arange(1, steps + 1) * (clock[-1] / steps), clock, x)
         s[-1] = 1.0
-        segments.append(s)
-    return segments
+        counts[t] = steps
+        parts.append(s)
+    out = np.empty(counts.sum())
+    start = 0
+    for t in range(segments):
+        out[start : start + counts[t]] = parts[t]
+        start += counts[t]
+    return out, counts
 
 
 def path_settings(settings: dict[str, float], density: int = 8) -> dict[str, float]:
     """Settings whose run samples the same force path uniformly (no timing by the forces),
     ``density`` times as finely as the base timing. The steps of a run timed by
-    :func:`warped_steps` are points of this path, so its steps' forces are affine in the
+    :func:`timed_segments` are points of this path, so its steps' forces are affine in the
     pose forces (as a bisection on a force change needs) and their largest friction angle is,
     to the sampling, the timed run's."""
     return dict(
@@ -352,15 +376,12 @@ def plan_motion(
         if key.any()
     ]  # fmt: skip
 
-    def path(ss: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(orientations, load, forces) of every segment t at its path coordinates ss[t], one
-        segment after another: the
-        load turned exactly, the equilibrating part recomputed for it, the rest interpolated.
-        The fingers that carry load at either end share the turning load; a finger released
-        at both ends (or out of contact) keeps its own (tiny or zero) force, interpolated.
-        Every segment's steps in one pass: the steps of segment ``seg`` at coordinate ``s``."""
-        seg = np.repeat(np.arange(len(ss)), [len(x) for x in ss])
-        s = np.concatenate(ss) if ss else np.zeros(0)
+    def path(seg: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(orientations, load, forces) at the steps of segments ``seg`` at path coordinates
+        ``s``: the load turned exactly, the equilibrating part recomputed for it, the rest
+        interpolated. The fingers that carry load at either end share the turning load; a
+        finger released at both ends (or out of contact) keeps its own (tiny or zero) force,
+        interpolated."""
         turned = rotations[seg]
         turning = np.any(axes[seg] != 0.0, axis=1)
         if turning.any():
@@ -380,46 +401,43 @@ def plan_motion(
             )
         return turned, load, step_forces
 
-    def path_forces(ss: list[np.ndarray]) -> np.ndarray:
-        """The forces of :func:`path` (to rounding), cheaply: along segment t they are
-        C_t^T (cos phi, 1 - cos phi, sin phi, 1 - s, s) with phi = s x the segment's turn,
-        since the load turns as x @ R(phi) = cos phi x + (1 - cos phi) (k . x) k
-        - sin phi (k x x) (the transpose of eq. 5) and the equilibrating part is linear in it."""
-        turned = pose_load[:-1].reshape(-1, 2, 3)  # the load's force and torque, per segment
-        along = np.einsum("sc,sjc->sj", axes, turned)[..., None] * axes[:, None]
-        across = -np.cross(axes[:, None], turned)
-        terms = np.zeros((len(ss), 5, n, 3))
-        terms[:, 3], terms[:, 4] = pose_forces[:-1], pose_forces[1:]
-        for key, segments, null in shared:
-            rows, cols = segments[:, None], np.flatnonzero(key)[None]
-            for j, load in enumerate((turned, along, across)):
-                terms[rows, j, cols] = equilibrating(key, load[segments].reshape(-1, 6))
-            terms[rows, 3, cols], terms[rows, 4, cols] = null[segments], null[segments + 1]
-        out = []
-        for t, s in enumerate(ss):
-            phi = s * angles[t]
-            q = np.stack([np.cos(phi), 1.0 - np.cos(phi), np.sin(phi), 1.0 - s, s], axis=1)
-            out.append((q @ terms[t].reshape(5, -1)).reshape(len(s), n, 3))
-        return np.concatenate(out) if out else np.zeros((0, n, 3))
-
-    # The timing: the path sampled finely, then each segment's steps spaced so that no
-    # touching finger's normal force changes faster than force_rate x max(N, force_floor).
-    fine = [np.linspace(0.0, 1.0, FINE * n + 1) for n in base_steps]
-    touching = contact[:-1] | contact[1:]
-    segments = warped_steps(
-        fine, path_forces(fine), scene.normals, touching, np.array(base_steps) * dt, settings
+    # The forces of :func:`path` along segment t (to rounding), in closed form for the timing:
+    # terms[t]^T (cos phi, 1 - cos phi, sin phi, 1 - s, s) with phi = s x the segment's turn,
+    # since the load turns as x @ R(phi) = cos phi x + (1 - cos phi) (k . x) k - sin phi
+    # (k x x) (the transpose of eq. 5) and the equilibrating part is linear in it.
+    turned = pose_load[:-1].reshape(-1, 2, 3)  # the load's force and torque, per segment
+    along = np.einsum("sc,sjc->sj", axes, turned)[..., None] * axes[:, None]
+    across = -np.cross(axes[:, None], turned)
+    terms = np.zeros((n_poses - 1, 5, n, 3))
+    terms[:, 3], terms[:, 4] = pose_forces[:-1], pose_forces[1:]
+    for key, segments, null in shared:
+        rows, cols = segments[:, None], np.flatnonzero(key)[None]
+        for j, part in enumerate((turned, along, across)):
+            terms[rows, j, cols] = equilibrating(key, part[segments].reshape(-1, 6))
+        terms[rows, 3, cols], terms[rows, 4, cols] = null[segments], null[segments + 1]
+    # The timing: each segment's steps spaced so that no touching finger's normal force
+    # changes faster than force_rate x max(N, force_floor).
+    s, lengths = timed_segments(
+        terms.reshape(n_poses - 1, 5, 3 * n),
+        angles,
+        base_steps,
+        np.ascontiguousarray(scene.normals, dtype=float),
+        contact[:-1] | contact[1:],
+        dt,
+        settings["released_force"],
+        settings["force_floor"],
+        settings["force_rate"],
     )
-    if total + sum(len(s) for s in segments) > MAX_STEPS:
+    if total + len(s) > MAX_STEPS:
         raise ValueError(
             f"the run would take more than {MAX_STEPS} steps: lower time_per_degree,"
             " min_segment_time, pose_hold_time, raise force_rate or lower the number"
             " of poses"
         )
-    turned, load, step_forces = path(segments)
+    seg = np.repeat(np.arange(n_poses - 1), lengths)
+    turned, load, step_forces = path(seg, s)
     # The run block by block: the settle, then each pose's dwell and the segment after it,
     # then the final hold. A step is a row of the poses (held) stacked on the segments' steps.
-    lengths = np.array([len(s) for s in segments], dtype=int)
-    seg = np.repeat(np.arange(n_poses - 1), lengths)
     counts = np.empty(2 * n_poses, dtype=int)
     first = np.empty(2 * n_poses, dtype=int)
     counts[0], counts[1:-1:2], counts[2:-1:2], counts[-1] = settle, dwell, lengths, hold
@@ -430,7 +448,6 @@ def plan_motion(
     block_start = np.cumsum(counts) - counts
     within = np.arange(counts.sum()) - np.repeat(block_start, counts)
     row = np.repeat(first, counts) + np.repeat(stride, counts) * within
-    s = np.concatenate(segments) if segments else np.zeros(0)
     steps = {
         "forces": np.concatenate([pose_forces, step_forces])[row],
         "load": np.concatenate([pose_load, load])[row],
