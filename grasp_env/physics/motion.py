@@ -1,7 +1,8 @@
 """The motion a MuJoCo run carries out, step by step, in the model's frame and units.
 
-Numpy, and one numba kernel (no MuJoCo here): the same per-step forces are judged analytically (friction angles)
-and simulated, so both verdicts judge the same forces (docs/physics.md, "The motion").
+Numpy and one numba kernel (no MuJoCo here): the same per-step forces are judged analytically
+(friction angles) and simulated, so both verdicts judge the same forces (docs/physics.md, "The
+motion").
 
 A trajectory of T poses R_t with per-pose finger forces P_t (world frame) becomes:
 
