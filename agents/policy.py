@@ -92,25 +92,35 @@ def grip_along(
         -1, keepdim=True
     )  # B_i^T (I - d_i d_i^T) F_i
     eye = torch.eye(basis.shape[1], dtype=torch.float64)
-    weights = forces.new_ones(forces.shape[:2])
-    solves = []
-    for solve in range(SOLVES):
+
+    def solve(weights: torch.Tensor) -> torch.Tensor:
+        """The least squares with each finger's equations weighted by ``weights`` (B, n)."""
         squared = weights**2
         normal_matrix = torch.einsum("bn,bnqr->bqr", squared, matrices)
         rhs = -torch.einsum("bn,bnq->bq", squared, loads)
         ridge = RIDGE * normal_matrix.diagonal(dim1=1, dim2=2).mean(-1)[:, None, None]
-        solves.append(torch.linalg.solve(normal_matrix + ridge * eye, rhs))
-        if solve + 1 < SOLVES:  # the weights of the next solve: 1 / |P_i| at this one's grip
-            with torch.no_grad():
+        return torch.linalg.solve(normal_matrix + ridge * eye, rhs)
+
+    # The solves and the choice without the graph; then, where a gradient is wanted, the
+    # chosen solve once more with it (the same numbers): its backward is one solve's, not all.
+    with torch.no_grad():
+        weights = [forces.new_ones(forces.shape[:2])]
+        solves = []
+        for n_solve in range(SOLVES):
+            solves.append(solve(weights[-1]))
+            if n_solve + 1 < SOLVES:  # the weights of the next solve: 1 / |P_i| at this grip
                 net = forces + torch.einsum("bq,bqnc->bnc", solves[-1], basis)
-                weights = 1.0 / torch.linalg.vector_norm(net, dim=-1).clamp_min(MIN_FORCE)
-    grips = torch.stack(solves, 1)  # (B, SOLVES, m)
-    with torch.no_grad():  # every solve's grip at once, against the grasp broadcast over them
+                weights.append(1.0 / torch.linalg.vector_norm(net, dim=-1).clamp_min(MIN_FORCE))
+        grips = torch.stack(solves, 1)  # (B, SOLVES, m)
+        # every solve's grip at once, against the grasp broadcast over them
         angles = max_friction_angle(
             grips / k_max, forces[:, None], basis[:, None], normals.double()[:, None], k_max
         )
-    best = angles.argmin(1)
-    return grips[torch.arange(len(grips)), best].to(dtype)
+        best = angles.argmin(1)
+        rows = torch.arange(len(grips))
+    if not torch.is_grad_enabled():
+        return grips[rows, best].to(dtype)
+    return solve(torch.stack(weights, 1)[rows, best]).to(dtype)
 
 
 class ForceDirectionHead(torch.nn.Module):
