@@ -581,6 +581,13 @@ def test_rollout_refuses_bad_input():
         checker.check(rotations, optimum, np.ones((31, 2), bool))
     with pytest.raises(ValueError, match="more than"):
         TrajectoryChecker(scene, time_per_degree=1e4).check(rotations, optimum)
+    # A force rate so small that the timing would ask for more steps than an int64 holds (or
+    # divide by an underflowed zero): the same error, before anything is allocated.
+    changing = optimum.copy()
+    changing[1] *= 3.0
+    for force_rate in (1e-9, 1e-300, 5e-324):
+        with pytest.raises(ValueError, match="more than 2000000 steps"):
+            TrajectoryChecker(scene, force_rate=force_rate).plan(rotations[:3], changing[:3])
     with pytest.raises(ValueError, match="orthonormal"):
         checker.check(2 * rotations, optimum)
 

@@ -144,7 +144,7 @@ def _load(scene: Scene, rotations: np.ndarray) -> np.ndarray:
 FINE = 8
 
 
-@numba.njit(nogil=True, cache=True)
+@numba.njit(nogil=True, cache=True, error_model="numpy")
 def timed_segments(
     terms: np.ndarray,
     angles: np.ndarray,
@@ -155,14 +155,16 @@ def timed_segments(
     released_force: float,
     force_floor: float,
     force_rate: float,
-) -> tuple[np.ndarray, np.ndarray]:
+    max_steps: int,
+) -> tuple[np.ndarray, np.ndarray, bool]:
     """The path coordinates s in (0, 1] of every segment's steps, one segment after another,
-    and each segment's number of steps: the base timing (``base_steps`` x ``timestep`` seconds,
-    s uniform in time) slowed wherever a touching finger's normal force N_i would change
-    faster than ``force_rate`` x max(|P_i|, ``force_floor``) per second (|P_i| rather than
-    N_i: a finger pushing nearly along its face is far outside its cone anyway, and must not
-    stall the run). Each segment's path is sampled :data:`FINE` times per base step, its
-    forces (units of w) there given by ``terms`` (S, 5, n x 3) as
+    each segment's number of steps, and whether they fit in ``max_steps`` (if not, nothing
+    else is computed: empty arrays and False). The base timing (``base_steps`` x
+    ``timestep`` seconds, s uniform in time) slowed wherever a touching finger's normal
+    force N_i would change faster than ``force_rate`` x max(|P_i|, ``force_floor``) per
+    second (|P_i| rather than N_i: a finger pushing nearly along its face is far outside its
+    cone anyway, and must not stall the run). Each segment's path is sampled :data:`FINE`
+    times per base step, its forces (units of w) there given by ``terms`` (S, 5, n x 3) as
     (cos phi, 1 - cos phi, sin phi, 1 - s, s) @ terms[t] with phi = s x ``angles``[t];
     ``normals`` (n, 3) are the inward normals, ``touching`` (S, n) each segment's fingers in
     contact. Each sample interval takes the time the bound needs (at least its base time),
@@ -176,6 +178,7 @@ def timed_segments(
     segments, n = len(base_steps), normals.shape[0]
     counts = np.empty(segments, dtype=np.int64)
     parts = []
+    total = 0
     for t in range(segments):
         samples = FINE * base_steps[t] + 1
         x = np.linspace(0.0, 1.0, samples)
@@ -203,7 +206,11 @@ def timed_segments(
                     size = max(min(magnitude[j, i], magnitude[j + 1, i]), force_floor)
                     need = max(need, abs(normal[j + 1, i] - normal[j, i]) / (force_rate * size))
             clock[j + 1] = clock[j] + need
-        steps = max(1, int(np.rint(clock[-1] / timestep)))
+        steps_needed = max(1.0, np.rint(clock[-1] / timestep))
+        if total + steps_needed > max_steps:  # a mistyped setting: stop before allocating
+            return np.empty(0), np.empty(0, dtype=np.int64), False
+        steps = int(steps_needed)
+        total += steps
         s = np.interp(np.arange(1, steps + 1) * (clock[-1] / steps), clock, x)
         s[-1] = 1.0
         counts[t] = steps
@@ -213,7 +220,7 @@ def timed_segments(
     for t in range(segments):
         out[start : start + counts[t]] = parts[t]
         start += counts[t]
-    return out, counts
+    return out, counts, True
 
 
 def path_settings(settings: dict[str, float], density: int = 8) -> dict[str, float]:
@@ -418,7 +425,7 @@ def plan_motion(
         terms[rows, 3, cols], terms[rows, 4, cols] = null[segments], null[segments + 1]
     # The timing: each segment's steps spaced so that no touching finger's normal force
     # changes faster than force_rate x max(N, force_floor).
-    s, lengths = timed_segments(
+    s, lengths, fits = timed_segments(
         terms.reshape(n_poses - 1, 5, 3 * n),
         angles,
         base_steps,
@@ -428,8 +435,9 @@ def plan_motion(
         settings["released_force"],
         settings["force_floor"],
         settings["force_rate"],
+        MAX_STEPS - total,
     )
-    if total + len(s) > MAX_STEPS:
+    if not fits:
         raise ValueError(
             f"the run would take more than {MAX_STEPS} steps: lower time_per_degree,"
             " min_segment_time, pose_hold_time, raise force_rate or lower the number"
