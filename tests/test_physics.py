@@ -588,6 +588,20 @@ def test_rollout_refuses_bad_input():
     for force_rate in (1e-9, 1e-300, 5e-324):
         with pytest.raises(ValueError, match="more than 2000000 steps"):
             TrajectoryChecker(scene, force_rate=force_rate).plan(rotations[:3], changing[:3])
+    # Times too long for the step (counted before any integer could overflow), in either check.
+    for setting in (
+        {"time_per_degree": 1e300},
+        {"min_segment_time": 1e17},
+        {"pose_hold_time": 1e300},
+        {"hold_time": 1e300},
+        {"settle_time": 1e300},
+        {"timestep": 1e-300},
+    ):
+        with pytest.raises(ValueError, match="more than 2000000 steps"):
+            TrajectoryChecker(scene, **setting).plan(rotations[:3], optimum[:3])
+        if "hold_time" in setting or "settle_time" in setting or "timestep" in setting:
+            with pytest.raises(ValueError, match="more than 2000000 steps"):
+                StabilityChecker(scene, **setting).check(rotations[0], optimum[0])
     with pytest.raises(ValueError, match="orthonormal"):
         checker.check(2 * rotations, optimum)
 

@@ -296,7 +296,10 @@ def plan_poses(
     settle = max(1, round(settings["settle_time"] / dt))
     steps = settle + max(1, round(settings["hold_time"] / dt))
     if steps > MAX_STEPS:
-        raise ValueError(f"the run would take more than {MAX_STEPS} steps: lower hold_time")
+        raise ValueError(
+            f"the run would take more than {MAX_STEPS} steps: lower settle_time or hold_time,"
+            " or raise timestep"
+        )
     # Row vectors: P @ R is R^T P, the force in the object's frame; in units of w.
     pose_forces = np.einsum("tnc,tcd->tnd", forces, rotations) / scene.weight
     pose_forces[~contact] = 0.0
@@ -367,12 +370,14 @@ def plan_motion(
     durations = np.maximum(
         settings["min_segment_time"], np.degrees(angles) * settings["time_per_degree"]
     )
-    base_steps = np.maximum(1, np.round(durations / dt)).astype(int)
-    if total + base_steps.sum() > MAX_STEPS:
+    base_steps = np.maximum(1.0, np.round(durations / dt))
+    if total + base_steps.sum() > MAX_STEPS:  # counted as floats: no integer overflows
         raise ValueError(
             f"the run would take more than {MAX_STEPS} steps: lower time_per_degree,"
-            " min_segment_time, pose_hold_time or the number of poses"
+            " min_segment_time, pose_hold_time, settle_time, hold_time or the number of poses,"
+            " or raise timestep"
         )
+    base_steps = base_steps.astype(np.int64)
     # Each segment's fingers sharing the load.
     active = carrying[:-1] | carrying[1:]  # (T - 1, n)
     # For each set A of load-sharing fingers: its segments, and the pose forces' parts in the
