@@ -418,14 +418,14 @@ def plan_motion(
     # terms[t]^T (cos phi, 1 - cos phi, sin phi, 1 - s, s) with phi = s x the segment's turn,
     # since the load turns as x @ R(phi) = cos phi x + (1 - cos phi) (k . x) k - sin phi
     # (k x x) (the transpose of eq. 5) and the equilibrating part is linear in it.
-    turned = pose_load[:-1].reshape(-1, 2, 3)  # the load's force and torque, per segment
-    along = np.einsum("sc,sjc->sj", axes, turned)[..., None] * axes[:, None]
-    across = -np.cross(axes[:, None], turned)
+    start_load = pose_load[:-1].reshape(-1, 2, 3)  # force and torque at each segment's start
+    along = np.einsum("sc,sjc->sj", axes, start_load)[..., None] * axes[:, None]
+    across = -np.cross(axes[:, None], start_load)
     terms = np.zeros((n_poses - 1, 5, n, 3))
     terms[:, 3], terms[:, 4] = pose_forces[:-1], pose_forces[1:]
     for key, segments, null in shared:
         rows, cols = segments[:, None], np.flatnonzero(key)[None]
-        for j, part in enumerate((turned, along, across)):
+        for j, part in enumerate((start_load, along, across)):
             terms[rows, j, cols] = equilibrating(key, part[segments].reshape(-1, 6))
         terms[rows, 3, cols], terms[rows, 4, cols] = null[segments], null[segments + 1]
     # The timing: each segment's steps spaced so that no touching finger's normal force
