@@ -219,7 +219,7 @@ class TrajectoryChecker(Checker):
                 for m, t in zip(motions, self._simulate(motions), strict=True)
             ]
 
-        # a grip at a time: a rollout's own Python (planning, measuring) is a third of its time
+        # a grip at a time: one thread's planning and measuring overlap the other's stepping
         return self._in_parallel(reports, list(grips), threads, size=1)
 
 
