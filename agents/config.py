@@ -206,24 +206,30 @@ OTHER_ALGORITHMS_KEY = {"td3": "ent_coef", "sac": "action_noise"}
 
 
 class ImitationConfig(_Section):
-    """The minimax expert as teacher, before PPO (:mod:`grasp_env_agents.imitation`).
+    """The policy's mean action fitted on collected states, before PPO
+    (:mod:`grasp_env_agents.imitation`): to the minimax expert's grip, to the reward's exact
+    gradient, or both.
 
     Round 0 is behaviour cloning: the expert drives the vector environment and every state it
     visits is stored with the expert's action. Each further round is a DAgger round: the
     learner drives, the expert labels the states the learner visits, the data set grows. After
-    each round the policy's mean action is fitted to the labels (mean squared error) with Adam
-    under a cosine learning-rate decay.
+    each round the policy's mean action is fitted (``label_weight`` x the mean squared error to
+    the labels + ``gap_weight`` x the max friction angle) with Adam under a cosine
+    learning-rate decay. With ``label_weight`` 0 there is no expert: the learner drives every
+    round and the fit follows the reward alone.
 
     Args:
         rounds: data-collection rounds: 1 is behaviour cloning alone, more add DAgger rounds.
-        samples_per_round: expert-labelled states collected per round.
+        samples_per_round: states collected per round.
         epochs: passes over the aggregated data set after each round.
         batch_size: minibatch size.
         learning_rate: initial Adam step size of each round (cosine decay to 1% of it).
         n_envs: parallel environments of the data-collecting vector env.
-        gap_weight: weight of the max friction angle (radians) the action gives, added to the
-            squared error (0: pure imitation). That angle is computed from the observation
-            alone, so this term trains on the environment's own reward, exactly.
+        label_weight: weight of the squared error to the expert's actions (0: no expert is
+            made or called).
+        gap_weight: weight of the max friction angle (radians) the action gives (0: pure
+            imitation). That angle is computed from the observation alone, so this term
+            trains on the environment's own reward, exactly.
     """
 
     rounds: _range(Int, 1, 1000) = 1
@@ -232,7 +238,18 @@ class ImitationConfig(_Section):
     batch_size: _range(Int, 1, 1 << 24) = 1024
     learning_rate: _range(Float, 0.0, 1.0, low_open=True) = 1e-3
     n_envs: _range(Int, 1, 1 << 20) = 256
+    label_weight: _range(Float, 0.0, 1e6) = 1.0
     gap_weight: _range(Float, 0.0, 1e6) = 0.0
+
+    @model_validator(mode="after")
+    def _something_to_fit(self) -> ImitationConfig:
+        if self.label_weight == 0 and self.gap_weight == 0:
+            raise ValueError(
+                "has nothing to fit: label_weight and gap_weight are both 0;"
+                " give either a weight > 0 (label_weight: the expert's actions, gap_weight:"
+                " the reward)"
+            )
+        return self
 
 
 class TrainConfig(_Section):

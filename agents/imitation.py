@@ -16,9 +16,9 @@ environment:
    left as configured. An epoch whose mean loss spikes (5% above the fit's best epoch) marks
    a collapse under way: the fit goes back to the best epoch's weights and Adam state and
    halves its learning rate (docs/rl.md, "The main job in five minutes").
-4. A round whose fit leaves the policy worse on a fixed validation set (states of scenes no
-   training or held-out seed draws, labelled by the expert; the measure is the mean largest
-   friction angle the policy's grip gives there) is undone: the policy goes back to the
+4. A round whose fit leaves the policy worse on a fixed validation set (every pose of scenes
+   no training or held-out seed draws; the measure is the mean largest friction angle the
+   policy's grip gives there, no label needed) is undone: the policy goes back to the
    weights it had before that fit (its data stay for the next rounds). Later fits on a
    trained network now and then drop a few per cent of states into a basin where the
    force-direction head lets a finger's force nearly vanish (seed 4 of the README's runs:
@@ -28,8 +28,14 @@ Imitating k* is a proxy: what counts is the largest friction angle the action gi
 near the optimum grows linearly with the error in k (a max of angles has a kink there). The
 observation holds the whole grasp, so that angle is a differentiable function of the action
 (eqs. 2 and 4, :func:`grasp_env_agents.features.max_friction_angle`); with ``gap_weight`` > 0
-the loss adds it, in radians: mean squared error + gap_weight x mean max_i theta_i. Its
-gradient is the exact gradient of the environment's reward.
+the loss adds it, in radians: label_weight x mean squared error + gap_weight x mean
+max_i theta_i. Its gradient is the exact gradient of the environment's reward.
+
+With ``label_weight`` 0 the fit learns from that reward alone and no expert is made or
+called: every round the learner drives and its states are stored without labels. Where slips
+do not end episodes (``terminate_on_slip: false``) the states are every pose of the scenes'
+trajectories whoever drives, so this is the main job without a teacher (docs/rl.md, "The
+reward's exact gradient").
 
 The result is an ordinary SB3 PPO model that PPO can fine-tune.
 """
@@ -108,24 +114,36 @@ def grasp_of(obs: np.ndarray) -> tuple[torch.Tensor, ...]:
     return tuple(torch.cat(p) for p in zip(*parts, strict=True))
 
 
+def k_max_ratio_of(env_kwargs: dict[str, Any]) -> float:
+    """The k_max / w of environments built with ``env_kwargs``."""
+    return env_kwargs.get("k_max_ratio", DEFAULT_K_MAX_RATIO)
+
+
 def make_teacher(env_kwargs: dict[str, Any]) -> MinimaxExpert:
     """The expert for environments built with ``env_kwargs`` (it needs their k_max / w)."""
-    return MinimaxExpert(env_kwargs.get("k_max_ratio", DEFAULT_K_MAX_RATIO))
+    return MinimaxExpert(k_max_ratio_of(env_kwargs))
 
 
 class Validation:
-    """The fixed validation set of step 4 (module docstring) and the policy's score on it."""
+    """The fixed validation set of step 4 (module docstring) and the policy's score on it.
 
-    def __init__(
-        self, env_id: str, env_kwargs: dict[str, Any], n_envs: int, teacher: MinimaxExpert
-    ) -> None:
-        collector = StateCollector(env_id, env_kwargs, n_envs, VALIDATION_SEED)
+    Its states are every pose of the trajectories of its scenes: episodes run past a slip while
+    it is collected, so no expert is needed to drive (where the expert holds throughout, as on
+    the expert-feasible scenes of the random environments, they are the states it would visit).
+    """
+
+    def __init__(self, env_id: str, env_kwargs: dict[str, Any], n_envs: int) -> None:
+        kwargs = {**env_kwargs, "terminate_on_slip": False}
+        collector = StateCollector(env_id, kwargs, n_envs, VALIDATION_SEED)
+        shape = collector.envs.single_action_space.shape
         try:
-            self.obs, _ = collector.collect(teacher.actions, VALIDATION_STATES)
+            self.obs, _ = collector.collect(
+                lambda obs: np.zeros((len(obs), *shape), dtype=np.float32), VALIDATION_STATES
+            )
         finally:
             collector.close()
         self.grasp = grasp_of(self.obs)
-        self.k_max_ratio = teacher.k_max_ratio
+        self.k_max_ratio = k_max_ratio_of(env_kwargs)
 
     def angle_deg(self, policy: ActorCriticPolicy, normalise: Callable[[Any], Any]) -> float:
         """The mean over the set of the largest friction angle of the policy's grip (deg)."""
@@ -193,12 +211,16 @@ def fit(
     grasp: tuple[torch.Tensor, ...] | None = None,
     gap_weight: float = 0.0,
     k_max_ratio: float = 2.0,
+    label_weight: float = 1.0,
 ) -> float:
-    """Fit the policy's mean action to ``labels``; returns the last epoch's mean loss.
+    """Fit the policy's mean action on ``obs``; returns the last epoch's mean loss.
 
-    The loss is the mean squared error, plus ``gap_weight`` x the mean max friction angle
-    (radians) if ``grasp`` (from :func:`grasp_of`) is given.
+    The loss is ``label_weight`` x the mean squared error to ``labels``, plus ``gap_weight`` x
+    the mean max friction angle (radians) if ``grasp`` (from :func:`grasp_of`) is given. With
+    ``label_weight`` 0 the labels are not read (they may have no columns).
     """
+    if label_weight == 0 and (grasp is None or gap_weight == 0):
+        raise ValueError("fit has nothing to fit: label_weight and gap_weight are both 0")
     extractor = policy.pi_features_extractor
     if any(True for _ in extractor.parameters()):
         raise ValueError("fit needs a parameter-free features extractor (flatten or grasp)")
@@ -227,7 +249,7 @@ def fit(
     schedule = torch.optim.lr_scheduler.LambdaLR(optimizer, rate)
     policy.set_training_mode(True)
     best, kept, epoch_loss = math.inf, None, math.inf
-    with status(f"fitting the policy to {len(inputs):,} labelled states") as detail:
+    with status(f"fitting the policy on {len(inputs):,} states") as detail:
         for epoch in range(epochs):
             detail(f"epoch {epoch + 1}/{epochs}")
             order = torch.randperm(len(inputs), generator=generator)
@@ -235,7 +257,9 @@ def fit(
             for start in range(0, len(inputs), batch_size):
                 index = order[start : start + batch_size]
                 action = policy.action_net(policy.mlp_extractor.forward_actor(inputs[index]))
-                loss = torch.nn.functional.mse_loss(action, labels_t[index])
+                loss = torch.zeros(())
+                if label_weight > 0:
+                    loss = label_weight * torch.nn.functional.mse_loss(action, labels_t[index])
                 if grasp is not None and gap_weight > 0:
                     angle = max_friction_angle(action, *(a[index] for a in grasp), k_max_ratio)
                     loss = loss + gap_weight * angle.mean()
@@ -294,7 +318,9 @@ def imitate(
             an uninterrupted one.
     """
     done = done or []
-    teacher = make_teacher(env_kwargs)
+    # with label_weight 0 the fit learns from the reward alone: no expert is made or called
+    teacher = make_teacher(env_kwargs) if config.label_weight > 0 else None
+    k_max_ratio = k_max_ratio_of(env_kwargs)
     collector = StateCollector(env_id, env_kwargs, config.n_envs, seed + len(done) * config.n_envs)
     collector.env_steps = env_steps
     generator = torch.Generator().manual_seed(seed + len(done))
@@ -311,15 +337,23 @@ def imitate(
     data_labels = [labels for _, labels in done]
     data_grasp = [grasp_of(obs) for obs in data_obs] if config.gap_weight > 0 else []
     results = []
-    validation = Validation(env_id, env_kwargs, config.n_envs, teacher)
+    validation = Validation(env_id, env_kwargs, config.n_envs)
     # a resumed run's policy is the one its last round kept
     best = validation.angle_deg(policy, normalise) if done else math.inf
     try:
         for round_ in range(len(done), config.rounds):
             start = time.perf_counter()
-            driver = "the expert drives" if round_ == 0 else "the learner drives, the expert labels"
+            if teacher is None:
+                driver = "the learner drives (no expert)"
+            elif round_ == 0:
+                driver = "the expert drives"
+            else:
+                driver = "the learner drives, the expert labels"
             with status(f"imitation round {round_}: {config.samples_per_round:,} states, {driver}"):
-                if round_ == 0:  # behaviour cloning: the expert drives, its actions are the labels
+                if teacher is None:  # the reward alone: states, no labels
+                    obs, _ = collector.collect(learner, config.samples_per_round)
+                    labels = np.zeros((len(obs), 0), dtype=np.float32)
+                elif round_ == 0:  # behaviour cloning: the expert drives and labels
                     obs, labels = collector.collect(teacher.actions, config.samples_per_round)
                 else:  # DAgger: the learner drives, the expert labels what it visits
                     obs, _ = collector.collect(learner, config.samples_per_round)
@@ -342,7 +376,8 @@ def imitate(
                 generator,
                 [torch.cat(a) for a in zip(*data_grasp, strict=True)] if data_grasp else None,
                 config.gap_weight,
-                teacher.k_max_ratio,
+                k_max_ratio,
+                config.label_weight,
             )
             angle = validation.angle_deg(policy, normalise)
             kept = angle <= best

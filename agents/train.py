@@ -315,7 +315,7 @@ def teach(
         save_round_data(run_dir, result.round, result.observations, result.labels, steps)
         save_model(model, imitation_checkpoint(run_dir, result.round))
         say(
-            f"imitation round {result.round}: {result.samples} labelled states, "
+            f"imitation round {result.round}: {result.samples} states, "
             f"loss {result.loss:.2e}, {result.seconds:.0f} s, validation "
             f"{result.validation_angle_deg:.2f} deg ({'kept' if result.kept else 'undone'}); "
             f"held-out gap "
