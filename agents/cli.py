@@ -54,17 +54,22 @@ def folder_argument(text: str) -> Path:
     return path
 
 
-def integer_argument(low: int) -> Callable[[str], int]:
-    """An argparse type for counts and seeds: an integer >= ``low``, written as configs take
-    them (``1000``, ``1_000`` or ``1e3``)."""
+def integer_argument(low: int, high: int | None = None) -> Callable[[str], int]:
+    """An argparse type for counts and seeds: an integer >= ``low`` (and <= ``high`` if
+    given), written as configs take them (``1000``, ``1_000`` or ``1e3``)."""
+    accepted = f">= {low}" if high is None else f"in [{low}, {high}]"
 
     def integer(text: str) -> int:
         try:
             number = float(text) if "e" in text.lower() else int(text)
         except ValueError:
             number = math.nan
-        if not (math.isfinite(number) and number == int(number) and number >= low):
-            raise argparse.ArgumentTypeError(f"must be an integer >= {low}, got {text!r}")
+        if not (
+            math.isfinite(number)
+            and number == int(number)
+            and low <= number <= (math.inf if high is None else high)
+        ):
+            raise argparse.ArgumentTypeError(f"must be an integer {accepted}, got {text!r}")
         return int(number)
 
     return integer

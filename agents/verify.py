@@ -94,6 +94,8 @@ HELP = "check grip forces in MuJoCo physics along a trajectory (or --agreement)"
 #: Scenes of the trajectory study by default: about 70 trajectories and the 66 of the gaits
 #: (200 give 638 with the gaits, 732 with docs/physics.md's learned policy).
 DEFAULT_SCENES = 20
+#: The most --scenes takes: about 300,000 trajectories, a day of rollouts on 2 cores.
+MAX_SCENES = 100_000
 #: The video of a rollout: frames per pose (spread evenly over the simulated time after the
 #: settle) and frames per second.
 FRAMES_PER_POSE, FPS = 10, 30
@@ -143,7 +145,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--scenes",
-        type=integer_argument(1),
+        type=integer_argument(1, MAX_SCENES),
         default=None,
         metavar="N",
         help=f"random scenes of the trajectory study (default {DEFAULT_SCENES}, about 3"

@@ -228,6 +228,10 @@ def test_cli_refuses_an_output_folder_in_a_files_way(argv, tmp_path, monkeypatch
     ("argv", "error"),
     [
         (["verify", "--agreement", "--seed", "-1"], "argument --seed: must be an integer >= 0"),
+        (
+            ["verify", "--agreement", "--trajectory", "--scenes", "1e12"],
+            "argument --scenes: must be an integer in [1, 100000], got '1e12'",
+        ),
         (["evaluate", "run", "--episodes", "2.5"], "argument --episodes: must be an integer >= 1"),
         (["sweep", "s.yaml", "--num-cpus", "0"], "argument --num-cpus: must be an integer >= 1"),
         (["train", "--total-timesteps", "nan"], "argument --total-timesteps: must be an integer"),
