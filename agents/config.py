@@ -275,8 +275,9 @@ class TrainConfig(_Section):
         ppo: PPO hyperparameters (algo: ppo).
         offpolicy: TD3's and SAC's hyperparameters (algo: td3 or sac; absent or null: the
             defaults).
-        imitation: the expert-teacher phase (algo: ppo); None (absent or null) trains from
-            scratch.
+        imitation: the fit before the algorithm (algo: ppo): the expert as teacher, or with
+            ``label_weight`` 0 the reward's exact gradient alone; None (absent or null) trains
+            from scratch.
     """
 
     env_id: StrictStr
