@@ -36,6 +36,8 @@ FIELDS = (
 GAP_FLOOR_DEG = 0.01
 PHASES = {
     "imitation": ("imitation (expert as teacher)", "tab:blue"),
+    # the imitation phase of a run whose fit has no expert (imitation.label_weight 0)
+    "reward_gradient": ("the reward's gradient (no expert)", "tab:blue"),
     "ppo": ("PPO", "tab:orange"),
     "td3": ("TD3", "tab:green"),
     "sac": ("SAC", "tab:purple"),
@@ -74,8 +76,9 @@ class LearningCurve:
     checkpoint and the resumed run evaluates again. None starts a new file.
     """
 
-    def __init__(self, path: Path, keep_until: int | None = None) -> None:
+    def __init__(self, path: Path, keep_until: int | None = None, expert: bool = True) -> None:
         self.path = path
+        self.expert = expert  # who the imitation phase learns from, for the plot
         self.rows: list[dict[str, str]] = []
         if keep_until is not None and path.is_file():
             with path.open() as file:
@@ -108,21 +111,22 @@ class LearningCurve:
     def plot(self, path: Path) -> None:
         """Mean and p90 gap and success rate against steps and wall time (:func:`plot_curve`)."""
         if self.rows:
-            plot_curve(self.rows, path)
+            plot_curve(self.rows, path, self.expert)
 
 
-def plot_curve(rows: list[dict[str, str]], path: Path) -> None:
+def plot_curve(rows: list[dict[str, str]], path: Path, expert: bool = True) -> None:
     """Save :func:`curve_figure` of the learning curve's rows."""
     import matplotlib.pyplot as plt
 
-    figure = curve_figure(rows)
+    figure = curve_figure(rows, expert)
     figure.savefig(path, dpi=120)
     plt.close(figure)
 
 
-def curve_figure(rows: list[dict[str, str]]) -> Any:
+def curve_figure(rows: list[dict[str, str]], expert: bool = True) -> Any:
     """The learning curve's rows as a figure: gaps on a log axis with plain-number ticks
-    (0.2, 0.5, 1, 2 deg...), the success rate on its own axis, the phases shaded and named."""
+    (0.2, 0.5, 1, 2 deg...), the success rate on its own axis, the phases shaded and named
+    (``expert`` False: the imitation phase fitted the reward alone, with no expert)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -130,7 +134,8 @@ def curve_figure(rows: list[dict[str, str]]) -> Any:
     from matplotlib.ticker import EngFormatter, FuncFormatter, LogLocator, NullFormatter
 
     data = {key: np.array([float(r[key]) for r in rows]) for key in FIELDS[1:]}
-    phases = np.array([r["phase"] for r in rows])
+    phase_of = {} if expert else {"imitation": "reward_gradient"}
+    phases = np.array([phase_of.get(r["phase"], r["phase"]) for r in rows])
     gaps = {
         "mean gap": np.maximum(data["mean_gap_deg"], GAP_FLOOR_DEG),
         "p90 gap": np.maximum(data["p90_gap_deg"], GAP_FLOOR_DEG),
@@ -184,6 +189,10 @@ def curve_figure(rows: list[dict[str, str]]) -> Any:
 if __name__ == "__main__":  # redraw a run's curve: python -m grasp_env_agents.curve RUN
     import sys
 
+    from .config import load_config
+
     run = Path(sys.argv[1])
+    imitation = load_config(run / "config.yaml").imitation
     with (run / "learning_curve.csv").open() as file:
-        plot_curve(list(csv.DictReader(file)), run / "learning_curve.png")
+        rows = list(csv.DictReader(file))
+    plot_curve(rows, run / "learning_curve.png", imitation is None or imitation.label_weight > 0)

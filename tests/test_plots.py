@@ -71,6 +71,17 @@ def test_learning_curve_reads(evaluations):
     plt.close(figure)
 
 
+def test_learning_curve_names_a_fit_with_no_expert():
+    """A run whose imitation phase fits the reward alone (label_weight 0) is not drawn as
+    taught by the expert."""
+    evaluations = [("initial", 0, 4.0, 6.0, 0.8), ("imitation", 1000, 0.5, 0.9, 0.9)]
+    for expert, name in ((True, "imitation (expert as teacher)"),
+                         (False, "the reward's gradient (no expert)")):  # fmt: skip
+        figure = curve_figure(rows(*evaluations), expert)
+        assert {t.get_text() for t in figure.axes[0].texts} == {name}
+        plt.close(figure)
+
+
 def test_grip_plot_names_pairs_as_everywhere_and_keeps_the_limit_inside():
     alpha = np.arange(-15.0, 16.0)
     episode = Episode(
