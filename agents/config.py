@@ -361,6 +361,11 @@ class TrainConfig(_Section):
         return self
 
     @property
+    def expert_teaches(self) -> bool:
+        """Whether an imitation phase learns from the expert (not the reward alone)."""
+        return self.imitation is not None and self.imitation.label_weight > 0
+
+    @property
     def k_max_ratio(self) -> float:
         """k_max / w of the config's environment: the scale of its actions."""
         return self.env_kwargs.get("k_max_ratio", DEFAULT_K_MAX_RATIO)

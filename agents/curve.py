@@ -192,7 +192,6 @@ if __name__ == "__main__":  # redraw a run's curve: python -m grasp_env_agents.c
     from .config import load_config
 
     run = Path(sys.argv[1])
-    imitation = load_config(run / "config.yaml").imitation
+    expert = load_config(run / "config.yaml").expert_teaches
     with (run / "learning_curve.csv").open() as file:
-        rows = list(csv.DictReader(file))
-    plot_curve(rows, run / "learning_curve.png", imitation is None or imitation.label_weight > 0)
+        plot_curve(list(csv.DictReader(file)), run / "learning_curve.png", expert)

@@ -186,8 +186,9 @@ def train(
     held_out = find_held_out(eval_env)
     # a resumed run drops what the killed one logged after its checkpoint
     kept = start.env_steps if start.checkpoint is not None else None
-    expert = config.imitation is None or config.imitation.label_weight > 0
-    curve = LearningCurve(run_dir / "learning_curve.csv", keep_until=kept, expert=expert)
+    curve = LearningCurve(
+        run_dir / "learning_curve.csv", keep_until=kept, expert=config.expert_teaches
+    )
     trim_tensorboard(run_dir / "tb", -1 if kept is None else kept)
     clock = Clock(curve.last("wall_seconds"), curve.last("cpu_seconds"))
     imitation_steps = int(curve.last("env_steps", phase="imitation"))
