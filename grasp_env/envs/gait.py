@@ -289,7 +289,7 @@ def gait_task(
 # ------------------------------------------------------------------------------ the step
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _score_grips(
     size, forces_w, directions, normals, pairs, chosen, ts, actions, moves_table, k_max_ratio,
     weight, limit, T, F, P, floats, flags,
@@ -336,7 +336,7 @@ def _score_grips(
         floats[b, 0] = reward[j]
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _step_kernel(
     xs, ts, actions, csr, states, ptr, code, moves_table, reach,
     forces3, directions3, normals3, pairs3, forces4, directions4, normals4, pairs4,
