@@ -103,6 +103,29 @@ def test_bad_arguments_raise_clear_errors(view):
     assert view.render(rotation, forces, in_contact=np.array([True, True, True])) is not None
 
 
+def test_render_state_checks_its_inputs(view):
+    """The lower-level entry (the continuous rollout's video draws through it) refuses what
+    MuJoCo would take silently or fail on deep inside: a wrong qpos, a NaN force."""
+    rotation, forces = optimal_forces(0.0)
+    view.render(rotation, forces)  # builds the model
+    qpos = view.data.qpos.copy()
+    contact = np.ones(3, dtype=bool)
+    w = SCENE.weight
+    assert view.render_state(qpos, rotation, forces / w, contact) is not None
+    cases = [
+        ((qpos[:-1], rotation, forces / w, contact), rf"qpos must have shape \({qpos.size},\)"),
+        ((np.full_like(qpos, np.nan), rotation, forces / w, contact), "qpos must be finite"),
+        ((qpos, np.eye(2), forces / w, contact), r"rotation must be a \(3, 3\) matrix"),
+        ((qpos, rotation, np.full((3, 3), np.inf), contact), "forces must be finite"),
+        ((qpos, rotation, forces / w, [1, 1, 1]), r"contact must be a boolean array of shape"),
+    ]
+    for args, message in cases:
+        with pytest.raises(ValueError, match=message):
+            view.render_state(*args)
+    with pytest.raises(ValueError, match="text must be a sequence of strings"):
+        view.render_state(qpos, rotation, forces / w, contact, text="one line")
+
+
 def test_closed_view_refuses_to_render():
     view = GraspView(SCENE, width=64, height=64)
     rotation, forces = optimal_forces(0.0)

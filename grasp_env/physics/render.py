@@ -27,6 +27,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from grasp_env.mechanics import START_ROTATION, Scene, friction_angles
+from grasp_env.mechanics.checks import real_array
 
 from .model import (
     build_mjcf,
@@ -233,11 +234,6 @@ class GraspView:
             raise ValueError("this GraspView is closed")
         rotation = check_rotation(rotation)
         forces = check_forces(contact_forces, self.scene.n_contacts)
-        # a lone string would be drawn a character per line
-        if isinstance(text, str) or not (
-            isinstance(text, Sequence) and all(isinstance(line, str) for line in text)
-        ):
-            raise ValueError(f"text must be a sequence of strings (overlay lines), got {text!r}")
         n = self.scene.n_contacts
         contact = np.ones(n, dtype=bool) if in_contact is None else _check_contact(in_contact, n)
         qpos = world_qpos(self.scene, rotation, contact)
@@ -245,19 +241,32 @@ class GraspView:
 
     def render_state(
         self,
-        qpos: np.ndarray,
-        rotation: np.ndarray,
-        forces: np.ndarray,
-        contact: np.ndarray,
+        qpos: ArrayLike,
+        rotation: ArrayLike,
+        forces: ArrayLike,
+        contact: ArrayLike,
         text: Sequence[str] = (),
     ) -> np.ndarray | None:
         """Draw the model at positions ``qpos`` (world frame, model units) with the object's
         nominal orientation ``rotation`` (which turns the friction cones' normals), finger
-        ``forces`` (n, 3, world frame, units of w) and ``contact`` (n,); see :meth:`render`."""
+        ``forces`` (n, 3, world frame, units of w) and ``contact`` (n,); see :meth:`render`.
+        Each input is checked (a ValueError names the first that is wrong)."""
         if self._closed:
             raise ValueError("this GraspView is closed")
+        n = self.scene.n_contacts
+        rotation = check_rotation(rotation)
+        forces = check_forces(forces, n, name="forces")
+        contact = _check_contact(contact, n, "contact")
+        # a lone string would be drawn a character per line
+        if isinstance(text, str) or not (
+            isinstance(text, Sequence) and all(isinstance(line, str) for line in text)
+        ):
+            raise ValueError(f"text must be a sequence of strings (overlay lines), got {text!r}")
         if self.model is None:
             self._build()
+        qpos = real_array("qpos", qpos, f"finite real numbers of shape ({self.model.nq},)")
+        if qpos.shape != (self.model.nq,):
+            raise ValueError(f"qpos must have shape ({self.model.nq},), got {qpos.shape}")
         if self._headless:
             return None
         self.data.qpos[:] = qpos
@@ -299,16 +308,16 @@ class GraspView:
         self._closed = True
 
 
-def _check_contact(in_contact: ArrayLike, n: int) -> np.ndarray:
+def _check_contact(in_contact: ArrayLike, n: int, name: str = "in_contact") -> np.ndarray:
     """``in_contact`` as (n,) bool, refused rather than cast (as the physics' checks do: "no"
-    and 0.5 are no answers)."""
+    and 0.5 are no answers); ``name`` is the argument's, for the message."""
     try:
         contact = np.asarray(in_contact)
     except (TypeError, ValueError):  # ragged
         contact = np.asarray(None)
     if contact.shape != (n,) or contact.dtype != bool:
         raise ValueError(
-            f"in_contact must be a boolean array of shape ({n},), got {contact.dtype}"
+            f"{name} must be a boolean array of shape ({n},), got {contact.dtype}"
             f" {contact.shape}: {in_contact!r}"
         )
     return contact
