@@ -84,7 +84,9 @@ def in_parallel(
         while (p := next(taken)) < len(results):
             results[p] = work(items[starts[p] : starts[p] + size])
 
-    in_parts("grasp-physics", len(results), take, threads)
+    # a pool of its own: the threads take the parts in turn, so in_parts' split (learnt per
+    # pool name) means nothing here and must not be learnt from these calls
+    in_parts("grasp-physics-queue", len(results), take, threads)
     return [result for part in results for result in part]
 
 
