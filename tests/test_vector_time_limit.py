@@ -294,10 +294,26 @@ def test_registered_max_episode_steps_in_every_vectorization_mode(limited_id):
                 np.testing.assert_array_equal(a, b, err_msg=str(mode))
 
 
-@pytest.mark.parametrize("value", [0, -1, 2.5, True, "3", np.float64(3.0)], ids=repr)
+def test_minus_one_drops_the_registered_limit_as_gym_make_does(limited_id):
+    """max_episode_steps=-1 is Gymnasium's "no TimeLimit" (``gym.make`` then drops an id's
+    registered limit): the vector entry point reads it as no limit too, as the sync mode's
+    ``gym.make`` calls do, with the same results."""
+    actions = np.random.default_rng(0).uniform(-1, 1, (8, 2, 3)).astype(np.float32)
+    runs = {}
+    for mode in ["vector_entry_point", "sync"]:
+        envs = gym.make_vec(limited_id, num_envs=2, vectorization_mode=mode, max_episode_steps=-1)
+        runs[mode] = [envs.reset(seed=1)[0]] + [envs.step(a)[:4] for a in actions]
+        envs.close()
+        assert not any(result[3].any() for result in runs[mode][1:]), mode  # never cut at 3
+    for got, want in zip(runs["vector_entry_point"], runs["sync"], strict=True):
+        for a, b in zip(got, want, strict=True):
+            np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("value", [0, -2, 2.5, True, "3", np.float64(3.0)], ids=repr)
 @pytest.mark.parametrize("env_id", [GRASP, RANDOM, GAIT, MUJOCO])
 def test_bad_max_episode_steps_is_refused(env_id, value):
-    with pytest.raises(ValueError, match=r"max_episode_steps must be None or an integer >= 1"):
+    with pytest.raises(ValueError, match=r"max_episode_steps must be None, -1 \(no limit\) or"):
         gym.make_vec(env_id, num_envs=2, vectorization_mode="vector_entry_point",
                      max_episode_steps=value)  # fmt: skip
 

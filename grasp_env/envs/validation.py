@@ -118,11 +118,14 @@ def check_seed(name: str, value: Any) -> int | None:
 
 def check_max_episode_steps(value: Any) -> int | None:
     """A vector environment's time limit (``gym.make_vec(..., max_episode_steps=...)``): None
-    (none) or an integer >= 1 (numpy integers too; booleans are refused)."""
-    if value is None:
+    (none), -1 (none either: ``gym.make``'s way to drop an id's registered limit) or an
+    integer >= 1 (numpy integers too; booleans are refused)."""
+    if value is None or (is_integer(value) and value == -1):
         return None
     if not is_integer(value) or value < 1:
-        raise ValueError(f"max_episode_steps must be None or an integer >= 1, got {value!r}")
+        raise ValueError(
+            f"max_episode_steps must be None, -1 (no limit) or an integer >= 1, got {value!r}"
+        )
     return int(value)
 
 

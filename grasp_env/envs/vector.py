@@ -196,8 +196,10 @@ class _CubeGraspVectorEnv(VectorEnv):
             sub-environments with ``reset(options={"reset_mask": mask})``; stepping one that
             ended raises a RuntimeError). The modes' values ("NextStep", "SameStep",
             "Disabled") are accepted too.
-        max_episode_steps: None (the default: an episode runs to its trajectory's end) or an
-            integer >= 1: each sub-environment's episode is truncated after that many steps,
+        max_episode_steps: None (the default: an episode runs to its trajectory's end; -1
+            means the same, as it does for ``gym.make``, which then drops an id's registered
+            limit) or an integer >= 1: each sub-environment's episode is truncated after that
+            many steps,
             as Gymnasium's ``TimeLimit`` truncates a single environment's (truncated is True
             at that step even if the episode terminated there too).
             ``gym.make_vec(id, ..., max_episode_steps=k)`` passes it (and an id's registered
