@@ -593,6 +593,12 @@ def test_in_parts_covers_the_batch_in_order():
             assert len(done) == max(1, min(parts, count))
             assert all(done) or count == 0  # no part empty
             assert [i for part in done for i in part] == list(range(count))
+    # what was measured is there to read (the bench prints it), and only for split calls
+    assert threads.hand_off("test-parts-unsplit") is None
+    in_parts("test-parts-unsplit", 10, lambda lo, hi: None, 1)
+    assert threads.hand_off("test-parts-unsplit") is None
+    lag, per_item = threads.hand_off("test-parts")
+    assert math.isfinite(lag) and per_item > 0
     threads._timing["test-parts"] = (1.0, 1e-9)
     assert [len(part) for part in in_parts("test-parts", 10, lambda lo, hi: range(lo, hi), 3)] == [
         8, 1, 1,

@@ -47,6 +47,13 @@ LEAD_SECONDS = 20e-6
 _timing: dict[str, tuple[float, float]] = {}
 
 
+def hand_off(name: str) -> tuple[float, float] | None:
+    """What :func:`in_parts` has measured for the pool ``name`` (running means): the seconds
+    the pool's parts start after the caller's, and the caller's seconds per item; None before
+    its first split call."""
+    return _timing.get(name)
+
+
 def in_parts(name: str, count: int, part: Callable[[int, int], _T], parts: int) -> list[_T]:
     """``part(lo, hi)`` over ``parts`` contiguous parts of ``range(count)`` (at most ``count``,
     at least one), the results in order: the calling thread runs the first part, the pool
