@@ -349,20 +349,25 @@ def main() -> int:
             f" the one-core limit, {reached / (cores * limit):.3f} of the {cores}-core one"
         )
     lag, per_row = median("hand-off lag"), median("hand-off per row")
-    caller = min(1.0, 1 / cores + (lag + LEAD_SECONDS) / per_row * (cores - 1) / cores / NUM_ENVS)
-    print(
-        f"vector step hand-off (CubeGrasp-v0, measured by in_parts): the other threads start"
-        f" their parts {lag * 1e6:.0f} us after the caller starts its own, which takes"
-        f" {per_row * 1e9:.0f} ns a sub-environment; so the caller steps {caller:.0%} of the"
-        f" {NUM_ENVS:,} rows, its extra rows filling that lag and the"
-        f" {LEAD_SECONDS * 1e6:.0f} us by which the others should end before it"
-    )
+    if math.isnan(lag):
+        print("vector step hand-off: none (one core: the step is not split)")
+    else:
+        extra = (lag + LEAD_SECONDS) / per_row * (cores - 1) / cores
+        caller = min(1.0, 1 / cores + extra / NUM_ENVS)
+        print(
+            f"vector step hand-off (CubeGrasp-v0, measured by in_parts): the other threads"
+            f" start their parts {lag * 1e6:.0f} us after the caller starts its own, which takes"
+            f" {per_row * 1e9:.0f} ns a sub-environment; so the caller steps {caller:.0%} of the"
+            f" {NUM_ENVS:,} rows, its extra rows filling that lag and the"
+            f" {LEAD_SECONDS * 1e6:.0f} us by which the others should end before it"
+        )
     solves, solver = median("solves per env-step"), median("solver")
     bound = solver / solves
     random_rate = median("CubeGraspRandom-v0 vector")
     print(
         f"random scenes: {solves:.3f} certified solves per env-step (counted), the solver"
-        f" {solver:,.0f} solves/s on trajectories of random scenes (two cores): a bound of"
+        f" {solver:,.0f} solves/s on trajectories of random scenes ({cores} core"
+        f"{'s' if cores > 1 else ''}): a bound of"
         f" {bound:,.0f} env-steps/s; the vector env reaches {random_rate / bound:.2f} of it"
     )
     return targets.exit_code()

@@ -19,8 +19,9 @@ import math
 import numba
 import numpy as np
 
-# Every division here is guarded (or by a count or a validated positive scale), so the numpy error
-# model's plain division is safe; the python model's zero checks cost a third of the step.
+# Every division here is guarded or divides by a count or a validated positive scale, so the
+# numpy error model's plain division is safe; the python model's zero checks cost a third of
+# the step.
 _kernel = numba.njit(cache=True, nogil=True, error_model="numpy")
 
 #: A finger is released when its net force is at most this fraction of the forces it is made
