@@ -56,7 +56,7 @@ from grasp_env.envs import episodes
 from grasp_env.envs.kernels import grip_row
 from grasp_env.envs.scenes import SceneSampler
 from grasp_env.mechanics import Grasp, contact_pairs
-from grasp_env.mechanics.threads import LEAD_SECONDS, available_cores, hand_off
+from grasp_env.mechanics.threads import LEAD_SECONDS, available_cores, caller_items, hand_off
 from grasp_env_agents.bench import Targets
 
 NUM_ENVS = 4096
@@ -297,6 +297,7 @@ def main() -> int:
                 lag, per_item = hand_off("grasp-vector-step") or (math.nan, math.nan)
                 record("hand-off lag", lag)
                 record("hand-off per row", per_item)
+                record("hand-off share", caller_items("grasp-vector-step", NUM_ENVS, 2) / NUM_ENVS)
             record(f"{name} {mode}", rate)
             record(f"{name} {mode} ratio", rate / cartpole[mode])
         for name in RESET_ENVS:
@@ -352,8 +353,7 @@ def main() -> int:
     if math.isnan(lag):
         print("vector step hand-off: none (one core: the step is not split)")
     else:
-        extra = (lag + LEAD_SECONDS) / per_row * (cores - 1) / cores
-        caller = min(1.0, 1 / cores + extra / NUM_ENVS)
+        caller = median("hand-off share")
         print(
             f"vector step hand-off (CubeGrasp-v0, measured by in_parts): the other threads"
             f" start their parts {lag * 1e6:.0f} us after the caller starts its own, which takes"

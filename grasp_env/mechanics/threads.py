@@ -54,6 +54,16 @@ def hand_off(name: str) -> tuple[float, float] | None:
     return _timing.get(name)
 
 
+def caller_items(name: str, count: int, parts: int) -> int:
+    """How many of ``count`` items the calling thread takes when :func:`in_parts` splits them
+    into ``parts`` (2 or more): an even share, and as many more as it does in the pool's start
+    lag and :data:`LEAD_SECONDS`, shared with the other parts; at least one item, and leaving
+    at least one to each other part."""
+    lag, per_item = _timing.get(name, (0.0, math.inf))
+    extra = (lag + LEAD_SECONDS) / per_item * (parts - 1) / parts
+    return min(count - parts + 1, max(1, round(count / parts + extra)))
+
+
 def in_parts(name: str, count: int, part: Callable[[int, int], _T], parts: int) -> list[_T]:
     """``part(lo, hi)`` over ``parts`` contiguous parts of ``range(count)`` (at most ``count``,
     at least one), the results in order: the calling thread runs the first part, the pool
@@ -69,9 +79,7 @@ def in_parts(name: str, count: int, part: Callable[[int, int], _T], parts: int) 
     parts = max(1, min(parts, count))
     if parts == 1:
         return [part(0, count)]
-    lag, per_item = _timing.get(name, (0.0, math.inf))
-    extra = (lag + LEAD_SECONDS) / per_item * (parts - 1) / parts
-    first_count = min(count - parts + 1, max(1, round(count / parts + extra)))
+    first_count = caller_items(name, count, parts)
     rest = count - first_count
     bounds = [0, *(first_count + rest * p // (parts - 1) for p in range(parts))]
 
@@ -87,8 +95,7 @@ def in_parts(name: str, count: int, part: Callable[[int, int], _T], parts: int) 
     finally:  # the other parts write into the caller's arrays: never leave them running
         wait(others)
     starts, results = zip(*(other.result() for other in others), strict=True)
-    lag_now, per_item_now = max(starts) - start, max(end - start, 1e-9) / first_count
-    if name in _timing:
-        lag_now, per_item_now = 0.8 * lag + 0.2 * lag_now, 0.8 * per_item + 0.2 * per_item_now
-    _timing[name] = (lag_now, per_item_now)
+    lag, per_item = max(starts) - start, max(end - start, 1e-9) / first_count
+    mean_lag, mean_per_item = _timing.get(name, (lag, per_item))
+    _timing[name] = (0.8 * mean_lag + 0.2 * lag, 0.8 * mean_per_item + 0.2 * per_item)
     return [first, *results]
