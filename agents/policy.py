@@ -22,7 +22,9 @@ choice is not differentiated; the gradient flows through the chosen solve. The d
 the expert's grip gives are consistent (some k realises all of them), and the least squares
 returns that k exactly, so nothing is lost in what the head can express; the solve is
 differentiable, so behaviour cloning, the max-friction-angle loss and PPO train the network
-through it.
+through it. The solves and their gradient are compiled (:mod:`grasp_env.mechanics.directions`):
+in torch they were a few hundred small tensor operations per minibatch, a third of a fit's
+step.
 """
 
 from __future__ import annotations
@@ -36,17 +38,10 @@ from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.torch_layers import MlpExtractor
 
 from grasp_env.envs.validation import DEFAULT_K_MAX_RATIO
+from grasp_env.mechanics import directions as directions_module
+from grasp_env.mechanics.directions import SOLVES
 
-from .features import GraspFeatures, max_friction_angle, object_frame_grasp
-
-#: Least-squares solves per action: equal weights, then two re-weighted by 1 / |P_i|.
-SOLVES = 3
-#: Smallest force magnitude (units of w) a weight 1 / |P_i| is computed from.
-MIN_FORCE = 1e-3
-#: Ridge added to the normal equations (solved in float64), relative to their mean diagonal: k
-#: stays finite even where the directions leave some squeeze free (two opposed fingers both
-#: along their line), and it moves a consistent solution by < 1e-5 where it is not needed.
-RIDGE = 1e-9
+from .features import GraspFeatures, object_frame_grasp
 
 
 def force_directions(tilts: torch.Tensor, normals: torch.Tensor) -> torch.Tensor:
@@ -56,20 +51,46 @@ def force_directions(tilts: torch.Tensor, normals: torch.Tensor) -> torch.Tensor
     return directions / torch.linalg.vector_norm(directions, dim=-1, keepdim=True)
 
 
+class _GripAlong(torch.autograd.Function):
+    """:func:`grasp_env.mechanics.directions.grip_along` as a torch function of the directions."""
+
+    @staticmethod
+    def forward(ctx, directions, forces, basis, normals, k_max, solves):
+        grasp = [t.detach().contiguous().numpy() for t in (directions, forces, basis)]
+        k, weights = directions_module.grip_along(
+            *grasp, normals.detach().contiguous().numpy(), k_max, solves
+        )
+        ctx.save_for_backward(directions, forces, basis)
+        ctx.grip = k, weights
+        return torch.from_numpy(k).to(directions.dtype)
+
+    @staticmethod
+    def backward(ctx, grad_k):
+        if any(ctx.needs_input_grad[1:]):
+            raise NotImplementedError("grip_along differentiates the directions only")
+        grasp = [t.detach().contiguous().numpy() for t in ctx.saved_tensors]
+        k, weights = ctx.grip
+        grad = directions_module.grip_along_gradient(
+            *grasp, weights, k, grad_k.detach().double().numpy()
+        )
+        return torch.from_numpy(grad).to(grad_k.dtype), None, None, None, None, None
+
+
 def grip_along(
     directions: torch.Tensor,
     forces: torch.Tensor,
     basis: torch.Tensor,
     normals: torch.Tensor,
     k_max: float,
+    solves: int = SOLVES,
 ) -> torch.Tensor:
     """The k (B, m) whose finger forces F_i + sum k_ij e_ij best point along ``directions``.
 
-    Of the :data:`SOLVES` least-squares solves it returns the one whose grip, clipped to the
-    box |k_ij| <= k_max as the environment clips it, has the smallest largest friction angle:
-    where the directions are inconsistent, re-weighting by 1 / |P_i| can drive a nearly
-    released finger through zero to a pull (the residual across d_i is blind to the sign),
-    and an earlier solve is then the better grip.
+    Of ``solves`` least-squares solves (equal weights, then re-weighted by 1 / |P_i|) it
+    returns the one whose grip, clipped to the box |k_ij| <= k_max as the environment clips
+    it, has the smallest largest friction angle
+    (:func:`grasp_env.mechanics.directions.grip_along`, computed in float64); differentiable
+    in the directions, through the chosen solve.
 
     Args:
         directions: unit directions d_i (B, n, 3).
@@ -77,50 +98,9 @@ def grip_along(
         basis: the interaction basis e_ij (B, m, n, 3) in the same frame.
         normals: the contact normals n_i (B, n, 3) in the same frame.
         k_max: the action box (k_max / w).
+        solves: least-squares solves (at least 1).
     """
-    dtype = forces.dtype
-    directions, forces, basis = directions.double(), forces.double(), basis.double()
-    # The normal equations sum_i w_i^2 B_i^T (I - d_i d_i^T) (F_i + B_i k) = 0, with B_i =
-    # (e_1i ... e_mi) (3, m) so that P_i = F_i + B_i k (eq. 4), split into the parts the
-    # weights multiply: B_i^T B_i and B_i^T F_i do not depend on the directions, and the
-    # projections a_i = B_i^T d_i and d_i . F_i are the same for every solve (fewer, smaller
-    # products than 3 x 3 projectors per finger and solve: a fit's step 7% faster).
-    gram = torch.einsum("bqnc,brnc->bnqr", basis, basis)  # (B, n, m, m)
-    along = torch.einsum("bqnc,bnc->bnq", basis, directions)  # a_i (B, n, m)
-    matrices = gram - along[..., :, None] * along[..., None, :]  # B_i^T (I - d_i d_i^T) B_i
-    loads = torch.einsum("bqnc,bnc->bnq", basis, forces) - along * (directions * forces).sum(
-        -1, keepdim=True
-    )  # B_i^T (I - d_i d_i^T) F_i
-    eye = torch.eye(basis.shape[1], dtype=torch.float64)
-
-    def solve(weights: torch.Tensor) -> torch.Tensor:
-        """The least squares with each finger's equations weighted by ``weights`` (B, n)."""
-        squared = weights**2
-        normal_matrix = torch.einsum("bn,bnqr->bqr", squared, matrices)
-        rhs = -torch.einsum("bn,bnq->bq", squared, loads)
-        ridge = RIDGE * normal_matrix.diagonal(dim1=1, dim2=2).mean(-1)[:, None, None]
-        return torch.linalg.solve(normal_matrix + ridge * eye, rhs)
-
-    # The solves and the choice without the graph; then, where a gradient is wanted, the
-    # chosen solve once more with it (the same numbers): its backward is one solve's, not all.
-    with torch.no_grad():
-        weights = [forces.new_ones(forces.shape[:2])]
-        solves = []
-        for n_solve in range(SOLVES):
-            solves.append(solve(weights[-1]))
-            if n_solve + 1 < SOLVES:  # the weights of the next solve: 1 / |P_i| at this grip
-                net = forces + torch.einsum("bq,bqnc->bnc", solves[-1], basis)
-                weights.append(1.0 / torch.linalg.vector_norm(net, dim=-1).clamp_min(MIN_FORCE))
-        grips = torch.stack(solves, 1)  # (B, SOLVES, m)
-        # every solve's grip at once, against the grasp broadcast over them
-        angles = max_friction_angle(
-            grips / k_max, forces[:, None], basis[:, None], normals.double()[:, None], k_max
-        )
-        best = angles.argmin(1)
-        rows = torch.arange(len(grips))
-    if not torch.is_grad_enabled():
-        return grips[rows, best].to(dtype)
-    return solve(torch.stack(weights, 1)[rows, best]).to(dtype)
+    return _GripAlong.apply(directions, forces, basis, normals, k_max, solves)
 
 
 class ForceDirectionHead(torch.nn.Module):
@@ -134,7 +114,8 @@ class ForceDirectionHead(torch.nn.Module):
         self.tilts = torch.nn.Linear(hidden_dim, 3 * n_contacts)
 
     def forward(self, latent: torch.Tensor) -> torch.Tensor:
-        hidden, features = latent[:, : self.hidden_dim], latent[:, self.hidden_dim :]
+        # the grasp is data (GraspFeatures has no parameters): the gradient is the directions'
+        hidden, features = latent[:, : self.hidden_dim], latent[:, self.hidden_dim :].detach()
         forces, basis, normals = object_frame_grasp(features, self.n_contacts)
         directions = force_directions(self.tilts(hidden).reshape(normals.shape), normals)
         return grip_along(directions, forces, basis, normals, self.k_max_ratio) / self.k_max_ratio

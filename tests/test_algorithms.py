@@ -13,7 +13,6 @@ import yaml
 from stable_baselines3 import SAC, TD3
 from stable_baselines3.common.logger import Logger
 
-from grasp_env_agents import policy as policy_module
 from grasp_env_agents.algorithms import (
     ForceDirectionSACPolicy,
     ForceDirectionTD3Policy,
@@ -120,7 +119,7 @@ def test_the_mean_action_baseline_refuses_rewards_it_does_not_reproduce(env) -> 
         model.learn(16 * env.num_envs)
 
 
-def test_grip_along_returns_the_best_of_its_solves(env, monkeypatch) -> None:
+def test_grip_along_returns_the_best_of_its_solves(env) -> None:
     """Where the directions are inconsistent, re-weighting can turn a nearly released finger
     into a pull: the head keeps whichever least-squares solve grips best."""
     rng = np.random.default_rng(0)
@@ -131,8 +130,7 @@ def test_grip_along_returns_the_best_of_its_solves(env, monkeypatch) -> None:
     directions = force_directions(tilts, normals)
 
     def largest_angle(solves: int) -> np.ndarray:
-        monkeypatch.setattr(policy_module, "SOLVES", solves)
-        k = grip_along(directions, forces, basis, normals, K_MAX_RATIO)
+        k = grip_along(directions, forces, basis, normals, K_MAX_RATIO, solves)
         return max_friction_angle(k / K_MAX_RATIO, forces, basis, normals, K_MAX_RATIO).numpy()
 
     best = largest_angle(3)
@@ -142,7 +140,7 @@ def test_grip_along_returns_the_best_of_its_solves(env, monkeypatch) -> None:
 
 
 def test_grip_along_solves_the_least_squares_of_the_components_across_the_directions(
-    env, monkeypatch
+    env,
 ) -> None:
     """One solve (equal weights) is the least squares of (I - d_i d_i^T)(F_i + B_i k) = 0 over
     all fingers, as numpy's lstsq of the stacked rows gives it."""
@@ -152,14 +150,73 @@ def test_grip_along_solves_the_least_squares_of_the_components_across_the_direct
     forces, basis, normals = (t.double() for t in object_frame_grasp(features, 3))
     tilts = torch.as_tensor(rng.normal(scale=0.3, size=normals.shape))
     directions = force_directions(tilts, normals)
-    monkeypatch.setattr(policy_module, "SOLVES", 1)
-    k = grip_along(directions, forces, basis, normals, K_MAX_RATIO).numpy()
+    k = grip_along(directions, forces, basis, normals, K_MAX_RATIO, solves=1).numpy()
     for b in range(len(k)):
         d, F, E = directions[b].numpy(), forces[b].numpy(), basis[b].numpy()  # E: (m, n, 3)
         across = np.eye(3) - d[:, :, None] * d[:, None, :]  # (n, 3, 3)
         rows = np.einsum("nij,qnj->niq", across, E).reshape(-1, E.shape[0])
         expected = np.linalg.lstsq(rows, -np.einsum("nij,nj->ni", across, F).ravel())[0]
         np.testing.assert_allclose(k[b], expected, atol=1e-7)
+
+
+def random_grasps(env, scenes: int, seed: int, scale: float) -> tuple[torch.Tensor, ...]:
+    """Object-frame grasps (float64) of random scenes and tilted force directions on them."""
+    obs = np.concatenate([env.reset() for _ in range(scenes // env.num_envs)])
+    features = GraspFeatures(env_space(obs))(torch.as_tensor(obs))
+    forces, basis, normals = (t.double() for t in object_frame_grasp(features, 3))
+    rng = np.random.default_rng(seed)
+    tilts = torch.as_tensor(rng.normal(scale=scale, size=normals.shape))
+    return force_directions(tilts, normals), forces, basis, normals
+
+
+def test_grip_along_gradient_is_the_derivative_of_one_solve(env) -> None:
+    """With one solve (equal weights) the grip is a smooth function of the directions: the
+    compiled gradient against finite differences (torch's gradcheck)."""
+    directions, forces, basis, normals = random_grasps(env, 8, seed=2, scale=0.3)
+
+    def grip(d: torch.Tensor) -> torch.Tensor:
+        return grip_along(d, forces, basis, normals, K_MAX_RATIO, solves=1)
+
+    assert torch.autograd.gradcheck(grip, directions.requires_grad_(), eps=1e-6, atol=1e-5)
+
+
+def test_grip_along_gradient_holds_the_chosen_solves_weights(env) -> None:
+    """With re-weighted solves the gradient is the chosen solve's with its weights fixed: the
+    same as torch's autograd through that weighted least squares, written out here."""
+    directions, forces, basis, normals = random_grasps(env, 64, seed=3, scale=0.5)
+    # the leaf is on the unit sphere's tangent: (I - d d^T) and its square agree only there
+    tilts = torch.zeros_like(directions, requires_grad=True)
+    directions = force_directions(directions + tilts, directions)
+    k = grip_along(directions, forces, basis, normals, K_MAX_RATIO)
+    upstream = torch.as_tensor(np.random.default_rng(4).normal(size=k.shape))
+    (compiled,) = torch.autograd.grad((k * upstream).sum(), tilts, retain_graph=True)
+    # the weights of the chosen solve: 1 / |P_i| at the grip before it (or 1 for the first),
+    # found by matching each solve's grip to the one returned
+    with torch.no_grad():
+        weights = torch.ones(forces.shape[:2], dtype=torch.float64)
+        chosen = torch.ones_like(weights)
+        for _ in range(3):
+            grip = weighted_least_squares(directions, forces, basis, weights)
+            match = (grip - k).abs().amax(-1) < 1e-9
+            chosen[match] = weights[match]
+            net = forces + torch.einsum("bq,bqnc->bnc", grip, basis)
+            weights = 1.0 / torch.linalg.vector_norm(net, dim=-1).clamp_min(1e-3)
+    assert (chosen != 1).any(), "no re-weighted solve was chosen: the test would not test it"
+    reference = weighted_least_squares(directions, forces, basis, chosen)
+    np.testing.assert_allclose(reference.detach().numpy(), k.detach().numpy(), atol=1e-9)
+    (expected,) = torch.autograd.grad((reference * upstream).sum(), tilts)
+    np.testing.assert_allclose(compiled.numpy(), expected.numpy(), rtol=1e-7, atol=1e-9)
+
+
+def weighted_least_squares(directions, forces, basis, weights) -> torch.Tensor:
+    """argmin_k sum_i w_i^2 |(I - d_i d_i^T)(F_i + B_i k)|^2 (+ the head's ridge), in torch."""
+    across = torch.eye(3, dtype=torch.float64) - directions[..., :, None] * directions[..., None, :]
+    rows = torch.einsum("bnij,bqnj->bniq", across, basis) * weights[..., None, None]
+    loads = torch.einsum("bnij,bnj->bni", across, forces) * weights[..., None]
+    matrix = torch.einsum("bniq,bnir->bqr", rows, rows)
+    ridge = 1e-9 * matrix.diagonal(dim1=1, dim2=2).mean(-1)[:, None, None]
+    rhs = -torch.einsum("bniq,bni->bq", rows, loads)
+    return torch.linalg.solve(matrix + ridge * torch.eye(matrix.shape[-1]), rhs)
 
 
 def env_space(obs: np.ndarray):
