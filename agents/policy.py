@@ -33,6 +33,7 @@ from functools import partial
 from typing import Any
 
 import gymnasium as gym
+import numpy as np
 import torch
 from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.torch_layers import MlpExtractor
@@ -51,29 +52,31 @@ def force_directions(tilts: torch.Tensor, normals: torch.Tensor) -> torch.Tensor
     return directions / torch.linalg.vector_norm(directions, dim=-1, keepdim=True)
 
 
+def _array(tensor: torch.Tensor) -> np.ndarray:
+    """The tensor's values as a C-contiguous numpy array (copied to the CPU if elsewhere)."""
+    return tensor.detach().cpu().contiguous().numpy()
+
+
 class _GripAlong(torch.autograd.Function):
-    """:func:`grasp_env.mechanics.directions.grip_along` as a torch function of the directions."""
+    """:func:`grasp_env.mechanics.directions.grip_along` as a torch function of the directions
+    (computed on the CPU, returned on the directions' device)."""
 
     @staticmethod
     def forward(ctx, directions, forces, basis, normals, k_max, solves):
-        grasp = [t.detach().contiguous().numpy() for t in (directions, forces, basis)]
-        k, weights = directions_module.grip_along(
-            *grasp, normals.detach().contiguous().numpy(), k_max, solves
-        )
+        grasp = [_array(t) for t in (directions, forces, basis, normals)]
+        k, weights = directions_module.grip_along(*grasp, k_max, solves)
         ctx.save_for_backward(directions, forces, basis)
         ctx.grip = k, weights
-        return torch.from_numpy(k).to(directions.dtype)
+        return torch.from_numpy(k).to(directions.device, directions.dtype)
 
     @staticmethod
     def backward(ctx, grad_k):
         if any(ctx.needs_input_grad[1:]):
             raise NotImplementedError("grip_along differentiates the directions only")
-        grasp = [t.detach().contiguous().numpy() for t in ctx.saved_tensors]
         k, weights = ctx.grip
-        grad = directions_module.grip_along_gradient(
-            *grasp, weights, k, grad_k.detach().double().numpy()
-        )
-        return torch.from_numpy(grad).to(grad_k.dtype), None, None, None, None, None
+        grasp = [_array(t) for t in ctx.saved_tensors]
+        grad = directions_module.grip_along_gradient(*grasp, weights, k, _array(grad_k.double()))
+        return torch.from_numpy(grad).to(grad_k.device, grad_k.dtype), *[None] * 5
 
 
 def grip_along(
