@@ -614,3 +614,59 @@ def test_in_parts_covers_the_batch_in_order():
     with pytest.raises(RuntimeError, match="first part fails"):
         in_parts("test-parts", 10, part, 2)
     assert len(finished) == 1 and finished[0] > 0  # the other part ran to its end first
+
+
+# --- the grip along given force directions (mechanics.directions) ------------------------
+
+
+def test_grip_along_realises_consistent_directions_on_a_scene():
+    """The directions of the forces some grip k gives are realised by that k (float64, the
+    paper's scene and a random grip inside the box)."""
+    from grasp_env.mechanics import directions
+
+    g = scene_grasp(Scene.on_faces(PAPER_FACES), pose_rotation(PAPER_AXIS, 0.2))
+    k = np.array([[0.3, -0.2, 0.5]])
+    net = g.forces(k[0])
+    d = net / np.linalg.norm(net, axis=-1, keepdims=True)
+    found, weights = directions.grip_along(
+        d[None], g.equilibrating[None], g.basis[None], g.normals[None], 2.0
+    )
+    np.testing.assert_allclose(found, k, atol=1e-8)
+    assert weights.shape == (1, 3) and np.all(weights > 0)
+
+
+@pytest.mark.parametrize(
+    ("change", "match"),
+    [
+        (lambda a: {**a, "directions": a["directions"][:, :2]}, r"n >= 3 contacts"),
+        (lambda a: {**a, "forces": a["forces"][:, :, :2]}, r"forces must have the directions"),
+        (lambda a: {**a, "normals": np.full((4, 3, 3), np.nan)}, r"normals must be finite"),
+        (lambda a: {**a, "basis": a["basis"][:, :, :2]}, r"basis must have shape \(4, m, 3, 3\)"),
+        (lambda a: {**a, "basis": a["basis"][:, :0]}, r"with m >= 1"),
+        (lambda a: {**a, "k_max": 0.0}, r"k_max must be a finite number > 0"),
+        (lambda a: {**a, "solves": 0}, r"solves must be an integer >= 1"),
+        (lambda a: {**a, "solves": True}, r"solves must be an integer >= 1"),
+        (lambda a: {**a, "directions": "up"}, r"directions must be finite real numbers"),
+    ],
+)
+def test_grip_along_refuses_what_its_kernel_cannot_read(change, match):
+    """Shapes that do not agree would make the compiled kernel read past an array's end."""
+    from grasp_env.mechanics import directions
+
+    rng = np.random.default_rng(0)
+    good = {
+        "directions": rng.normal(size=(4, 3, 3)),
+        "forces": rng.normal(size=(4, 3, 3)),
+        "basis": rng.normal(size=(4, 3, 3, 3)),
+        "normals": rng.normal(size=(4, 3, 3)),
+        "k_max": 2.0,
+        "solves": 3,
+    }
+    k, weights = directions.grip_along(**good)
+    assert np.isfinite(k).all() and k.shape == (4, 3)
+    with pytest.raises(ValueError, match=match):
+        directions.grip_along(**change(good))
+    with pytest.raises(ValueError, match=r"grad_k must have shape \(4, 3\)"):
+        directions.grip_along_gradient(
+            good["directions"], good["forces"], good["basis"], weights, k, k[:, :2]
+        )

@@ -33,6 +33,9 @@ import math
 
 import numba
 import numpy as np
+from numpy.typing import ArrayLike
+
+from .checks import is_integer, real_array, real_number
 
 #: Least-squares solves per grip: equal weights, then re-weighted by 1 / |P_i|.
 SOLVES = 3
@@ -181,11 +184,47 @@ def _grips_along(directions, forces, basis, normals, k_max, solves, min_force, r
                     squared[i] = 1.0 / (size * size)
 
 
+def _grasp(
+    directions: ArrayLike, forces: ArrayLike, basis: ArrayLike, normals: ArrayLike
+) -> tuple[np.ndarray, ...]:
+    """The four arrays as float64, or a ValueError naming the one that is not finite or not
+    of the shapes (B, n, 3) and (B, m, n, 3) (a kernel would read past its end)."""
+    directions = real_array("directions", directions, "finite real numbers of shape (B, n, 3)")
+    batch_shape = directions.shape
+    # three contacts at least, as grasp() takes: with two, directions along their line leave
+    # the squeeze undetermined (the normal equations vanish)
+    if directions.ndim != 3 or batch_shape[2] != 3 or batch_shape[1] < 3:
+        raise ValueError(
+            f"directions must have shape (B, n, 3) with n >= 3 contacts, got {batch_shape}"
+        )
+    batch, n = batch_shape[:2]
+    arrays = [directions]
+    for name, value in (("forces", forces), ("normals", normals)):
+        array = real_array(name, value, f"finite real numbers of shape {batch_shape}")
+        if array.shape != batch_shape:
+            raise ValueError(
+                f"{name} must have the directions' shape {batch_shape}, got {array.shape}"
+            )
+        arrays.append(array)
+    basis = real_array("basis", basis, f"finite real numbers of shape ({batch}, m, {n}, 3)")
+    if (
+        basis.ndim != 4
+        or basis.shape[0] != batch
+        or basis.shape[2:] != (n, 3)
+        or not basis.shape[1]
+    ):
+        raise ValueError(
+            f"basis must have shape ({batch}, m, {n}, 3) with m >= 1, got {basis.shape}"
+        )
+    forces, normals = arrays[1:]
+    return directions, forces, basis, normals
+
+
 def grip_along(
-    directions: np.ndarray,
-    forces: np.ndarray,
-    basis: np.ndarray,
-    normals: np.ndarray,
+    directions: ArrayLike,
+    forces: ArrayLike,
+    basis: ArrayLike,
+    normals: ArrayLike,
     k_max: float,
     solves: int = SOLVES,
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -197,16 +236,18 @@ def grip_along(
         forces: equilibrating forces F_i (B, n, 3), in units of w.
         basis: the interaction basis e_ij (B, m, n, 3) in the same frame.
         normals: the contact normals n_i (B, n, 3) in the same frame.
-        k_max: the box |k_ij| <= k_max (units of w) the grips are judged clipped to.
-        solves: least-squares solves per grip (at least 1).
+        k_max: the box |k_ij| <= k_max (units of w, > 0) the grips are judged clipped to.
+        solves: least-squares solves per grip (an integer >= 1).
     """
-    if solves < 1:
-        raise ValueError(f"solves must be at least 1, got {solves}")
+    directions, forces, basis, normals = _grasp(directions, forces, basis, normals)
+    k_max = real_number("k_max", k_max, 0.0, open_low=True)
+    if not is_integer(solves) or solves < 1:
+        raise ValueError(f"solves must be an integer >= 1, got {solves!r}")
     batch, n = forces.shape[:2]
     k = np.empty((batch, basis.shape[1]))
     weights = np.empty((batch, n))
     _grips_along(
-        directions, forces, basis, normals, float(k_max), solves, MIN_FORCE, RIDGE, k, weights
+        directions, forces, basis, normals, k_max, int(solves), MIN_FORCE, RIDGE, k, weights
     )
     return k, weights
 
@@ -258,15 +299,27 @@ def _gradients(directions, forces, basis, weights, k, grad_k, ridge, out):
 
 
 def grip_along_gradient(
-    directions: np.ndarray,
-    forces: np.ndarray,
-    basis: np.ndarray,
-    weights: np.ndarray,
-    k: np.ndarray,
-    grad_k: np.ndarray,
+    directions: ArrayLike,
+    forces: ArrayLike,
+    basis: ArrayLike,
+    weights: ArrayLike,
+    k: ArrayLike,
+    grad_k: ArrayLike,
 ) -> np.ndarray:
     """dL/dd (B, n, 3) of the grips ``k`` that :func:`grip_along` returned with ``weights``,
     given dL/dk (B, m): the chosen solve differentiated with its weights held fixed."""
+    directions, forces, basis, _ = _grasp(directions, forces, basis, forces)
+    batch, m, n = basis.shape[:3]
+    arrays = []
+    for name, value, shape in (
+        ("weights", weights, (batch, n)),
+        ("k", k, (batch, m)),
+        ("grad_k", grad_k, (batch, m)),
+    ):
+        array = real_array(name, value, f"finite real numbers of shape {shape}")
+        if array.shape != shape:
+            raise ValueError(f"{name} must have shape {shape}, got {array.shape}")
+        arrays.append(array)
     out = np.empty(directions.shape)
-    _gradients(directions, forces, basis, weights, k, grad_k, RIDGE, out)
+    _gradients(directions, forces, basis, *arrays, RIDGE, out)
     return out
