@@ -666,6 +666,13 @@ def test_grip_along_refuses_what_its_kernel_cannot_read(change, match):
     assert np.isfinite(k).all() and k.shape == (4, 3)
     with pytest.raises(ValueError, match=match):
         directions.grip_along(**change(good))
+    # collinear contacts: every pair along x, and every direction too: no grip is determined
+    collinear = {**good, "basis": np.zeros((4, 3, 3, 3)), "directions": np.zeros((4, 3, 3))}
+    for q, (i, j) in enumerate(contact_pairs(3)):
+        collinear["basis"][:, q, i, 0], collinear["basis"][:, q, j, 0] = 1.0, -1.0
+    collinear["directions"][..., 0] = 1.0
+    with pytest.raises(ValueError, match=r"singular for grasps \[0, 1, 2, 3\]"):
+        directions.grip_along(**collinear)
     with pytest.raises(ValueError, match=r"grad_k must have shape \(4, 3\)"):
         directions.grip_along_gradient(
             good["directions"], good["forces"], good["basis"], weights, k, k[:, :2]

@@ -46,7 +46,8 @@ MIN_FORCE = 1e-3
 RIDGE = 1e-9
 
 # Every division is by a pivot of a ridged positive semi-definite matrix, a count, or a clamped
-# norm; a singular system gives inf or nan as torch's solve did, which the caller can see.
+# norm; a singular system (contacts whose pairs leave the grip undetermined) gives inf or nan,
+# which grip_along refuses.
 _kernel = numba.njit(cache=True, nogil=True, error_model="numpy")
 
 
@@ -185,10 +186,10 @@ def _grips_along(directions, forces, basis, normals, k_max, solves, min_force, r
 
 
 def _grasp(
-    directions: ArrayLike, forces: ArrayLike, basis: ArrayLike, normals: ArrayLike
-) -> tuple[np.ndarray, ...]:
-    """The four arrays as float64, or a ValueError naming the one that is not finite or not
-    of the shapes (B, n, 3) and (B, m, n, 3) (a kernel would read past its end)."""
+    directions: ArrayLike, forces: ArrayLike, basis: ArrayLike, normals: ArrayLike | None = None
+) -> list[np.ndarray]:
+    """The arrays as float64, or a ValueError naming the one that is not finite or not of the
+    shapes (B, n, 3) and (B, m, n, 3) (a kernel would read past its end)."""
     directions = real_array("directions", directions, "finite real numbers of shape (B, n, 3)")
     batch_shape = directions.shape
     # three contacts at least, as grasp() takes: with two, directions along their line leave
@@ -200,6 +201,8 @@ def _grasp(
     batch, n = batch_shape[:2]
     arrays = [directions]
     for name, value in (("forces", forces), ("normals", normals)):
+        if value is None:
+            continue
         array = real_array(name, value, f"finite real numbers of shape {batch_shape}")
         if array.shape != batch_shape:
             raise ValueError(
@@ -216,8 +219,7 @@ def _grasp(
         raise ValueError(
             f"basis must have shape ({batch}, m, {n}, 3) with m >= 1, got {basis.shape}"
         )
-    forces, normals = arrays[1:]
-    return directions, forces, basis, normals
+    return [*arrays[:2], basis, *arrays[2:]]
 
 
 def grip_along(
@@ -249,6 +251,13 @@ def grip_along(
     _grips_along(
         directions, forces, basis, normals, k_max, int(solves), MIN_FORCE, RIDGE, k, weights
     )
+    singular = np.flatnonzero(~np.isfinite(k).all(1))
+    if len(singular):
+        raise ValueError(
+            f"the least squares is singular for grasps {singular[:10].tolist()}"
+            f"{' ...' if len(singular) > 10 else ''} of the batch: their interaction basis"
+            " leaves the grip undetermined (collinear contacts?)"
+        )
     return k, weights
 
 
@@ -308,7 +317,7 @@ def grip_along_gradient(
 ) -> np.ndarray:
     """dL/dd (B, n, 3) of the grips ``k`` that :func:`grip_along` returned with ``weights``,
     given dL/dk (B, m): the chosen solve differentiated with its weights held fixed."""
-    directions, forces, basis, _ = _grasp(directions, forces, basis, forces)
+    directions, forces, basis = _grasp(directions, forces, basis)
     batch, m, n = basis.shape[:3]
     arrays = []
     for name, value, shape in (
