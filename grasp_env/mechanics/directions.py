@@ -53,7 +53,10 @@ _kernel = numba.njit(cache=True, nogil=True, error_model="numpy")
 
 @_kernel
 def _solve(a, b, out):
-    """out = a^-1 b by Gaussian elimination with partial pivoting (a, b overwritten)."""
+    """out = a^-1 b by Gaussian elimination with partial pivoting (a, b overwritten).
+
+    This module's own (minimax.linalg has one): numba keys a kernel's cache on its own file
+    only, so a callee from another file could go stale in it (``minimax/jit.py``)."""
     m = len(b)
     for col in range(m):
         pivot = col
@@ -133,17 +136,9 @@ def _grips_along(directions, forces, basis, normals, k_max, solves, min_force, r
     clipped = np.empty(m)
     squared = np.empty(n)
     net = np.empty((n, 3))
-    d = np.empty((n, 3))
-    f = np.empty((n, 3))
-    e = np.empty((m, n, 3))
     for b in range(batch):
-        for i in range(n):
-            for c in range(3):
-                d[i, c] = directions[b, i, c]
-                f[i, c] = forces[b, i, c]
-                for q in range(m):
-                    e[q, i, c] = basis[b, q, i, c]
-        _projections(d, f, e, along, matrices, loads)
+        f, e = forces[b], basis[b]
+        _projections(directions[b], f, e, along, matrices, loads)
         for i in range(n):
             squared[i] = 1.0
         best = -np.inf
@@ -271,16 +266,8 @@ def _gradients(directions, forces, basis, weights, k, grad_k, ridge, out):
     g = np.empty(m)
     lam = np.empty(m)
     net = np.empty((n, 3))
-    d = np.empty((n, 3))
-    f = np.empty((n, 3))
-    e = np.empty((m, n, 3))
     for b in range(batch):
-        for i in range(n):
-            for c in range(3):
-                d[i, c] = directions[b, i, c]
-                f[i, c] = forces[b, i, c]
-                for q in range(m):
-                    e[q, i, c] = basis[b, q, i, c]
+        d, f, e = directions[b], forces[b], basis[b]
         _projections(d, f, e, along, matrices, loads)
         _normal_matrix(weights[b], matrices, ridge, a)
         for q in range(m):
