@@ -565,6 +565,11 @@ def run_rollout(
         f" (after a failure the motion under way carries on); first failure, analytic:"
         f" {where(report.predicted_first_failure)}, MuJoCo: {where(report.first_failure)}"
     )
+    if report.diverged:
+        printer.print(
+            "MuJoCo stopped the run on a warning (an unstable simulation) before its end:"
+            " counted as a failure at the last pose"
+        )
     path, data = out / "rollout.png", out / "rollout.json"
     plot_rollouts(scene, alphas, [(label, report)], f"{label} grip in one MuJoCo rollout", path)
     data.write_text(

@@ -24,7 +24,7 @@ from grasp_env.physics import check_trajectories
 MUJOCO_IDS = [i for i in grasp_env.ENV_IDS if "Mujoco" in i]
 TRAJECTORY_KEYS = {
     "holds", "predicted_holds", "pose_holds", "pose_predicted", "max_angle_deg", "margin_deg",
-    "slip", "drift", "rotation_deg", "first_failure", "predicted_first_failure", "time",
+    "slip", "drift", "rotation_deg", "first_failure", "predicted_first_failure", "time", "diverged",
 }  # fmt: skip
 SHORT = {"trajectory": {"alpha_start_deg": -15.0, "alpha_end_deg": -12.0}}  # four poses
 
@@ -65,7 +65,7 @@ def test_expert_trajectory_holds_and_is_reported_at_the_end():
     assert all("physics_trajectory" not in info for info in infos[:-1])
     report = infos[-1]["physics_trajectory"]
     assert set(report) == TRAJECTORY_KEYS
-    assert report["holds"] and report["predicted_holds"]
+    assert report["holds"] and report["predicted_holds"] and not report["diverged"]
     assert report["first_failure"] is None and report["predicted_first_failure"] is None
     assert report["pose_holds"] == [True] * 31 and len(report["slip"]) == 31
     assert report["margin_deg"] > 26.0  # the paper's optimum is 0 deg, atan(0.5) = 26.57 deg

@@ -8,6 +8,7 @@ fingers and fingers phased out and in; and they pin down determinism and the ref
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import json
 
@@ -55,6 +56,7 @@ from grasp_env.physics.agreement import (
 )
 from grasp_env.physics.model import G, build_mjcf, model_cg, model_contacts
 from grasp_env.physics.motion import released as motion_released
+from grasp_env.physics.rollout import rollout_report
 from grasp_env.physics.simulation import PhysicsModel, available_cores
 from grasp_env_agents.cli import main
 
@@ -444,6 +446,20 @@ def test_rollout_carries_the_optimal_grip_through_the_whole_trajectory():
     turned = np.degrees(np.arccos(np.clip(motion.load[0, :3] @ motion.load[-1, :3], -1, 1)))
     assert turned == pytest.approx(30.0, abs=1e-6)
     json.dumps(report.as_dict())
+    assert not report.diverged and report.as_dict()["diverged"] is False
+
+
+def test_a_rollout_that_diverged_fails_at_its_last_pose_and_says_so():
+    # The same run's measurements, as if MuJoCo had stopped it on a warning at its end.
+    scene, rotations, optimum, _ = paper_grips(0.05)
+    checker = TrajectoryChecker(scene)
+    held = checker.check(rotations[:4], optimum[:4])
+    trace = dataclasses.replace(held.trace, diverged=True)
+    report = rollout_report(scene, held.motion, trace, checker.settings)
+    assert held.holds and not held.diverged
+    assert report.diverged and not report.holds and report.predicted_holds
+    assert report.pose_holds.tolist() == [True, True, True, False]
+    assert report.as_dict()["diverged"] is True
 
 
 def test_rollout_of_a_slipping_grip_fails_where_the_analytic_verdict_does():

@@ -336,7 +336,8 @@ _DOC_SPACES = """
     `physics_trajectory`, the grips of all its steps carried through its poses in one
     continuous MuJoCo rollout (`RolloutReport.as_dict()`: `holds`, `predicted_holds`,
     `pose_holds`, `pose_predicted`, `max_angle_deg`, `margin_deg`, `slip`, `drift`,
-    `rotation_deg`, `first_failure`, `predicted_first_failure`, `time`; plain Python values).
+    `rotation_deg`, `first_failure`, `predicted_first_failure`, `time`, `diverged`; plain
+    Python values).
     `MinimaxExpert.predict`
     solves the same problem from the float32 observation: its reward is up to about 1e-6 rad
     below `expert_reward`.

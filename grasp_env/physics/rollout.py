@@ -53,6 +53,9 @@ class RolloutReport:
             limit (or the forces first missed balancing the load); None if none did.
         time: simulated seconds after the settle.
         motion, trace: the run's steps and measurements (for plots and video).
+
+    ``diverged`` says whether MuJoCo stopped the run on a warning (an unstable simulation)
+    before its end; such a run fails at its last pose.
     """
 
     holds: bool
@@ -74,6 +77,10 @@ class RolloutReport:
     def agrees(self) -> bool:
         return self.holds == self.predicted_holds
 
+    @property
+    def diverged(self) -> bool:
+        return bool(self.trace.diverged)
+
     def as_dict(self) -> dict:
         """Plain Python values (the per-step motion and trace left out)."""
         return {
@@ -89,6 +96,7 @@ class RolloutReport:
             "first_failure": self.first_failure,
             "predicted_first_failure": self.predicted_first_failure,
             "time": float(self.time),
+            "diverged": self.diverged,
         }
 
 
