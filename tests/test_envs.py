@@ -608,13 +608,15 @@ def test_vector_step_split_across_cores_equals_one_call(env_id, module, monkeypa
 
 
 def test_vector_env_resets_in_chunks_the_same_episodes(monkeypatch):
-    """Random episodes are drawn for a chunk of sub-environments at a time (bounding a large
-    reset's memory): the episodes, observations and rewards are those of one chunk."""
+    """Random episodes are drawn for a chunk of sub-environments at a time, and ahead for at
+    most _AHEAD_ENVS (bounding a large reset's memory): the episodes, observations and
+    rewards are those of one chunk, whatever is drawn ahead (none, a few, all)."""
     import grasp_env.envs.vector as vector
 
     runs = []
-    for chunk in (vector._RESET_CHUNK, 3):
+    for chunk, ahead in ((vector._RESET_CHUNK, vector._AHEAD_ENVS), (3, 0), (3, 2)):
         monkeypatch.setattr(vector, "_RESET_CHUNK", chunk)
+        monkeypatch.setattr(vector, "_AHEAD_ENVS", ahead)
         venv = gym.make_vec(
             "grasp_env/CubeGraspRandom-v0", num_envs=7, vectorization_mode="vector_entry_point"
         )
@@ -624,9 +626,72 @@ def test_vector_env_resets_in_chunks_the_same_episodes(monkeypatch):
             obs, reward, terminated, truncated, _ = venv.step(venv.action_space.sample())
             steps.append((obs, reward, terminated, truncated))
         runs.append(steps)
-    for one, chunked in zip(*runs, strict=True):
-        for a, b in zip(one, chunked, strict=True):
-            np.testing.assert_array_equal(a, b)
+    for run in runs[1:]:
+        for one, chunked in zip(runs[0], run, strict=True):
+            for a, b in zip(one, chunked, strict=True):
+                np.testing.assert_array_equal(a, b)
+
+
+def test_vector_env_draws_episodes_ahead_as_single_envs_draw_them(monkeypatch):
+    """Random episodes are drawn ahead, many sub-environments' at a time: a reset finds its
+    episode drawn already, and a new seed or a scene option does what it does to a single
+    environment (a new seed drops the episode drawn ahead; a scene option leaves the
+    generator alone, so the next random episode is the one drawn ahead)."""
+    import grasp_env.envs.vector as vector
+    from grasp_env.envs import episodes
+
+    calls = []
+    sample = episodes.sample_episodes
+
+    def counted(rngs, *args):
+        calls.append(len(rngs))
+        return sample(rngs, *args)
+
+    monkeypatch.setattr(vector, "sample_episodes", counted)
+    count, scene = 6, {"weight": 3.0, "trajectory": {"alpha_start_deg": 0, "alpha_end_deg": 3}}
+    env_id = "grasp_env/CubeGraspRandom-v0"
+    venv = gym.make_vec(env_id, num_envs=count, vectorization_mode="vector_entry_point")
+    envs = [make(env_id) for _ in range(count)]
+    rng = np.random.default_rng(1)
+    mask = np.array([True, False, True, False, True, False])
+    autoreset = np.zeros(count, bool)  # NEXT_STEP: ended episodes restart at the next step
+
+    def reset(seed=None, mask=None, scene=None):
+        options = {"reset_mask": mask} if mask is not None else {}
+        options.update({"scene": scene} if scene is not None else {})
+        obs, _ = venv.reset(seed=seed, options=options or None)
+        for i, env in enumerate(envs):
+            if mask is None or mask[i]:
+                single = env.reset(
+                    seed=None if seed is None else seed + i,
+                    options=None if scene is None else {"scene": scene},
+                )[0]
+                np.testing.assert_array_equal(obs[i], single)
+                autoreset[i] = False
+
+    def steps(number):
+        for _ in range(number):
+            actions = rng.uniform(-0.3, 0.3, venv.action_space.shape).astype(np.float32)
+            obs, reward, terminated, truncated, _ = venv.step(actions)
+            for i, (o, r, *_) in enumerate(step_singles(envs, actions, autoreset)):
+                np.testing.assert_array_equal(obs[i], o)
+                assert reward[i] == r
+            autoreset[:] = terminated | truncated
+
+    reset(seed=3)
+    steps(70)  # autoresets: every sub-environment has drawn episodes ahead since
+    assert max(calls[1:]) > 1  # a reset drew other sub-environments' next episodes too
+    reset(seed=100, mask=mask)  # new seeds: the episodes drawn ahead are dropped
+    # ... and drawn again with those of the others that had none
+    assert np.all(venv.unwrapped._ahead_of[~mask] >= 0)
+    reset(mask=~mask, scene=scene)  # the generators are left alone
+    steps(40)
+    reset()  # every sub-environment's next random episode
+    steps(40)
+    for i, env in enumerate(envs):
+        np.testing.assert_array_equal(
+            venv.unwrapped.scene(i).contacts, env.unwrapped.scene.contacts
+        )
 
 
 def test_vector_env_same_step_autoreset():

@@ -43,6 +43,9 @@ MAX_STORE_ROWS = 1 << 23
 #: its own generator, so the episodes do not depend on it): it bounds the memory a reset of
 #: many sub-environments needs besides the store.
 _RESET_CHUNK = 8192
+#: Random episodes are drawn ahead for at most this many sub-environments (see
+#: ``_CubeGraspVectorEnv._draw_ahead``): it bounds the memory of the episodes held ahead.
+_AHEAD_ENVS = 8192
 # Where a sub-environment's episode lives in the store: a shared episode (its index in
 # _PoseStore.shared: the default episode, the latest scene option's, then earlier options' still
 # run by sub-environments a masked reset left alone) or its own slot.
@@ -258,6 +261,12 @@ class _CubeGraspVectorEnv(VectorEnv):
             )
         self._store = _PoseStore(self.num_envs, getattr(self.template, "_default_episode", None))
         self._rngs: list[np.random.Generator | None] = [None] * self.num_envs
+        # Random episodes drawn ahead (_draw_ahead): batches by id, and of each
+        # sub-environment the batch (-1: none) and row of its next episode.
+        self._ahead: dict[int, EpisodeBatch] = {}
+        self._ahead_id = 0
+        self._ahead_of = np.full(self.num_envs, -1, dtype=np.int64)
+        self._ahead_row = np.zeros(self.num_envs, dtype=np.int64)
         # (scene batch, index) of every sub-environment's episode; None: a shared episode
         self._scenes = np.full(self.num_envs, None, dtype=object)
         self._base = np.zeros(self.num_envs, dtype=np.int64)
@@ -298,25 +307,64 @@ class _CubeGraspVectorEnv(VectorEnv):
             self._weight[envs] = episode.weight
             self._limit[envs] = episode.limit
             self._scenes[envs] = None
-        else:  # in chunks: a chunk's episodes are built (several times their size) then stored
-            for first in range(0, len(envs), _RESET_CHUNK):
-                chunk = envs[first : first + _RESET_CHUNK]
-                batch = sample_episodes(
-                    [self._rng(e) for e in chunk],
-                    template.sampler,
-                    template.k_max_ratio,
-                    template.min_expert_margin,
-                )
-                store.write(chunk, batch)
-                self._where[chunk] = _SLOT
-                self._length[chunk] = batch.scenes.length
-                self._weight[chunk] = batch.scenes.weight
-                self._limit[chunk] = batch.poses.limit[batch.starts]
-                for j, e in enumerate(chunk):
+        else:
+            self._draw_ahead(envs)
+            for id_, members in self._ahead_groups(envs):
+                batch = self._ahead[id_].take(self._ahead_row[members])
+                store.write(members, batch)
+                self._where[members] = _SLOT
+                self._length[members] = batch.scenes.length
+                self._weight[members] = batch.scenes.weight
+                self._limit[members] = batch.poses.limit[batch.starts]
+                for j, e in enumerate(members):
                     self._scenes[e] = (batch.scenes, j)
+            self._drop_ahead(envs)
         self._base = store.bases(self._where)
         self._end[envs] = np.minimum(self._length[envs], self._cut)
         self._t[envs] = 0
+
+    def _draw_ahead(self, envs: np.ndarray) -> None:
+        """Make sure sub-environments ``envs`` have their next random episode drawn.
+
+        Those that lack one get it drawn together with the next episode of every other
+        sub-environment that lacks one (up to :data:`_AHEAD_ENVS` held ahead): resets then draw
+        and solve many episodes a call, every few steps, instead of a few every step. Each
+        generator draws its own episodes one after the other whenever it is asked, so the
+        episodes are those drawn at each reset (as by the single environments); a new seed
+        drops the one held ahead (``_reset``).
+        """
+        lacking = self._ahead_of < 0
+        if not lacking[envs].any():
+            return
+        room = max(_AHEAD_ENVS - int(np.count_nonzero(~lacking)) - int(lacking[envs].sum()), 0)
+        needed = envs[lacking[envs]]
+        lacking[needed] = False
+        draw = np.concatenate([needed, np.flatnonzero(lacking)[:room]])
+        template = self.template
+        for first in range(0, len(draw), _RESET_CHUNK):
+            chunk = draw[first : first + _RESET_CHUNK]
+            batch = sample_episodes(
+                [self._rng(e) for e in chunk],
+                template.sampler,
+                template.k_max_ratio,
+                template.min_expert_margin,
+            )
+            self._ahead_id += 1
+            self._ahead[self._ahead_id] = batch
+            self._ahead_of[chunk] = self._ahead_id
+            self._ahead_row[chunk] = np.arange(len(chunk))
+
+    def _ahead_groups(self, envs: np.ndarray) -> list[tuple[int, np.ndarray]]:
+        """Sub-environments ``envs`` by the batch their episodes ahead were drawn in."""
+        ids = self._ahead_of[envs]
+        return [(int(id_), envs[ids == id_]) for id_ in np.unique(ids)]
+
+    def _drop_ahead(self, envs: np.ndarray) -> None:
+        """Forget the episodes ahead of ``envs`` (taken, or drawn from a generator since
+        re-seeded), and the batches no sub-environment has an episode in any more."""
+        self._ahead_of[envs] = -1
+        for id_ in set(self._ahead) - set(np.unique(self._ahead_of).tolist()):
+            del self._ahead[id_]
 
     def scene(self, env: int) -> Scene:
         """Sub-environment ``env``'s current :class:`~grasp_env.mechanics.Scene`."""
@@ -376,9 +424,10 @@ class _CubeGraspVectorEnv(VectorEnv):
 
     def _reset(self, envs: np.ndarray, seeds: list[int | None], scene: SceneBatch | None) -> None:
         """New episodes for sub-environments ``envs``, seeded by their ``seeds``."""
-        for env in envs:
-            if seeds[env] is not None:
-                self._rngs[env], _ = seeding.np_random(seeds[env])
+        seeded = np.array([e for e in envs if seeds[e] is not None], dtype=np.int64)
+        for env in seeded:
+            self._rngs[env], _ = seeding.np_random(seeds[env])
+        self._drop_ahead(seeded)
         self._start(envs, scene)
         self._autoreset[envs] = False
         self._started = True
@@ -482,8 +531,8 @@ _VECTOR_DOC = """
 
     Step for step equal to single environments seeded seed, seed + 1, ...; the info is a dict
     of arrays with Gymnasium's ``_key`` masks. Episodes of the default scene share one copy of
-    the precomputed arrays; other episodes are precomputed at reset for all resetting
-    sub-environments in one batch.
+    the precomputed arrays; random episodes are drawn and precomputed ahead, many
+    sub-environments' in one batch (each from its own generator, in its own order).
 """
 
 
