@@ -10,7 +10,8 @@ environments are timed. Resets are included: the grasp environments run with
 ``terminate_on_slip=False`` so that every episode covers its whole trajectory (random grips
 slip at once, which would turn the measurement into one of resets alone), and CartPole runs
 its own random-policy episodes; the random environment's resets draw and check new scenes and
-solve the expert's certified optimum along each new trajectory. The machine is shared: every
+solve the expert's certified optimum along each new trajectory (ahead, for every
+sub-environment without a next episode at once: a draw every twenty-odd steps). The machine is shared: every
 figure is the median of ``--rounds`` rounds, each measuring CartPole and the grasp
 environments one after the other, and the ratios are taken within a round.
 
@@ -63,7 +64,9 @@ NUM_ENVS = 4096
 #: Environments whose resets are timed with and without render_mode="rgb_array", and the target.
 RESET_ENVS = ("CubeGraspRandom-v0", "CubeGraspRandomMujoco-v0")
 RESET_TARGET = 0.9
-RANDOM_STEPS = 128  # vector steps of the random env measured, at least
+#: vector steps of the random env measured for its bound, at least: about ten of its draws
+#: ahead, so that the solves counted in the window are those of its steps
+RANDOM_STEPS = 256
 #: (environment, mode) -> (target, whether it is a ratio to CartPole); None: reported only
 TARGETS: dict[tuple[str, str], tuple[float, bool] | None] = {
     ("CubeGrasp-v0", "single"): (0.8, True),
@@ -228,8 +231,9 @@ def random_vector_with_solves(seconds: float) -> tuple[float, float]:
     for i in range(64):
         envs.step(actions[i % 8])
     with SolveCounter() as counter:
-        # at least two of the longest episodes: the resets inside the window are then those
-        # of a long run (a few steps would catch a handful of resets, or none)
+        # four of the longest episodes and about ten draws ahead: the resets and draws
+        # inside the window are then those of a long run (a few steps would catch a handful
+        # of resets, or none)
         steps, start = 0, time.perf_counter()
         while steps < RANDOM_STEPS or time.perf_counter() - start < seconds:
             envs.step(actions[steps % 8])
