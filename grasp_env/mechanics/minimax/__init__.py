@@ -154,7 +154,10 @@ def _flat_bool(name: str, value: ArrayLike, batch: tuple[int, ...]) -> np.ndarra
 
 def _flat(array: np.ndarray, batch: tuple[int, ...], item: tuple[int, ...]) -> np.ndarray:
     """Broadcast to (*batch, *item) and flatten the batch, as a kernel array."""
-    return _kernel_array(np.broadcast_to(array, (*batch, *item))).reshape(-1, *item)
+    shape = (*batch, *item)
+    if array.shape != shape:  # (a broadcast view is read-only: _kernel_array copies it)
+        array = np.broadcast_to(array, shape)
+    return _kernel_array(array).reshape(-1, *item)
 
 
 def _refused(
