@@ -355,9 +355,10 @@ def sample_episodes(
             rows = (starts[:, None] + picks[candidates]).ravel()
             full = build_episodes(scenes, k_max_ratio, known, rows)
             holds = full.worst_expert_reward() >= min_margin
-            chosen.append(full.take(np.flatnonzero(holds)))
+            chosen.append(full if holds.all() else full.take(np.flatnonzero(holds)))
             owners.append(pending[slots[holds]])
             open_[slots[holds]] = False
         pending = pending[open_]
-    batch = EpisodeBatch.concatenate(chosen)
-    return batch.take(np.argsort(np.concatenate(owners)))
+    batch = chosen[0] if len(chosen) == 1 else EpisodeBatch.concatenate(chosen)
+    order = np.argsort(np.concatenate(owners))
+    return batch if np.all(order == np.arange(len(order))) else batch.take(order)
