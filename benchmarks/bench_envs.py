@@ -11,9 +11,9 @@ environments are timed. Resets are included: the grasp environments run with
 slip at once, which would turn the measurement into one of resets alone), and CartPole runs
 its own random-policy episodes; the random environment's resets draw and check new scenes and
 solve the expert's certified optimum along each new trajectory (ahead, for every
-sub-environment without a next episode at once: a draw every twenty-odd steps). The machine is shared: every
-figure is the median of ``--rounds`` rounds, each measuring CartPole and the grasp
-environments one after the other, and the ratios are taken within a round.
+sub-environment without a next episode at once: a draw every twenty-odd steps). The machine
+is shared: every figure is the median of ``--rounds`` rounds, each measuring CartPole and the
+grasp environments one after the other, and the ratios are taken within a round.
 
 Targets (issue 19): ``CubeGrasp-v0`` single >= 0.8x CartPole-v1, vector >= 0.6x CartPole's
 vector env; ``CubeGraspRandom-v0`` vector >= 500,000 env-steps/s. The other environments are
