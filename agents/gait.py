@@ -41,6 +41,10 @@ from .cli import folder_argument, path_argument
 from .progress import console, status
 from .scene_args import floats, friction, weight
 
+#: The default hand's finger pairs and moves (1 + fingers x sites): the gait environments'
+#: action spaces.
+GAIT_PAIRS = Hand().n_fingers * (Hand().n_fingers - 1) // 2
+GAIT_MOVES = 1 + Hand().n_fingers * len(SITE_FACES)
 HELP = "when to phase fingers out and in: the certified optimal gait along a long rotation"
 
 
@@ -95,8 +99,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--models", nargs="+", type=path_argument, default=[], metavar="MODEL",
         help="trained agents (SB3 model files, e.g. rl-zoo3's)"
-        " to play on grasp_env/CubeGait-v0 beside the optimal and the greedy gait (the"
-        " default hand, sites and weight; --axis, --alpha-*, --mu, --cone, --k-max apply)",
+        " to play on grasp_env/CubeGait-v0 (CubeGaitMoves-v0 for those that choose only the"
+        " moves) beside the optimal and the greedy gait (the default hand, sites and weight;"
+        " --axis, --alpha-*, --mu, --cone, --k-max apply)",
     )  # fmt: skip
 
 
@@ -257,12 +262,22 @@ class Episode:
 
 def check_observes(policy: Any, space: Any, name: str = "the model") -> None:
     """ValueError unless ``policy`` (a trained agent; the gaits observe anything) observes
-    ``space``, ``grasp_env/CubeGait-v0``'s observation space."""
-    observes = getattr(getattr(policy, "model", None), "observation_space", space)
-    if observes.shape != space.shape:
+    ``space``, ``grasp_env/CubeGait-v0``'s observation space, and acts in the action space of
+    ``grasp_env/CubeGait-v0`` or of ``grasp_env/CubeGaitMoves-v0``."""
+    from gymnasium import spaces
+
+    model = getattr(policy, "model", None)
+    observes = getattr(model, "observation_space", space)
+    acts = getattr(model, "action_space", None)
+    gait_actions = acts is None or (
+        acts == spaces.Discrete(GAIT_MOVES)
+        or (isinstance(acts, spaces.Box) and acts.shape == (GAIT_PAIRS + GAIT_MOVES,))
+    )
+    if observes.shape != space.shape or not gait_actions:
         raise ValueError(
-            f"{name} observes {observes.shape}, grasp_env/CubeGait-v0 {space.shape}: not a gait"
-            " agent"
+            f"{name} observes {observes.shape} and acts in {acts}; grasp_env/CubeGait-v0"
+            f" observes {space.shape} and acts in Box(-1, 1, ({GAIT_PAIRS + GAIT_MOVES},)),"
+            f" grasp_env/CubeGaitMoves-v0 in Discrete({GAIT_MOVES}): not a gait agent"
         )
 
 
@@ -288,11 +303,15 @@ def load_models(args: argparse.Namespace) -> list[tuple[str, Any]]:
 
 
 def play(policy: Any, kwargs: dict[str, Any]) -> Episode:
-    """Plays ``policy.predict`` (deterministic) on ``grasp_env/CubeGait-v0`` with ``kwargs``;
-    the episode stops at the first slip or drop (the environment's default)."""
+    """Plays ``policy.predict`` (deterministic) on ``grasp_env/CubeGait-v0`` with ``kwargs``
+    (``grasp_env/CubeGaitMoves-v0`` for an agent that chooses only the moves: a discrete
+    action); the episode stops at the first slip or drop (the environment's default)."""
     import gymnasium as gym
+    from gymnasium import spaces
 
-    env = gym.make("grasp_env/CubeGait-v0", **kwargs)
+    acts = getattr(getattr(policy, "model", None), "action_space", None)
+    moves = isinstance(acts, spaces.Discrete)
+    env = gym.make(f"grasp_env/CubeGait{'Moves' if moves else ''}-v0", **kwargs)
     try:
         check_observes(policy, env.observation_space)
     except ValueError:

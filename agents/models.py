@@ -70,6 +70,7 @@ ALLOWED: dict[str, set[str]] = {
     "numpy.random._mt19937": {"MT19937"},
     "numpy.random.bit_generator": {"SeedSequence", "__pyx_unpickle_SeedSequence"},
     "gymnasium.spaces.box": {"Box"},
+    "gymnasium.spaces.discrete": {"Discrete"},  # the moves of grasp_env/CubeGaitMoves-v0
     "torch": {"device"},  # a replay buffer's (torch.device("cpu") is all unpickling calls)
     "torch.nn.modules.activation": {"Tanh", "ReLU", "SiLU"},  # config: policy.activation
     "stable_baselines3.common.policies": {"ActorCriticPolicy"},
@@ -212,9 +213,14 @@ def _check_needed(path: Path, entries: dict[str, Any]) -> None:
         raise ValueError(f"{path}: its policy_class is {policy!r}, not an SB3 policy class")
     if not isinstance(entries["policy_kwargs"], dict):
         raise ValueError(f"{path}: its policy_kwargs are not a mapping")
-    for key in ("observation_space", "action_space"):
-        if not isinstance(entries[key], gym.spaces.Box):
-            raise ValueError(f"{path}: its {key} is {entries[key]!r}, not a Box space")
+    if not isinstance(entries["observation_space"], gym.spaces.Box):
+        raise ValueError(
+            f"{path}: its observation_space is {entries['observation_space']!r}, not a Box space"
+        )
+    if not isinstance(entries["action_space"], gym.spaces.Box | gym.spaces.Discrete):
+        raise ValueError(
+            f"{path}: its action_space is {entries['action_space']!r}, not a Box or Discrete space"
+        )
 
 
 def written_by(policy: type[BasePolicy]) -> str | None:

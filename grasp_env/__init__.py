@@ -50,6 +50,8 @@ _ENVS = {
     ),
     # issue 16: a hand with reach phases fingers out and in along a long rotation
     "CubeGait-v0": ("gait:CubeGaitEnv", "gait:CubeGaitVectorEnv", {}),
+    # the same with the certified grip: the agent chooses only the moves (when to phase out)
+    "CubeGaitMoves-v0": ("gait:CubeGaitEnv", "gait:CubeGaitVectorEnv", {"optimal_grip": True}),
 }
 ENV_IDS = tuple(f"grasp_env/{name}" for name in _ENVS)
 _REGISTRATION = "gymnasium.envs.registration"

@@ -66,7 +66,8 @@ def assert_same(a, b):
 
 
 def test_registration():
-    assert set(FAST_IDS) | set(MUJOCO_IDS) | {"grasp_env/CubeGait-v0"} == set(grasp_env.ENV_IDS)
+    gaits = {"grasp_env/CubeGait-v0", "grasp_env/CubeGaitMoves-v0"}
+    assert set(FAST_IDS) | set(MUJOCO_IDS) | gaits == set(grasp_env.ENV_IDS)
     for env_id in grasp_env.ENV_IDS:
         assert env_id in gym.registry
     # Code that only takes an id string can import the package through the id.

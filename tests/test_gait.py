@@ -568,6 +568,11 @@ def test_gait_command_plays_models_beside_the_gaits(tmp_path, capsys, monkeypatc
     files = [tmp_path / f"seed{s}" / "ppo" / "CubeGait_1" / "agent.zip" for s in (0, 1)]
     for file in files:
         model.save(file)
+    # an agent of the moves-only environment is played there
+    moves_model = PPO("MlpPolicy", gym.make(MOVES_ID), n_steps=64, batch_size=64, seed=0)
+    moves_model.learn(64)
+    files.append(tmp_path / "moves.zip")
+    moves_model.save(files[-1])
     argv = ["--alpha-step", "10", "--no-plots", "--out", str(tmp_path / "gait")]
     parser = argparse.ArgumentParser()
     command.add_arguments(parser)
@@ -581,6 +586,8 @@ def test_gait_command_plays_models_beside_the_gaits(tmp_path, capsys, monkeypatc
     assert greedy.held == (dropped[0] if len(dropped) else 19)
     labels = [f"seed{s}/ppo/CubeGait_1/agent.zip" for s in (0, 1)]
     assert all(0 <= rows[label].held <= 19 for label in labels)
+    (moves,) = [episode for label, episode in rows.items() if label.endswith("/moves.zip")]
+    assert 0 <= moves.held <= 19
     printed = capsys.readouterr().out
     assert "IQM" in printed  # two agents: the aggregate row
     assert all(label in printed for label in labels)  # whole, on a wide terminal
@@ -598,6 +605,7 @@ def test_gait_command_plays_models_beside_the_gaits(tmp_path, capsys, monkeypatc
 # ------------------------------------------------------------------------ the environment
 
 GAIT_ID = "grasp_env/CubeGait-v0"
+MOVES_ID = "grasp_env/CubeGaitMoves-v0"
 
 
 def make_gait(**kwargs):
@@ -621,16 +629,99 @@ def play(env, policy, steps=None):
     return np.array(rewards), infos, terminated
 
 
-def test_gait_env_check_env():
+@pytest.mark.parametrize("env_id", [GAIT_ID, MOVES_ID])
+def test_gait_env_check_env(env_id):
     import warnings
 
+    import gymnasium as gym
     from gymnasium.utils.env_checker import check_env
 
-    env = make_gait()
+    env = gym.make(env_id)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         check_env(env.unwrapped, skip_render_check=True)
-    assert GAIT_ID in __import__("grasp_env").ENV_IDS
+    assert env_id in __import__("grasp_env").ENV_IDS
+
+
+def test_moves_env_grips_with_the_certified_optimum():
+    """CubeGaitMoves-v0: the agent chooses the move, the environment grips with the certified
+    minimax of the fingers that then carry load. Each step earns that set's certified margin
+    (the solver's, to float32 rounding of the grip), a refused move keeps the contacts with
+    their grip, and the expert's moves replay CubeGait-v0's expert episode exactly."""
+    import gymnasium as gym
+
+    from grasp_env.envs.gait import GaitExpert
+
+    env = gym.make(MOVES_ID, terminate_on_slip=False)
+    task = env.unwrapped.task
+    values = task.solution.values
+    assert env.action_space == gym.spaces.Discrete(task.n_moves)
+    rng = np.random.default_rng(0)
+    env.reset(seed=0)
+    scored = refused = 0
+    for t in range(len(PAPER_TURN)):
+        # mostly keep, sometimes any move: long episodes that still change their contacts
+        move = int(rng.integers(task.n_moves)) if rng.random() < 0.3 else 0
+        _, reward, terminated, truncated, info = env.step(move)
+        refused += info["refused"]
+        if not info["lost"].any():
+            loaded = tuple(sorted(int(s) for s in info["contacts"][info["loaded"]]))
+            margin = values.margin[t, values.sets.index(loaded)]
+            assert abs(reward - margin) < 1e-6, (t, move, reward, margin)
+            scored += 1
+        if terminated or truncated:
+            break
+    assert scored >= 20 and refused >= 1
+    # the expert's moves on the moves env: the expert's episode of the full env
+    expert, full = GaitExpert(), make_gait()
+    env = gym.make(MOVES_ID)
+    (obs, _), _ = env.reset(seed=0), full.reset(seed=0)
+    done = False
+    while not done:
+        action = expert.predict(obs)[0]
+        got = env.step(int(np.argmax(action[task.n_pairs :])))
+        want = full.step(action)
+        np.testing.assert_array_equal(got[0], want[0])
+        assert got[1:4] == want[1:4]
+        for key, value in want[4].items():
+            np.testing.assert_array_equal(got[4][key], value)
+        obs, done = got[0], got[2] or got[3]
+    assert want[3] and not want[2]  # held to the end
+
+
+def test_moves_env_vector_equals_single_envs_and_refuses_bad_moves():
+    import gymnasium as gym
+
+    num = 3
+    envs = gym.make_vec(MOVES_ID, num_envs=num, vectorization_mode="vector_entry_point")
+    singles = [gym.make(MOVES_ID) for _ in range(num)]
+    obs, _ = envs.reset(seed=0)
+    single_obs = [s.reset(seed=0)[0] for s in singles]
+    rng = np.random.default_rng(1)
+    restart = np.zeros(num, bool)
+    ended = 0
+    for _ in range(150):
+        np.testing.assert_array_equal(obs, np.stack(single_obs))
+        moves = np.where(rng.random(num) < 0.2, rng.integers(0, 31, num), 0)
+        obs, reward, terminated, truncated, info = envs.step(moves)
+        for i, single in enumerate(singles):
+            if restart[i]:  # NEXT_STEP: this step resets it
+                single_obs[i] = single.reset()[0]
+                continue
+            o, r, te, tr, inf = single.step(moves[i])
+            assert (r, te, tr) == (reward[i], terminated[i], truncated[i])
+            np.testing.assert_array_equal(inf["k"], info["k"][i])
+            single_obs[i] = o
+        restart = terminated | truncated
+        ended += restart.sum()
+    assert ended >= num  # autoresets were compared too
+    for bad in (31, -1, 2.0, True, np.array([1, 2]), "3"):
+        with pytest.raises(ValueError, match=r"move"):
+            singles[0].reset()
+            singles[0].step(bad)
+    for bad in (np.array([0, 1]), np.array([0.0, 1.0, 2.0]), np.array([0, 1, 31])):
+        with pytest.raises(ValueError, match=r"move"):
+            envs.step(bad)
 
 
 def test_gait_expert_earns_the_certified_margin():

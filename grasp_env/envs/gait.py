@@ -484,6 +484,44 @@ def _buffers(task: GaitTask, B: int) -> tuple[np.ndarray, ...]:
 _INFO = ("refused", "lost", "move", "theta", "loaded", "k", "contact_forces", "slip", "contacts")
 
 
+# ----------------------------------------------------------- the certified grip of a move
+
+
+def optimal_actions(
+    task: GaitTask, xs: np.ndarray, ts: np.ndarray, moves: np.ndarray
+) -> np.ndarray:
+    """The full actions (B, P + M) float32 that make ``moves`` (B,) from states ``xs`` at poses
+    ``ts`` with the certified minimax grip of the fingers that then carry load: the move's
+    score 1 (the others -1) and k / k_max of the loaded set's optimum (eq. 2, 4). A move the
+    rules refuse gets the grip of keeping the contacts, which is what the step then does."""
+    table = task.table
+    k = task.csr[xs, moves]
+    finger, site = np.divmod(np.maximum(moves - 1, 0), task.n_sites)
+    placing = (k >= 0) & (moves > 0) & (table.states[xs, finger] < 0)
+    k[placing & ~task.solution.reach[ts, finger, site]] = -1  # a placement out of reach
+    k = np.where(k < 0, table.ptr[xs], k)
+    actions = np.full((len(xs), task.n_pairs + task.n_moves), -1.0, np.float32)
+    actions[np.arange(len(xs)), task.n_pairs + moves] = 1.0
+    actions[:, : task.n_pairs] = 0.0
+    for members in task.solution.values.groups:
+        rows = np.flatnonzero(task.group[k] == members.sites.shape[1] - 3)
+        grip = members.optimum.k[ts[rows], task.column[k[rows]]] / (task.k_max_ratio * task.weight)
+        m = grip.shape[1]
+        actions[rows[:, None], task.pair_columns[k[rows], :m]] = np.clip(grip, -1, 1)
+    return actions
+
+
+def check_moves(moves: Any, shape: tuple[int, ...], count: int) -> np.ndarray:
+    """``moves`` as an int64 array of ``shape`` (() for one), or a ValueError saying what a move
+    is: an integer in [0, ``count``) (numpy integers too; booleans and floats refused)."""
+    array = np.asarray(moves)
+    if array.dtype.kind not in "iu" or array.shape != shape:
+        raise ValueError(f"a move is an integer in [0, {count - 1}] (shape {shape}), got {moves!r}")
+    if np.any(array < 0) or np.any(array >= count):
+        raise ValueError(f"moves must be in [0, {count - 1}], got {moves!r}")
+    return array.astype(np.int64)
+
+
 # ------------------------------------------------------------------------- the policies
 
 
@@ -534,17 +572,7 @@ class _GaitPolicy:
         x = task.table.code[code]
         if np.any(x < 0):
             raise ValueError("the observation's contacts are no state of the hand")
-        k = self._policy()[t, x]
-        actions = np.full((len(batch), task.n_pairs + task.n_moves), -1.0, np.float32)
-        actions[np.arange(len(batch)), task.n_pairs + task.table.move[k]] = 1.0
-        actions[:, : task.n_pairs] = 0.0
-        for members in task.solution.values.groups:
-            rows = np.flatnonzero(task.group[k] == members.sites.shape[1] - 3)
-            grip = members.optimum.k[t[rows], task.column[k[rows]]] / (
-                task.k_max_ratio * task.weight
-            )
-            m = grip.shape[1]
-            actions[rows[:, None], task.pair_columns[k[rows], :m]] = np.clip(grip, -1, 1)
+        actions = optimal_actions(task, x, t, task.table.move[self._policy()[t, x]])
         return (actions[0] if obs.ndim == 1 else actions), None
 
 
@@ -631,6 +659,11 @@ class CubeGaitEnv(gym.Env[np.ndarray, np.ndarray]):
       Fingers are 0-3 (finger1-finger4) and 4 (the thumb); sites 0-5 on the faces
       -x, -y, -z, +x, +y, +z.
 
+    With `optimal_grip=True` (the id `grasp_env/CubeGaitMoves-v0`) the action is the move
+    alone, `Discrete(M)`, and the environment grips with the certified minimax optimum of the
+    fingers that carry load after the move (a refused move: of those that carry it now), as
+    the optimal and the greedy gait do: what is learnt is when to phase a finger out or in.
+
     ## Observation Space
     `Box(low, high, (110,), float32)`, world frame, forces in units of w, lengths of L:
 
@@ -686,7 +719,7 @@ class CubeGaitEnv(gym.Env[np.ndarray, np.ndarray]):
     ## Arguments
     ```python
     gym.make("grasp_env/CubeGait-v0", trajectory=None, mu=0.5, cone_deg=60.0,
-             k_max_ratio=2.0, terminate_on_slip=True, start=None)
+             k_max_ratio=2.0, terminate_on_slip=True, start=None, optimal_grip=False)
     ```
     - `trajectory`: a mapping with the keys `axis`, `alpha_start_deg`, `alpha_end_deg`,
       `alpha_step_deg` (missing keys: the paper's axis over [-90, 90] deg by 1 deg); e.g.
@@ -696,6 +729,8 @@ class CubeGaitEnv(gym.Env[np.ndarray, np.ndarray]):
     - `k_max_ratio`: k_max / w. `terminate_on_slip`: see Episode End.
     - `start`: the first state, an assignment of a site (0-5, or -1 for none) to each of the
       five fingers, 3 or 4 touching; default the optimal gait's.
+    - `optimal_grip`: the action is the move only, the grip the certified optimum (see
+      Action Space); `grasp_env/CubeGaitMoves-v0` sets it.
     The configuration is solved when the first environment with it is made (about 3 s: the
     certified minimax of 35 site sets at 181 poses and the dynamic programme), then shared.
 
@@ -713,6 +748,7 @@ class CubeGaitEnv(gym.Env[np.ndarray, np.ndarray]):
         k_max_ratio: float = DEFAULT_K_MAX_RATIO,
         terminate_on_slip: bool = True,
         start: Sequence[int] | None = None,
+        optimal_grip: bool = False,
         render_mode: str | None = None,
     ) -> None:
         if render_mode is not None:  # a TypeError: SB3's make_vec_env then makes it without
@@ -720,10 +756,15 @@ class CubeGaitEnv(gym.Env[np.ndarray, np.ndarray]):
         self.render_mode = None
         self.task = _task(trajectory, mu, cone_deg, k_max_ratio, start)
         self.terminate_on_slip = check_bool("terminate_on_slip", terminate_on_slip)
+        self.optimal_grip = check_bool("optimal_grip", optimal_grip)
         task = self.task
         P, M = task.n_pairs, task.n_moves
         F, N = task.n_fingers, task.n_sites
-        self.action_space = spaces.Box(-1.0, 1.0, (P + M,), dtype=np.float32)
+        self.action_space: spaces.Space = (
+            spaces.Discrete(M)
+            if self.optimal_grip
+            else spaces.Box(-1.0, 1.0, (P + M,), dtype=np.float32)
+        )
         low = np.concatenate(
             [-np.ones(6), np.full(3 * N, -_SQRT3), -np.ones(3 * N), [-2.0, -2.0, -2.0],
              -np.ones(3), [0.0, 0.0], np.zeros(2 * F * N)]
@@ -760,9 +801,13 @@ class CubeGaitEnv(gym.Env[np.ndarray, np.ndarray]):
         if self._done:
             raise RuntimeError("the episode has ended (or not started): call reset()")
         task = self.task
-        a = action_array(action, self.action_space.shape)
         t = self._t
         self._xs[0], self._ts[0] = self._x, t
+        if self.optimal_grip:
+            moves = check_moves(action, (), task.n_moves)[None]
+            a = optimal_actions(task, self._xs, self._ts, moves)[0]
+        else:
+            a = action_array(action, self.action_space.shape)
         floats, ints, flags, obs = _buffers(task, 1)
         if not _step_kernel(
             self._xs, self._ts, a.reshape(1, -1), *task.kernel_arrays, self.terminate_on_slip,
@@ -905,14 +950,22 @@ class CubeGaitVectorEnv(VectorEnv):
             raise RuntimeError("call reset() before step()")
         refuse_ended(self.autoreset_mode, self._autoreset)
         task = self.task
-        a = action_array(actions, self.action_space.shape)
+        if self.template.optimal_grip:
+            moves = check_moves(actions, (self.num_envs,), task.n_moves)
+        else:
+            a = action_array(actions, self.action_space.shape)
         restarting = np.flatnonzero(self._autoreset)
         xs, t = self._x.copy(), self._t.copy()
         if restarting.size:  # NEXT_STEP: these reset and ignore their action (stepped from the
-            xs[restarting] = task.start  # start with a zero action, and undone below)
+            xs[restarting] = task.start  # start with a zero action or keeping, undone below)
             t[restarting] = 0
-            a = a.copy()
-            a[restarting] = 0.0
+            if self.template.optimal_grip:
+                moves[restarting] = 0
+            else:
+                a = a.copy()
+                a[restarting] = 0.0
+        if self.template.optimal_grip:
+            a = optimal_actions(task, xs, t, moves)
         out = _step(task, xs, t, a, self.terminate_on_slip)  # ValueError before any change
         dropped, reward, observations = out["dropped"], out["reward"], out["obs"]
         terminated = out["terminated"]
