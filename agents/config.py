@@ -35,9 +35,9 @@ from pydantic import (
 from grasp_env import ENV_IDS
 from grasp_env.envs.validation import DEFAULT_K_MAX_RATIO
 
-#: The finger-gait environment: sequential, scored by its own programme, not the held-out grasp
-#: scenes this module's runs are evaluated on.
-GAIT_ID = "grasp_env/CubeGait-v0"
+#: The finger-gait environments: sequential, scored by their own programme, not the held-out
+#: grasp scenes this module's runs are evaluated on.
+GAIT_IDS = ("grasp_env/CubeGait-v0", "grasp_env/CubeGaitMoves-v0")
 #: The configs shipped with the package (``configs/`` in the repository), by name.
 CONFIG_DIR = Path(str(resources.files("grasp_env_agents.configs")))
 #: rl-zoo3's hyperparameter file for grasp_env's environments (``-conf`` of ``rl_zoo3.train``).
@@ -311,9 +311,9 @@ class TrainConfig(_Section):
             raise ValueError(
                 f"env_id: {self.env_id!r} is not a grasp_env environment; one of {list(ENV_IDS)}"
             )
-        if self.env_id == GAIT_ID:  # its evaluation is the gait's own (grasp-env gait --models)
+        if self.env_id in GAIT_IDS:  # their evaluation is the gait's (grasp-env gait --models)
             raise ValueError(
-                f"env_id: {GAIT_ID} trains with rl-zoo3 (docs/gait.md) and is evaluated by"
+                f"env_id: {self.env_id} trains with rl-zoo3 (docs/gait.md) and is evaluated by"
                 " grasp-env gait --models; grasp-env train trains the grasp environments"
             )
         if self.total_timesteps == 0 and self.imitation is None:

@@ -673,13 +673,15 @@ def test_moves_env_grips_with_the_certified_optimum():
             break
     assert scored >= 20 and refused >= 1
     # the expert's moves on the moves env: the expert's episode of the full env
-    expert, full = GaitExpert(), make_gait()
+    expert, moves, full = GaitExpert(), GaitExpert(optimal_grip=True), make_gait()
     env = gym.make(MOVES_ID)
     (obs, _), _ = env.reset(seed=0), full.reset(seed=0)
     done = False
     while not done:
         action = expert.predict(obs)[0]
-        got = env.step(int(np.argmax(action[task.n_pairs :])))
+        move = moves.predict(obs)[0]
+        assert move == np.argmax(action[task.n_pairs :]) and env.action_space.contains(move)
+        got = env.step(move)
         want = full.step(action)
         np.testing.assert_array_equal(got[0], want[0])
         assert got[1:4] == want[1:4]
@@ -970,8 +972,9 @@ def test_gait_env_through_the_sb3_adapter_and_not_grasp_env_train():
     venv.seed(0)
     np.testing.assert_array_equal(venv.reset()[0], make_gait().reset(seed=0)[0])
     PPO("MlpPolicy", venv, n_steps=16, batch_size=64, n_epochs=1, seed=0).learn(64)
-    with pytest.raises(ValueError, match="trains with rl-zoo3"):
-        config_from_dict({"env_id": GAIT_ID, "total_timesteps": 64})
+    for env_id in (GAIT_ID, MOVES_ID):
+        with pytest.raises(ValueError, match="trains with rl-zoo3"):
+            config_from_dict({"env_id": env_id, "total_timesteps": 64})
 
 
 def test_gait_expert_refuses_observations_outside_the_space():

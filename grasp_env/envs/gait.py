@@ -535,8 +535,10 @@ class _GaitPolicy:
         cone_deg: float = 60.0,
         k_max_ratio: float = DEFAULT_K_MAX_RATIO,
         start: Sequence[int] | None = None,
+        optimal_grip: bool = False,
     ) -> None:
         self.task = _task(trajectory, mu, cone_deg, k_max_ratio, start)
+        self.optimal_grip = check_bool("optimal_grip", optimal_grip)
 
     def _policy(self) -> np.ndarray:
         raise NotImplementedError
@@ -549,7 +551,8 @@ class _GaitPolicy:
         deterministic: bool = True,
     ) -> tuple[np.ndarray, None]:
         """Actions for one observation (size,) or a batch (B, size): returns (actions, None)
-        (the signature of a Stable-Baselines3 model's ``predict``)."""
+        (the signature of a Stable-Baselines3 model's ``predict``); with ``optimal_grip``
+        the moves alone (int64), the actions of ``grasp_env/CubeGaitMoves-v0``."""
         task = self.task
         obs = np.asarray(observation, dtype=np.float64)
         size = task.pose_size() + 2 * task.n_fingers * task.n_sites
@@ -572,7 +575,8 @@ class _GaitPolicy:
         x = task.table.code[code]
         if np.any(x < 0):
             raise ValueError("the observation's contacts are no state of the hand")
-        actions = optimal_actions(task, x, t, task.table.move[self._policy()[t, x]])
+        moves = task.table.move[self._policy()[t, x]]
+        actions = moves if self.optimal_grip else optimal_actions(task, x, t, moves)
         return (actions[0] if obs.ndim == 1 else actions), None
 
 
@@ -581,8 +585,9 @@ class GaitExpert(_GaitPolicy):
     hand's contacts, the dynamic programme's move (optimal from any state, not only along
     its own gait) and the certified minimax grip of the fingers that then carry load.
 
-    Args: the gait environment's ``trajectory``, ``mu``, ``cone_deg``, ``k_max_ratio`` and
-    ``start`` (the same configuration shares the environment's tables).
+    Args: the gait environment's ``trajectory``, ``mu``, ``cone_deg``, ``k_max_ratio``,
+    ``start`` (the same configuration shares the environment's tables) and ``optimal_grip``
+    (True: it acts with the moves alone, in ``grasp_env/CubeGaitMoves-v0``).
     """
 
     def _policy(self) -> np.ndarray:
