@@ -360,7 +360,10 @@ def compare_models(
     rows = [("optimal gait (certified)", play(GaitExpert(**kwargs), kwargs))]
     rows.append(("greedy gait", play(GreedyGait(**kwargs), kwargs)))
     agents = [(label, play(agent, kwargs)) for label, agent in loaded]
-    table = Table(title="On grasp_env/CubeGait-v0 (deterministic, to the first slip or drop)")
+    table = Table(
+        title="On grasp_env/CubeGait-v0, agents of moves alone on CubeGaitMoves-v0"
+        " (deterministic, to the first slip or drop)"
+    )
     for name in ("policy", "poses held", "ended at alpha (deg)", "worst margin held (deg)"):
         left = name == "policy"
         table.add_column(
