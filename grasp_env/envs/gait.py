@@ -84,6 +84,9 @@ class GaitTask:
         grasps: per group, (T * S_n, n, 3) equilibrating forces F / w, (T * S_n, m, 3) unit
             pair directions u_ij, (T * S_n, n, 3) normals (row t * S_n + column) and the
             pairs (m, 2).
+        grips: per group, (T * S_n, m) float32 the certified minimax grip k* / k_max of every
+            set at every pose (row t * S_n + column), clipped to the action box: the grip
+            part of the actions of ``optimal_grip`` (:func:`optimal_actions`).
         observations: (T + 1, 14 + 6 N) the pose part of the observation, row T after the end.
         reach_obs: (T + 1, F N) float32 reach flags.
         contact_obs: (X, F N) float32 one-hot contacts of every state.
@@ -98,6 +101,7 @@ class GaitTask:
     column: np.ndarray
     moves_table: np.ndarray
     grasps: tuple[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray], ...]
+    grips: tuple[np.ndarray, np.ndarray]
     observations: np.ndarray
     reach_obs: np.ndarray
     contact_obs: np.ndarray
@@ -243,13 +247,16 @@ def gait_task(
         for q, (i, j) in enumerate(combinations(range(len(fingers)), 2)):
             pair_columns[k, q] = finger_pairs[tuple(sorted((fingers[i], fingers[j])))]
         group[k], column[k] = lookup[int(table.loaded[k])]
-    grasps = []
+    grasps, grips = [], []
     for n in (3, 4):
         p = contact_pairs(n)
         found = [m for m in solution.values.groups if m.sites.shape[1] == n]
         if not found:  # no usable set of this size: a placeholder no move refers to
             grasps.append((np.zeros((0, n, 3)), np.zeros((0, len(p), 3)), np.zeros((0, n, 3)), p))
+            grips.append(np.zeros((0, len(p)), np.float32))
             continue
+        k_star = found[0].optimum.k / (k_max_ratio * scene.weight)
+        grips.append(np.clip(k_star, -1, 1).reshape(-1, len(p)).astype(np.float32))
         g = found[0].grasp
         T, S = g.equilibrating.shape[:2]
         u = g.basis[:, :, np.arange(len(p)), p[:, 0], :]  # +u_ij at contact i
@@ -275,13 +282,14 @@ def gait_task(
         column,
         np.column_stack([table.move, table.next, group, column, pair_columns, set_fingers]),
         tuple(grasps),
+        (grips[0], grips[1]),
         _pose_observations(solution),
         np.vstack([reach, reach[-1:]]),
         contact_obs.reshape(X, F * N),
         k_max_ratio,
         solution.trajectory.alphas_deg,
     )
-    for array in (csr, pair_columns, set_fingers, group, column, task.moves_table):
+    for array in (csr, pair_columns, set_fingers, group, column, task.moves_table, *grips):
         array.flags.writeable = False
     return task
 
@@ -494,21 +502,37 @@ def optimal_actions(
     ``ts`` with the certified minimax grip of the fingers that then carry load: the move's
     score 1 (the others -1) and k / k_max of the loaded set's optimum (eq. 2, 4). A move the
     rules refuse gets the grip of keeping the contacts, which is what the step then does."""
+    actions = np.empty((len(xs), task.n_pairs + task.n_moves), np.float32)
     table = task.table
-    k = task.csr[xs, moves]
-    finger, site = np.divmod(np.maximum(moves - 1, 0), task.n_sites)
-    placing = (k >= 0) & (moves > 0) & (table.states[xs, finger] < 0)
-    k[placing & ~task.solution.reach[ts, finger, site]] = -1  # a placement out of reach
-    k = np.where(k < 0, table.ptr[xs], k)
-    actions = np.full((len(xs), task.n_pairs + task.n_moves), -1.0, np.float32)
-    actions[np.arange(len(xs)), task.n_pairs + moves] = 1.0
-    actions[:, : task.n_pairs] = 0.0
-    for members in task.solution.values.groups:
-        rows = np.flatnonzero(task.group[k] == members.sites.shape[1] - 3)
-        grip = members.optimum.k[ts[rows], task.column[k[rows]]] / (task.k_max_ratio * task.weight)
-        m = grip.shape[1]
-        actions[rows[:, None], task.pair_columns[k[rows], :m]] = np.clip(grip, -1, 1)
+    _optimal_actions(
+        np.asarray(xs, np.int64), np.asarray(ts, np.int64), np.asarray(moves, np.int64),
+        task.csr, table.states, table.ptr, task.solution.reach, task.moves_table, *task.grips,
+        actions,
+    )  # fmt: skip
     return actions
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _optimal_actions(xs, ts, moves, csr, states, ptr, reach, moves_table, grips3, grips4, out):
+    """:func:`optimal_actions` into ``out``; the refusals are :func:`_step_kernel`'s."""
+    T, N = reach.shape[0], reach.shape[2]
+    P = out.shape[1] - csr.shape[1]
+    for b in range(xs.shape[0]):
+        x, t, m = xs[b], ts[b], moves[b]
+        k = csr[x, m]
+        if k >= 0 and m > 0:
+            f = (m - 1) // N
+            if states[x, f] < 0 and not reach[t, f, (m - 1) % N]:
+                k = -1  # a placement out of reach
+        if k < 0:
+            k = ptr[x]  # keep
+        out[b, :P] = 0.0
+        out[b, P:] = -1.0
+        out[b, P + m] = 1.0
+        grips = grips3 if moves_table[k, 2] == 0 else grips4
+        row = t * (grips.shape[0] // T) + moves_table[k, 3]
+        for q in range(grips.shape[1]):
+            out[b, moves_table[k, 4 + q]] = grips[row, q]
 
 
 def check_moves(moves: Any, shape: tuple[int, ...], count: int) -> np.ndarray:
