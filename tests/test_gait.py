@@ -968,10 +968,11 @@ def test_gait_env_through_the_sb3_adapter_and_not_grasp_env_train():
     from grasp_env.envs.sb3 import SB3VecEnv
     from grasp_env_agents.config import config_from_dict
 
-    venv = SB3VecEnv(GAIT_ID, num_envs=4)
-    venv.seed(0)
-    np.testing.assert_array_equal(venv.reset()[0], make_gait().reset(seed=0)[0])
-    PPO("MlpPolicy", venv, n_steps=16, batch_size=64, n_epochs=1, seed=0).learn(64)
+    for env_id in (GAIT_ID, MOVES_ID):  # a Box action and a Discrete one
+        venv = SB3VecEnv(env_id, num_envs=4)
+        venv.seed(0)
+        np.testing.assert_array_equal(venv.reset()[0], make_gait().reset(seed=0)[0])
+        PPO("MlpPolicy", venv, n_steps=16, batch_size=64, n_epochs=1, seed=0).learn(64)
     for env_id in (GAIT_ID, MOVES_ID):
         with pytest.raises(ValueError, match="trains with rl-zoo3"):
             config_from_dict({"env_id": env_id, "total_timesteps": 64})
