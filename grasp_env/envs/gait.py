@@ -298,6 +298,19 @@ def gait_task(
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
+def _allowed(x, t, m, csr, states, reach):
+    """The CSR index of move ``m`` from state ``x`` at pose ``t``, or -1 if the rules refuse
+    it (``csr`` says which moves keep the counts and sites; a placement needs reach)."""
+    k = csr[x, m]
+    if k >= 0 and m > 0:
+        N = reach.shape[2]
+        f = (m - 1) // N
+        if states[x, f] < 0 and not reach[t, f, (m - 1) % N]:
+            return -1  # a placement out of reach
+    return k
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _score_grips(
     size, forces_w, directions, normals, pairs, chosen, ts, actions, moves_table, k_max_ratio,
     weight, limit, T, F, P, floats, flags,
@@ -397,12 +410,7 @@ def _step_kernel(
         for j in range(1, actions.shape[1] - P):
             if actions[b, P + j] > actions[b, P + m]:
                 m = j
-        k = csr[x, m]
-        if k >= 0 and m > 0:
-            f = (m - 1) // N
-            s = (m - 1) % N
-            if states[x, f] < 0 and not reach[t, f, s]:
-                k = -1  # a placement out of reach
+        k = _allowed(x, t, m, csr, states, reach)
         if k < 0:
             flags[b, 1] = True
             k = ptr[x]  # keep
@@ -514,16 +522,12 @@ def optimal_actions(
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _optimal_actions(xs, ts, moves, csr, states, ptr, reach, moves_table, grips3, grips4, out):
-    """:func:`optimal_actions` into ``out``; the refusals are :func:`_step_kernel`'s."""
-    T, N = reach.shape[0], reach.shape[2]
+    """:func:`optimal_actions` into ``out`` (a refused move: :func:`_step_kernel` keeps)."""
+    T = reach.shape[0]
     P = out.shape[1] - csr.shape[1]
     for b in range(xs.shape[0]):
         x, t, m = xs[b], ts[b], moves[b]
-        k = csr[x, m]
-        if k >= 0 and m > 0:
-            f = (m - 1) // N
-            if states[x, f] < 0 and not reach[t, f, (m - 1) % N]:
-                k = -1  # a placement out of reach
+        k = _allowed(x, t, m, csr, states, reach)
         if k < 0:
             k = ptr[x]  # keep
         out[b, :P] = 0.0
