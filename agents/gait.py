@@ -41,10 +41,6 @@ from .cli import folder_argument, path_argument
 from .progress import console, status
 from .scene_args import floats, friction, weight
 
-#: The default hand's finger pairs and moves (1 + fingers x sites): the gait environments'
-#: action spaces.
-GAIT_PAIRS = Hand().n_fingers * (Hand().n_fingers - 1) // 2
-GAIT_MOVES = 1 + Hand().n_fingers * len(SITE_FACES)
 HELP = "when to phase fingers out and in: the certified optimal gait along a long rotation"
 
 
@@ -260,24 +256,26 @@ class Episode:
     worst: float
 
 
-def check_observes(policy: Any, space: Any, name: str = "the model") -> None:
-    """ValueError unless ``policy`` (a trained agent; the gaits observe anything) observes
-    ``space``, ``grasp_env/CubeGait-v0``'s observation space, and acts in the action space of
-    ``grasp_env/CubeGait-v0`` or of ``grasp_env/CubeGaitMoves-v0``."""
+def check_observes(policy: Any, env: Any, name: str = "the model") -> None:
+    """ValueError unless ``policy`` (a trained agent; the gaits observe anything) observes what
+    ``env`` (a gait environment) observes and acts as ``grasp_env/CubeGait-v0`` or
+    ``grasp_env/CubeGaitMoves-v0`` with its configuration act."""
     from gymnasium import spaces
 
+    task = env.unwrapped.task
+    grip_and_moves = (task.n_pairs + task.n_moves,)
     model = getattr(policy, "model", None)
-    observes = getattr(model, "observation_space", space)
+    observes = getattr(model, "observation_space", env.observation_space)
     acts = getattr(model, "action_space", None)
     gait_actions = acts is None or (
-        acts == spaces.Discrete(GAIT_MOVES)
-        or (isinstance(acts, spaces.Box) and acts.shape == (GAIT_PAIRS + GAIT_MOVES,))
+        acts == spaces.Discrete(task.n_moves)
+        or (isinstance(acts, spaces.Box) and acts.shape == grip_and_moves)
     )
-    if observes.shape != space.shape or not gait_actions:
+    if observes.shape != env.observation_space.shape or not gait_actions:
         raise ValueError(
             f"{name} observes {observes.shape} and acts in {acts}; grasp_env/CubeGait-v0"
-            f" observes {space.shape} and acts in Box(-1, 1, ({GAIT_PAIRS + GAIT_MOVES},)),"
-            f" grasp_env/CubeGaitMoves-v0 in Discrete({GAIT_MOVES}): not a gait agent"
+            f" observes {env.observation_space.shape} and acts in Box(-1, 1, {grip_and_moves}),"
+            f" grasp_env/CubeGaitMoves-v0 in Discrete({task.n_moves}): not a gait agent"
         )
 
 
@@ -292,13 +290,14 @@ def load_models(args: argparse.Namespace) -> list[tuple[str, Any]]:
     from .models import load_agent
 
     env = gym.make("grasp_env/CubeGait-v0", **env_kwargs(args))
-    space = env.observation_space
-    env.close()
     agents = []
-    for label, path in zip(model_labels(args.models), args.models, strict=True):
-        agent = load_agent(path)
-        check_observes(agent, space, f"{path}: the model")
-        agents.append((label, agent))
+    try:
+        for label, path in zip(model_labels(args.models), args.models, strict=True):
+            agent = load_agent(path)
+            check_observes(agent, env, f"{path}: the model")
+            agents.append((label, agent))
+    finally:
+        env.close()
     return agents
 
 
@@ -313,7 +312,7 @@ def play(policy: Any, kwargs: dict[str, Any]) -> Episode:
     moves = isinstance(acts, spaces.Discrete)
     env = gym.make(f"grasp_env/CubeGait{'Moves' if moves else ''}-v0", **kwargs)
     try:
-        check_observes(policy, env.observation_space)
+        check_observes(policy, env)
     except ValueError:
         env.close()
         raise
