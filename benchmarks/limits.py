@@ -56,7 +56,7 @@ from grasp_env.mechanics import Grasp, solve_minimax
 from grasp_env.mechanics.minimax import _THREADS
 from grasp_env.mechanics.minimax.driver import solve_batch
 from grasp_env.mechanics.minimax.fingers import evaluate, finger_derivatives, setup
-from grasp_env.mechanics.minimax.linalg import lu_solve
+from grasp_env.mechanics.minimax.linalg import STACK_ITEMS, lu_solve
 
 #: The kernel modules, callees before callers.
 MODULES = ("linalg", "fingers", "starts", "sqp", "certificate", "newton", "barrier", "driver")
@@ -71,7 +71,8 @@ class _Tally:
     current: ClassVar[list[int]] = [0] * len(KINDS)
     #: every operation counted so far, in any kernel
     grand: ClassVar[list[int]] = [0]
-    #: arrays the kernels allocated so far (np.empty, zeros, ones, full; not .copy())
+    #: arrays the kernels allocated on the heap so far (np.empty, zeros, ones, full, and
+    #: stack arrays too large for the stack; not .copy())
     arrays: ClassVar[list[int]] = [0]
 
 
@@ -189,6 +190,28 @@ class _CountingNumpy:
         return _CountingNumpy.full(shape, 1.0, dtype)
 
 
+def _on_stack(make: Callable[..., np.ndarray]) -> Callable[..., np.ndarray]:
+    """``make`` for the kernels' stack arrays (``linalg.stack_*``): arrays of at most
+    STACK_ITEMS items are not allocated, so they are not counted as arrays."""
+
+    def made(shape, dtype=None):  # type: ignore[no-untyped-def]
+        before = _Tally.arrays[0]
+        array = make(shape, dtype)
+        if array.size <= STACK_ITEMS:
+            _Tally.arrays[0] = before
+        return array
+
+    return made
+
+
+#: The interpreted kernels' arrays in a stack frame, as the compiled ones' (linalg.py).
+_STACK = {
+    "stack_empty": _on_stack(_CountingNumpy.empty),
+    "stack_zeros": _on_stack(_CountingNumpy.zeros),
+    "stack_copy": lambda x: x.copy(),  # (.copy() is not counted either)
+}
+
+
 def counted_array(array: np.ndarray) -> np.ndarray:
     """An object array of Counted floats with the values of ``array``."""
     out = np.empty(np.shape(array), dtype=object)
@@ -217,7 +240,9 @@ class Interpreter:
         self._globals = {module.__name__: dict(vars(module)) for module in modules}
         for names in self._globals.values():
             for name, value in list(names.items()):
-                if isinstance(value, Dispatcher):
+                if name in _STACK:
+                    names[name] = _STACK[name]
+                elif isinstance(value, Dispatcher):
                     names[name] = self._copy(value)
                 elif name == "np":
                     names[name] = _CountingNumpy()

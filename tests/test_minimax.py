@@ -567,3 +567,34 @@ def test_every_kernel_is_keyed_on_its_package() -> None:
                 assert isinstance(value._cache._impl.locator, jit.LOCATORS), value
                 count += 1
     assert count >= 30
+
+
+def test_stack_arrays_behave_as_numpys() -> None:
+    """The kernels' stack arrays (linalg.stack_*): numpy's shapes, dtypes and values, each call
+    site its own memory, and arrays beyond STACK_ITEMS on the heap, whole."""
+    from numba import njit
+
+    from grasp_env.mechanics.minimax.linalg import STACK_ITEMS, stack_copy, stack_empty, stack_zeros
+
+    @njit
+    def made(n: int, big: int):  # type: ignore[no-untyped-def]
+        zeros = stack_zeros((n, 3))
+        flags = stack_zeros(n, dtype=np.bool_)
+        counts = stack_empty(n, dtype=np.int64)
+        counts.fill(7)
+        other = stack_zeros((n, 3))  # another call site: not the first's memory
+        other[0, 0] = 1.0
+        copied = stack_copy(other)
+        other[0, 0] = 2.0
+        large = stack_empty(big)  # beyond STACK_ITEMS: the heap, every item writable
+        for q in range(big):
+            large[q] = q
+        # (copies on the heap: a stack array must not outlive its kernel)
+        return zeros.copy(), flags.copy(), counts.copy(), copied.copy(), large.sum()
+
+    zeros, flags, counts, copied, total = made(4, 10 * STACK_ITEMS)
+    assert zeros.shape == (4, 3) and zeros.dtype == np.float64 and not zeros.any()
+    assert flags.dtype == np.bool_ and not flags.any()
+    assert counts.dtype == np.int64 and (counts == 7).all()
+    assert copied[0, 0] == 1.0 and copied.sum() == 1.0
+    assert total == sum(range(10 * STACK_ITEMS))

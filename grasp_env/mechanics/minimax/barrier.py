@@ -13,7 +13,7 @@ from .certificate import certify_min_slack, dual_value, force_certificate
 from .codes import GAP_TOL, INTERIOR, NOT_PUSHING
 from .fingers import evaluate
 from .jit import kernel
-from .linalg import cholesky_inverse, copy_into
+from .linalg import cholesky_inverse, copy_into, stack_copy, stack_empty
 
 
 class ConeProblem(NamedTuple):
@@ -54,9 +54,9 @@ def barrier_terms(x, a0, al, tau0, T, K, f, problem, g, H, tb, derivatives):
             continue
         g[j] += 1.0 / up - 1.0 / lo
         H[j, j] += 1.0 / (up * up) + 1.0 / (lo * lo)
-    dsig = np.empty(dim)
-    jv = np.empty((3, dim))
-    v = np.empty(3)
+    dsig = stack_empty(dim)
+    jv = stack_empty((3, dim))
+    v = stack_empty(3)
     for i in range(n):
         a = a0[i]
         t0 = tau0[i, 0]
@@ -134,13 +134,13 @@ def barrier_solve(a0, al, tau0, T, K, f, problem, x, gap, stop_below, tb0):
     """
     n, m = al.shape
     dim = m + 1
-    g = np.empty(dim)
-    H = np.empty((dim, dim))
-    Hinv = np.empty((dim, dim))
-    dx = np.empty(dim)
-    xt = np.empty(dim)
-    Lc = np.empty((dim, dim))
-    Lic = np.empty((dim, dim))
+    g = stack_empty(dim)
+    H = stack_empty((dim, dim))
+    Hinv = stack_empty((dim, dim))
+    dx = stack_empty(dim)
+    xt = stack_empty(dim)
+    Lc = stack_empty((dim, dim))
+    Lic = stack_empty((dim, dim))
     nu_b = 2.0 * m + 2.0 * n * (1 + (f < inf))
     tb = tb0
     for _ in range(60):
@@ -236,15 +236,16 @@ def fallback(a0, al, tau0, T, K, f, k, gap, centre):
     """
     n, m = al.shape
     dim = m + 1
-    x = np.empty(dim)
-    wts = np.ones(n)
-    z = np.empty((n, 3))
-    nuv = np.empty((n, 3))
-    nus = np.empty(n)
-    a = np.empty(n)
-    tau = np.empty((n, 2))
-    rho = np.empty(n)
-    theta = np.empty(n)
+    x = stack_empty(dim)
+    wts = stack_empty(n)
+    wts.fill(1.0)
+    z = stack_empty((n, 3))
+    nuv = stack_empty((n, 3))
+    nus = stack_empty(n)
+    a = stack_empty(n)
+    tau = stack_empty((n, 2))
+    rho = stack_empty(n)
+    theta = stack_empty(n)
     for j in range(m):
         centre[j] = 0.0  # inside the box and (when f is finite) the force limits
     inner = 1.0 - 1e-9
@@ -281,7 +282,7 @@ def fallback(a0, al, tau0, T, K, f, k, gap, centre):
         if excess > -1e-9 * f:
             copy_into(k, centre, m)
     t_best = evaluate(k, a0, al, tau0, T, a, tau, rho, theta)
-    k_best = k.copy()
+    k_best = stack_copy(k)
     if t_best >= pi / 2:
         # can every finger push? v(pi/2) < 0 iff some k has all a_i > 0; the barrier's
         # duals certify v(pi/2) > 0 once its gap is below v (tried as the gap closes: at a
@@ -354,12 +355,12 @@ def bisect(a0, al, tau0, T, K, f, k_best, centre, lo, hi):
     moves the next one down, so lo is always certified and hi always attained.
     """
     n, m = al.shape
-    a = np.empty(n)
-    tau = np.empty((n, 2))
-    rho = np.empty(n)
-    theta = np.empty(n)
-    wts = np.empty(n)
-    x = np.empty(m + 1)
+    a = stack_empty(n)
+    tau = stack_empty((n, 2))
+    rho = stack_empty(n)
+    theta = stack_empty(n)
+    wts = stack_empty(n)
+    x = stack_empty(m + 1)
     share = 0.0
     top = hi  # the next t is below top (above it, steps are undecided or attained)
     inner = 1.0 - 1e-9

@@ -10,7 +10,7 @@ import numpy as np
 
 from .fingers import evaluate, force_derivatives
 from .jit import inline, kernel
-from .linalg import lu_solve
+from .linalg import lu_solve, stack_copy, stack_empty, stack_zeros
 
 
 @inline
@@ -50,16 +50,16 @@ def certify(a0, al, tau0, T, K, f, k, t_low, S, R, Q, fixed, lam, eta, nu):
     Returns (L, box_share) where box_share is the box term's share of the certificate.
     """
     n, m = al.shape
-    a = np.empty(n)
-    tau = np.empty((n, 2))
-    rho = np.empty(n)
-    theta = np.empty(n)
+    a = stack_empty(n)
+    tau = stack_empty((n, 2))
+    rho = stack_empty(n)
+    theta = stack_empty(n)
     evaluate(k, a0, al, tau0, T, a, tau, rho, theta)
     ct, st = cos(t_low), sin(t_low)
-    z = np.zeros((n, 3))  # dual vectors in the finger frames (normal, b, c)
-    lg = np.zeros(n)
-    phi = np.zeros(n)
-    u = np.zeros((n, 3))  # force-limit duals nu_i P_i / |P_i|
+    z = stack_zeros((n, 3))  # dual vectors in the finger frames (normal, b, c)
+    lg = stack_zeros(n)
+    phi = stack_zeros(n)
+    u = stack_zeros((n, 3))  # force-limit duals nu_i P_i / |P_i|
     for i in range(n):
         Pn = sqrt(a[i] ** 2 + rho[i] ** 2)
         if S[i]:
@@ -76,8 +76,8 @@ def certify(a0, al, tau0, T, K, f, k, t_low, S, R, Q, fixed, lam, eta, nu):
     # A released finger whose dual lies on the polar cone's boundary (released and at the
     # maximum angle at once) is corrected like the smooth fingers, along that boundary, so
     # that the correction cannot push it out of the cone.
-    Sm = S.copy()
-    Rm = R.copy()
+    Sm = stack_copy(S)
+    Rm = stack_copy(R)
     cot = ct / max(st, 1e-300)
     for i in range(n):
         if R[i]:
@@ -88,8 +88,8 @@ def certify(a0, al, tau0, T, K, f, k, t_low, S, R, Q, fixed, lam, eta, nu):
                 Rm[i] = False
                 lg[i] = x0 / st
                 phi[i] = atan2(z[i, 2], z[i, 1])
-    w = np.zeros(m)
-    free = np.empty(m, dtype=np.int64)
+    w = stack_zeros(m)
+    free = stack_empty(m, dtype=np.int64)
     nf = 0
     for j in range(m):
         if fixed[j] == 0:
@@ -98,9 +98,9 @@ def certify(a0, al, tau0, T, K, f, k, t_low, S, R, Q, fixed, lam, eta, nu):
     ncols = 0
     for i in range(n):
         ncols += 2 * Sm[i] + 3 * Rm[i] + 3 * Q[i]
-    J = np.zeros((m, 20))
-    G = np.empty((m, m))
-    y = np.empty(m)
+    J = stack_zeros((m, 20))
+    G = stack_empty((m, m))
+    y = stack_empty(m)
     for _ in range(4 if nf > 0 and ncols > 0 else 0):
         # minimum-norm correction J dc = -w_free
         dual_vectors(al, T, Sm, Rm, Q, ct, st, lg, phi, z, u, w)
@@ -204,8 +204,8 @@ def dual_value(a0, al, tau0, T, K, f, t, z, nuv, nus):
     """
     n, m = al.shape
     ct, st = cos(t), sin(t)
-    zz = np.empty((n, 3))
-    vv = np.empty((n, 3))
+    zz = stack_empty((n, 3))
+    vv = stack_empty((n, 3))
     for i in range(n):
         # polar cone of {|tau| <= tan(t) a}: |z_bc| <= cot(t) (-z_n), in coordinates
         # (x0, r) = (-z_n, |z_bc|) the cone r <= kappa x0 with kappa = cot t
@@ -254,33 +254,33 @@ def force_certificate(a0, al, tau0, T, K, f, k):
         L = sum nu_i (v_i . F_i - f) - K || sum nu_i A_i' v_i ||_1 > 0
     proves the limits infeasible. The nu_i are the least-squares stationarity multipliers."""
     n, m = al.shape
-    a = np.empty(n)
-    tau = np.empty((n, 2))
-    rho = np.empty(n)
-    theta = np.empty(n)
+    a = stack_empty(n)
+    tau = stack_empty((n, 2))
+    rho = stack_empty(n)
+    theta = stack_empty(n)
     evaluate(k, a0, al, tau0, T, a, tau, rho, theta)
-    P = np.empty(n)
+    P = stack_empty(n)
     worst = 0.0
     for i in range(n):
         P[i] = sqrt(a[i] ** 2 + rho[i] ** 2)
         worst = max(worst, P[i])
-    Q = np.zeros(n, dtype=np.bool_)
-    fixed = np.zeros(m, dtype=np.int64)
+    Q = stack_zeros(n, dtype=np.bool_)
+    fixed = stack_zeros(m, dtype=np.int64)
     for i in range(n):
         Q[i] = P[i] >= worst - 1e-6 * f
     for j in range(m):
         fixed[j] = 1 if k[j] >= K * (1.0 - 1e-6) else (-1 if k[j] <= -K * (1.0 - 1e-6) else 0)
     # least-squares multipliers: the force gradients take the place of the angles'
-    grads = np.zeros((n, m))
-    Hd = np.zeros((m, m))
+    grads = stack_zeros((n, m))
+    Hd = stack_zeros((m, m))
     for i in range(n):
         if Q[i]:
             force_derivatives(i, 0.0, a, tau, al, T, grads[i], Hd)
     nc = 0
     for i in range(n):
         nc += Q[i]
-    A = np.zeros((nc + 1, nc + 1))
-    b = np.zeros(nc + 1)
+    A = stack_zeros((nc + 1, nc + 1))
+    b = stack_zeros(nc + 1)
     p = 0
     for i in range(n):
         if Q[i]:
@@ -301,7 +301,7 @@ def force_certificate(a0, al, tau0, T, K, f, k):
     if not lu_solve(A, b, nc + 1):
         return -1.0
     value = 0.0
-    w = np.zeros(m)
+    w = stack_zeros(m)
     p = 0
     for i in range(n):
         if Q[i]:
@@ -327,18 +327,18 @@ def certify_min_slack(a0, al, tau0, T, K, f, t, wts, x, tol):
     rounding (1 / slack) near the optimum, its primal point is not. Returns (L, box_share).
     """
     n, m = al.shape
-    a = np.empty(n)
-    tau = np.empty((n, 2))
-    rho = np.empty(n)
-    theta = np.empty(n)
-    k = x[:m].copy()
+    a = stack_empty(n)
+    tau = stack_empty((n, 2))
+    rho = stack_empty(n)
+    theta = stack_empty(n)
+    k = stack_copy(x[:m])
     evaluate(k, a0, al, tau0, T, a, tau, rho, theta)
     ct, st = cos(t), sin(t)
-    S = np.zeros(n, dtype=np.bool_)
-    R = np.zeros(n, dtype=np.bool_)
-    Q = np.zeros(n, dtype=np.bool_)
-    fixed = np.zeros(m, dtype=np.int64)
-    P = np.empty(n)
+    S = stack_zeros(n, dtype=np.bool_)
+    R = stack_zeros(n, dtype=np.bool_)
+    Q = stack_zeros(n, dtype=np.bool_)
+    fixed = stack_zeros(m, dtype=np.int64)
+    P = stack_empty(n)
     big = 0.0
     for i in range(n):
         P[i] = sqrt(a[i] ** 2 + rho[i] ** 2)
@@ -352,7 +352,7 @@ def certify_min_slack(a0, al, tau0, T, K, f, t, wts, x, tol):
         fixed[j] = 1 if k[j] >= K * (1.0 - tol) else (-1 if k[j] <= -K * (1.0 - tol) else 0)
     # columns: d(z_i . A_i)/d l_i for the cones, A_i for the apex fingers' z_i, v_i . A_i
     # for the force limits (free rows only)
-    cols = np.zeros((m, 4 * n))
+    cols = stack_zeros((m, 4 * n))
     nc = 0
     for i in range(n):
         if S[i]:
@@ -379,8 +379,8 @@ def certify_min_slack(a0, al, tau0, T, K, f, t, wts, x, tol):
             nc += 1
     if ns == 0:
         return -1.0, 0.0
-    A = np.zeros((nc + 1, nc + 1))
-    b = np.zeros(nc + 1)
+    A = stack_zeros((nc + 1, nc + 1))
+    b = stack_zeros(nc + 1)
     diag = 0.0
     for p in range(nc):
         for q in range(nc):
@@ -400,9 +400,9 @@ def certify_min_slack(a0, al, tau0, T, K, f, t, wts, x, tol):
     b[nc] = 1.0
     if not lu_solve(A, b, nc + 1):
         return -1.0, 0.0
-    lam = np.zeros(n)
-    nu = np.zeros(n)
-    eta = np.zeros((n, 3))
+    lam = stack_zeros(n)
+    nu = stack_zeros(n)
+    eta = stack_zeros((n, 3))
     c = 0
     for i in range(n):
         if S[i]:

@@ -33,7 +33,7 @@ from .codes import (
 )
 from .fingers import evaluate, setup
 from .jit import entry, inline
-from .linalg import all_finite, copy_into, zero
+from .linalg import all_finite, copy_into, stack_copy, stack_empty, stack_zeros, zero
 from .newton import RELEASE, finish, finish_from, sets_from_point
 from .sqp import sqp
 from .starts import apex_start, move_force, normal_start, release_start
@@ -92,21 +92,21 @@ def try_releases(a0, al, tau0, T, K, f, k_sqp, best, k_best):
     at once, its dual just outside the polar cone), give it the small force its dual asks
     for and solve with every finger active."""
     n, m = al.shape
-    a = np.empty(n)
-    tau = np.empty((n, 2))
-    rho = np.empty(n)
-    theta = np.empty(n)
-    lam = np.empty(n)
-    nu = np.zeros(n)
-    eta = np.zeros((n, 3))
-    S = np.zeros(n, dtype=np.bool_)
-    R = np.zeros(n, dtype=np.bool_)
-    Q = np.zeros(n, dtype=np.bool_)
-    fixed = np.zeros(m, dtype=np.int64)
-    k = np.empty(m)
-    k_rel = np.empty(m)
+    a = stack_empty(n)
+    tau = stack_empty((n, 2))
+    rho = stack_empty(n)
+    theta = stack_empty(n)
+    lam = stack_empty(n)
+    nu = stack_zeros(n)
+    eta = stack_zeros((n, 3))
+    S = stack_zeros(n, dtype=np.bool_)
+    R = stack_zeros(n, dtype=np.bool_)
+    Q = stack_zeros(n, dtype=np.bool_)
+    fixed = stack_zeros(m, dtype=np.int64)
+    k = stack_empty(m)
+    k_rel = stack_empty(m)
     evaluate(k_sqp, a0, al, tau0, T, a, tau, rho, theta)
-    order = np.empty(n, dtype=np.int64)  # fingers by |P_i|, smallest first
+    order = stack_empty(n, dtype=np.int64)  # fingers by |P_i|, smallest first
     for q in range(n):
         order[q] = q
         size_q = a[q] ** 2 + rho[q] ** 2
@@ -161,15 +161,15 @@ def try_push(a0, al, tau0, T, K, f, k_sqp, best, k_best):
     """Four fingers: the SQP may stall where a finger's force vanishes without that being
     optimal; restart it with the weakest finger pushing along its normal."""
     n, m = al.shape
-    a = np.empty(n)
-    tau = np.empty((n, 2))
-    rho = np.empty(n)
-    theta = np.empty(n)
-    lam = np.empty(n)
-    nu = np.zeros(n)
-    eta = np.zeros((n, 3))
-    R = np.zeros(n, dtype=np.bool_)
-    k = np.empty(m)
+    a = stack_empty(n)
+    tau = stack_empty((n, 2))
+    rho = stack_empty(n)
+    theta = stack_empty(n)
+    lam = stack_empty(n)
+    nu = stack_zeros(n)
+    eta = stack_zeros((n, 3))
+    R = stack_zeros(n, dtype=np.bool_)
+    k = stack_empty(m)
     evaluate(k_sqp, a0, al, tau0, T, a, tau, rho, theta)
     typical = 0.0
     weakest = 0
@@ -199,17 +199,18 @@ def try_fallback(a0, al, tau0, T, K, f, k_start, best, k_best):
     """The robust primal of :func:`fallback`, then the KKT certificate, then bisection;
     returns the new Best."""
     n = al.shape[0]
-    k = k_start.copy()
-    lam = np.full(n, 1.0 / n)
-    eta = np.zeros((n, 3))
-    centre = np.empty(k.shape[0])
+    k = stack_copy(k_start)
+    lam = stack_empty(n)
+    lam.fill(1.0 / n)
+    eta = stack_zeros((n, 3))
+    centre = stack_empty(k.shape[0])
     t_up, low, status, share = fallback(a0, al, tau0, T, K, f, k, 1e-11, centre)
     best = fold(best, k_best, k, t_up, max(low, 0.0), status, FALLBACK)
     if status == NOT_PUSHING and t_up >= pi:
         copy_into(k_best, k, k.shape[0])  # no k meets the force limits: k exceeds them least
     if closed(best) or status == NOT_PUSHING:
         return best
-    k_fallback = k.copy()
+    k_fallback = stack_copy(k)
     for tol in (1e-6, 1e-5, 1e-4, 1e-3):
         # the barrier's point is near-optimal to about 1e-8; degenerate optima (a finger
         # with almost no force) need looser tolerances to read the active sets off it
@@ -219,10 +220,10 @@ def try_fallback(a0, al, tau0, T, K, f, k_start, best, k_best):
         if closed(best):
             return best
     # the certified bisection, from the best point so far and the best bound
-    a = np.empty(n)
-    tau = np.empty((n, 2))
-    rho = np.empty(n)
-    theta = np.empty(n)
+    a = stack_empty(n)
+    tau = stack_empty((n, 2))
+    rho = stack_empty(n)
+    theta = stack_empty(n)
     copy_into(k, k_fallback, k.shape[0])
     t_up = evaluate(k, a0, al, tau0, T, a, tau, rho, theta)
     if best.t < t_up:
@@ -240,18 +241,18 @@ def try_weak_finger(F_near, E_near, N_near, a0, al, tau0, T, K, f, scale, k_near
     that finger keeps the force (finger frame) it had at the nearby optimum. Returns the new
     Best."""
     n, m = al.shape
-    a0_near = np.empty(n)
-    al_near = np.empty((n, m))
-    tau0_near = np.empty((n, 2))
-    T_near = np.empty((n, 2, m))
+    a0_near = stack_empty(n)
+    al_near = stack_empty((n, m))
+    tau0_near = stack_empty((n, 2))
+    T_near = stack_empty((n, 2, m))
     scale_near, code = setup(F_near, E_near, N_near, a0_near, al_near, tau0_near, T_near)
     if code != 0 or scale_near == 0.0:
         return best
-    a = np.empty(n)
-    tau = np.empty((n, 2))
-    rho = np.empty(n)
-    theta = np.empty(n)
-    k = np.empty(m)
+    a = stack_empty(n)
+    tau = stack_empty((n, 2))
+    rho = stack_empty(n)
+    theta = stack_empty(n)
+    k = stack_empty(m)
     for j in range(m):
         k[j] = k_near[j] / scale_near
     evaluate(k, a0_near, al_near, tau0_near, T_near, a, tau, rho, theta)
@@ -265,7 +266,7 @@ def try_weak_finger(F_near, E_near, N_near, a0, al, tau0, T, K, f, scale, k_near
     if a[weak] ** 2 + rho[weak] ** 2 >= 0.01 * largest:
         return best  # no weak finger (below a tenth of the largest force)
     ratio = scale_near / scale
-    k_from = np.empty(m)
+    k_from = stack_empty(m)
     for j in range(m):
         k_from[j] = min(K, max(-K, k_near[j] / scale))
     if not move_force(
@@ -283,8 +284,9 @@ def try_weak_finger(F_near, E_near, N_near, a0, al, tau0, T, K, f, scale, k_near
         return best
     for j in range(m):
         k[j] = min(K, max(-K, k[j]))
-    lam = np.full(n, 1.0 / n)
-    eta = np.zeros((n, 3))
+    lam = stack_empty(n)
+    lam.fill(1.0 / n)
+    eta = stack_zeros((n, 3))
     t_up, low, share = finish_from(a0, al, tau0, T, K, f, k, lam, eta, 1e-6, NEAR_ANGLES)
     return fold(best, k_best, k, t_up, low, box_status(share), NEARBY)
 
@@ -312,10 +314,10 @@ def solve_one(
         theta[i] = 0.0
     if not (all_finite(F) and all_finite(E) and all_finite(N)):
         return 0.0, INTERIOR, INVALID
-    a0 = np.empty(n)
-    al = np.empty((n, m))
-    tau0 = np.empty((n, 2))
-    T = np.empty((n, 2, m))
+    a0 = stack_empty(n)
+    al = stack_empty((n, m))
+    tau0 = stack_empty((n, 2))
+    T = stack_empty((n, 2, m))
     scale, code = setup(F, E, N, a0, al, tau0, T)
     if code != 0:
         return 0.0, INTERIOR, code
@@ -331,18 +333,20 @@ def solve_one(
         return 0.0, INTERIOR, BAD_K_MAX
     if f < inf and not RATIO_RANGE[0] <= f <= RATIO_RANGE[1]:
         return 0.0, INTERIOR, BAD_F_MAX
-    a = np.empty(n)
-    tau = np.empty((n, 2))
-    rho = np.empty(n)
-    lam = np.full(n, 1.0 / n)
-    nu = np.zeros(n)
-    eta = np.zeros((n, 3))
-    R = np.zeros(n, dtype=np.bool_)
-    S = np.ones(n, dtype=np.bool_)
-    Q = np.zeros(n, dtype=np.bool_)
-    fixed = np.zeros(m, dtype=np.int64)
+    a = stack_empty(n)
+    tau = stack_empty((n, 2))
+    rho = stack_empty(n)
+    lam = stack_empty(n)
+    lam.fill(1.0 / n)
+    nu = stack_zeros(n)
+    eta = stack_zeros((n, 3))
+    R = stack_zeros(n, dtype=np.bool_)
+    S = stack_empty(n, dtype=np.bool_)
+    S.fill(True)
+    Q = stack_zeros(n, dtype=np.bool_)
+    fixed = stack_zeros(m, dtype=np.int64)
     best = Best(inf, 0.0, INTERIOR, UNCERTIFIED)
-    k_best = np.empty(m)
+    k_best = stack_empty(m)
     done = False
     if near:
         # a step along a trajectory moves the optimum a little and its sets rarely: the
@@ -372,7 +376,7 @@ def solve_one(
         if n == 4 and f == inf:
             # four fingers: also try every finger pushing with a common normal force; the best
             # start saves the SQP about a quarter of its steps
-            k_try = np.empty(m)
+            k_try = stack_empty(m)
             for c in (1.0, 2.0, 4.0):
                 normal_start(a0, al, tau0, T, c, k_try)
                 for j in range(m):
@@ -385,7 +389,7 @@ def solve_one(
         feasible = True
         for i in range(n):
             feasible = feasible and sqrt(a[i] ** 2 + rho[i] ** 2) <= f
-        k_start = k.copy()
+        k_start = stack_copy(k)
         if best.t == inf or (feasible and t_up < best.t):
             copy_into(k_best, k, m)  # the best point so far (fold keeps certified ones only)
             if feasible:
@@ -403,7 +407,7 @@ def solve_one(
         t_up, low, share = finish(a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu, 5)
         best = fold(best, k_best, k, t_up, low, box_status(share), DIRECT)
         done = closed(best)
-    k_sqp = k_start.copy()
+    k_sqp = stack_copy(k_start)
     if not done:
         for i in range(n):
             lam[i] = 1.0 / n
@@ -437,7 +441,7 @@ def solve_one(
         # the best point exceeds the force limits, so its certificate says nothing about
         # them (where no k meets them, any bound holds): the fallback decides whether some
         # k does (its phase one), with a certificate if none does
-        best = try_fallback(a0, al, tau0, T, K, f, k_best.copy(), best, k_best)
+        best = try_fallback(a0, al, tau0, T, K, f, stack_copy(k_best), best, k_best)
         t_best = evaluate(k_best, a0, al, tau0, T, a, tau, rho, theta)
         excess = False
         for i in range(n):

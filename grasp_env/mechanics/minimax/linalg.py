@@ -1,12 +1,79 @@
-"""Dense linear algebra for the kernels: small in-place helpers, Gaussian elimination and a
-Cholesky inverse (sizes <= 24, where loops beat LAPACK calls).
+"""Dense linear algebra for the kernels: arrays in the calling kernel's stack frame, small
+in-place helpers, Gaussian elimination and a Cholesky inverse (sizes <= 24, where loops beat
+LAPACK calls).
 """
 
 from __future__ import annotations
 
 from math import isfinite, sqrt
 
+import numpy as np
+from numba import carray, types
+from numba.core import cgutils
+from numba.extending import intrinsic, overload
+
 from .jit import inline, kernel
+
+#: The most items an array in a kernel's stack frame holds (512 bytes of float64): a solve's
+#: vectors and matrices are a few to 49 items. A larger one is made on the heap.
+STACK_ITEMS = 64
+
+
+@intrinsic
+def _stack_buffer(typingctx, dtype):  # type: ignore[no-untyped-def]
+    """STACK_ITEMS items of ``dtype`` in the stack frame of the compiled function that calls
+    this (an alloca in its entry block: one per call site, reused by every pass of a loop)."""
+    item = dtype.dtype if isinstance(dtype, types.DType) else dtype.instance_type
+
+    def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
+        return cgutils.alloca_once(builder, context.get_data_type(item), size=STACK_ITEMS)
+
+    return types.CPointer(item)(dtype), codegen
+
+
+def _items(shape):  # type: ignore[no-untyped-def]
+    """The number of items of an array of ``shape`` (an int or a tuple of ints)."""
+
+
+@overload(_items)
+def _items_overload(shape):  # type: ignore[no-untyped-def]
+    if isinstance(shape, types.Integer):
+        return lambda shape: shape
+
+    def items(shape):  # type: ignore[no-untyped-def]
+        size = 1
+        for s in shape:
+            size *= s
+        return size
+
+    return items
+
+
+@inline
+def stack_empty(shape, dtype=np.float64):
+    """``np.empty(shape, dtype)`` in the stack frame of the kernel this is inlined into: the
+    solve's scratch arrays, which a heap allocation each (about 40 ns with its free) made a
+    sixth of a three-finger solve. Valid while that kernel runs, so never returned from a
+    kernel; a call in a loop gives the same memory every pass."""
+    if _items(shape) > STACK_ITEMS:
+        return np.empty(shape, dtype)
+    return carray(_stack_buffer(dtype), shape)
+
+
+@inline
+def stack_zeros(shape, dtype=np.float64):
+    """``np.zeros(shape, dtype)`` in the calling kernel's stack frame (see stack_empty)."""
+    x = stack_empty(shape, dtype)
+    x.fill(0)
+    return x
+
+
+@inline
+def stack_copy(x):
+    """``x.copy()`` of a C-contiguous array, in the calling kernel's stack frame."""
+    y = stack_empty(x.shape, x.dtype)
+    copy_into(y.ravel(), x.ravel(), x.size)
+    return y
 
 
 @inline

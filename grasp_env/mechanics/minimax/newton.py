@@ -11,7 +11,7 @@ import numpy as np
 from .certificate import certify
 from .fingers import evaluate, finger_derivatives, force_derivatives
 from .jit import inline, kernel
-from .linalg import copy_into, lu_solve, zero
+from .linalg import copy_into, lu_solve, stack_copy, stack_empty, stack_zeros, zero
 
 #: Offsets below the primal value at which the dual certificate is tried, radians.
 DELTAS = (1e-11, 1e-10, 5e-10)
@@ -53,9 +53,9 @@ def multiplier_estimate(a, tau, rho, al, T, S, R, Q, fixed, lam, eta, nu):
     its point: equal weights can be far off where a finger's force is small (its angle
     then has a large gradient and curvature)."""
     n, m = al.shape
-    cols = np.zeros((m, 16))  # one column per unknown multiplier, free rows only
-    Hd = np.zeros((m, m))
-    g = np.empty(m)
+    cols = stack_zeros((m, 16))  # one column per unknown multiplier, free rows only
+    Hd = stack_zeros((m, m))
+    g = stack_empty(m)
     nc = 0
     for i in range(n):
         if S[i]:
@@ -80,8 +80,8 @@ def multiplier_estimate(a, tau, rho, al, T, S, R, Q, fixed, lam, eta, nu):
     if ns == 0:
         return
     # [C'C  e; e' 0] [x; mu] = [0; 1], e marking the lam entries (sum lam = 1)
-    A = np.zeros((nc + 1, nc + 1))
-    b = np.zeros(nc + 1)
+    A = stack_zeros((nc + 1, nc + 1))
+    b = stack_zeros(nc + 1)
     big = 0.0
     for p in range(nc):
         for q in range(nc):
@@ -112,17 +112,17 @@ def polish(a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu, release, max_
     max_iter steps, or below SETTLED by step settle_by).
     """
     n, m = al.shape
-    a = np.empty(n)
-    tau = np.empty((n, 2))
-    rho = np.empty(n)
-    theta = np.empty(n)
-    grads = np.empty((n, m))
-    fgrads = np.empty((n, m))
-    P = np.empty(n)
-    H = np.empty((m, m))
-    A = np.empty((24, 24))
-    rhs = np.empty(24)
-    free = np.empty(m, dtype=np.int64)
+    a = stack_empty(n)
+    tau = stack_empty((n, 2))
+    rho = stack_empty(n)
+    theta = stack_empty(n)
+    grads = stack_empty((n, m))
+    fgrads = stack_empty((n, m))
+    P = stack_empty(n)
+    H = stack_empty((m, m))
+    A = stack_empty((24, 24))
+    rhs = stack_empty(24)
+    free = stack_empty(m, dtype=np.int64)
     for j in range(m):
         if fixed[j] != 0:
             k[j] = fixed[j] * K
@@ -258,13 +258,13 @@ def polish_degenerate(a0, al, tau0, T, K, f, k, k_in, S, R, Q, fixed, lam, eta, 
         unknowns += fixed[j] == 0
     if count <= unknowns:
         return -1.0
-    lam0 = lam.copy()
-    eta0 = eta.copy()
-    nu0 = nu.copy()
-    a = np.empty(n)
-    tau = np.empty((n, 2))
-    rho = np.empty(n)
-    theta = np.empty(n)
+    lam0 = stack_copy(lam)
+    eta0 = stack_copy(eta)
+    nu0 = stack_copy(nu)
+    a = stack_empty(n)
+    tau = stack_empty((n, 2))
+    rho = stack_empty(n)
+    theta = stack_empty(n)
     for c in range(2 * n + m):
         if c < n:
             member = S[c] and ns > 1
@@ -323,14 +323,14 @@ def finish(a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu, settle_by):
     Returns (t_up, lower, box_share); lower < 0 when no certificate was found.
     """
     n, m = al.shape
-    a = np.empty(n)
-    tau = np.empty((n, 2))
-    rho = np.empty(n)
-    theta = np.empty(n)
-    grads = np.empty((n, m))
-    fg = np.empty(m)
-    Hd = np.zeros((m, m))
-    k_in = k.copy()
+    a = stack_empty(n)
+    tau = stack_empty((n, 2))
+    rho = stack_empty(n)
+    theta = stack_empty(n)
+    grads = stack_empty((n, m))
+    fg = stack_empty(m)
+    Hd = stack_zeros((m, m))
+    k_in = stack_copy(k)
     for _ in range(6):
         t = polish(a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu, RELEASE, 12, settle_by)
         if t < 0.0:
@@ -362,7 +362,7 @@ def finish(a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu, settle_by):
                 changed = True
         # a fixed k_j whose multiplier pulls inwards: free it
         if not changed:
-            g = np.zeros(m)
+            g = stack_zeros(m)
             for i in range(n):
                 if S[i]:
                     finger_derivatives(True, i, 0.0, a, tau, rho, al, T, grads[i], Hd)
@@ -425,16 +425,16 @@ def finish_from(a0, al, tau0, T, K, f, k, lam, eta, tol, angle_tol):
     """Read the active sets off a near-optimal point k (within ``tol``; the fingers at the
     maximum angle within ``angle_tol``), then :func:`finish`."""
     n, m = al.shape
-    a = np.empty(n)
-    tau = np.empty((n, 2))
-    rho = np.empty(n)
-    theta = np.empty(n)
-    S = np.zeros(n, dtype=np.bool_)
-    R = np.zeros(n, dtype=np.bool_)
-    Q = np.zeros(n, dtype=np.bool_)
-    fixed = np.zeros(m, dtype=np.int64)
+    a = stack_empty(n)
+    tau = stack_empty((n, 2))
+    rho = stack_empty(n)
+    theta = stack_empty(n)
+    S = stack_zeros(n, dtype=np.bool_)
+    R = stack_zeros(n, dtype=np.bool_)
+    Q = stack_zeros(n, dtype=np.bool_)
+    fixed = stack_zeros(m, dtype=np.int64)
     zero(eta)
-    nu = np.zeros(n)
+    nu = stack_zeros(n)
     evaluate(k, a0, al, tau0, T, a, tau, rho, theta)
     big = 0.0
     for i in range(n):

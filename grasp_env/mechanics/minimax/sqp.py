@@ -10,7 +10,7 @@ import numpy as np
 
 from .fingers import evaluate, finger_derivatives, force_derivatives
 from .jit import inline, kernel
-from .linalg import cholesky_inverse, lu_solve, zero
+from .linalg import cholesky_inverse, lu_solve, stack_empty, stack_zeros, zero
 
 
 @inline
@@ -184,32 +184,32 @@ def sqp(a0, al, tau0, T, K, f, R, release, k, lam, nu, max_iter, tol):
         nr += R[i]
     meq = 3 * nr
     nc = meq + (n - nr) + 2 * m + (n if has_f else 0)
-    a = np.empty(n)
-    tau = np.empty((n, 2))
-    rho = np.empty(n)
-    theta = np.empty(n)
-    grads = np.zeros((n, m))
-    fgrads = np.empty((n, m))
-    P = np.empty(n)
-    H = np.empty((m, m))
-    Hs = np.empty((m, m))
-    Hinv = np.empty((m, m))
-    Ginv = np.zeros((dim, dim))
-    c = np.zeros(dim)
+    a = stack_empty(n)
+    tau = stack_empty((n, 2))
+    rho = stack_empty(n)
+    theta = stack_empty(n)
+    grads = stack_zeros((n, m))
+    fgrads = stack_empty((n, m))
+    P = stack_empty(n)
+    H = stack_empty((m, m))
+    Hs = stack_empty((m, m))
+    Hinv = stack_empty((m, m))
+    Ginv = stack_zeros((dim, dim))
+    c = stack_zeros(dim)
     c[m] = 1.0
-    C = np.zeros((nc, dim))
-    b = np.empty(nc)
-    x = np.empty(dim)
-    u = np.empty(nc)
-    k_try = np.empty(m)
-    gmean = np.empty(m)
-    Lc = np.empty((m, m))
-    Lic = np.empty((m, m))
-    GN = np.empty((dim, dim))
-    M = np.empty((dim, dim))
-    vec = np.empty((6, max(dim, nc)))
-    active = np.empty(dim, dtype=np.int64)
-    is_active = np.empty(nc, dtype=np.bool_)
+    C = stack_zeros((nc, dim))
+    b = stack_empty(nc)
+    x = stack_empty(dim)
+    u = stack_empty(nc)
+    k_try = stack_empty(m)
+    gmean = stack_empty(m)
+    Lc = stack_empty((m, m))
+    Lic = stack_empty((m, m))
+    GN = stack_empty((dim, dim))
+    M = stack_empty((dim, dim))
+    vec = stack_empty((6, max(dim, nc)))
+    active = stack_empty(dim, dtype=np.int64)
+    is_active = stack_empty(nc, dtype=np.bool_)
     Ginv[m, m] = 1.0
     penalty = 1.0
     for it in range(max_iter):

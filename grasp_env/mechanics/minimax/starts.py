@@ -4,18 +4,16 @@ every finger push alike, or one finger take a given force.
 
 from __future__ import annotations
 
-import numpy as np
-
 from .jit import inline, kernel
-from .linalg import lu_solve
+from .linalg import lu_solve, stack_empty, stack_zeros
 
 
 @kernel
 def apex_start(a0, al, tau0, T, k):
     """k minimising sum_i |tau_i(k)|^2 (normal equations); False if they are singular."""
     n, m = al.shape
-    M = np.zeros((m, m))
-    r = np.zeros(m)
+    M = stack_zeros((m, m))
+    r = stack_zeros(m)
     for i in range(n):
         for c in range(2):
             for p in range(m):
@@ -32,8 +30,8 @@ def apex_start(a0, al, tau0, T, k):
 def normal_start(a0, al, tau0, T, c, k):
     """k minimising sum_i |tau_i(k)|^2 + (a_i(k) - c)^2: every finger pushing with force c."""
     n, m = al.shape
-    M = np.zeros((m, m))
-    r = np.zeros(m)
+    M = stack_zeros((m, m))
+    r = stack_zeros(m)
     for i in range(n):
         for row in range(3):
             target = c - a0[i] if row == 0 else -tau0[i, row - 1]
@@ -52,8 +50,8 @@ def normal_start(a0, al, tau0, T, c, k):
 def move_force(a0, al, tau0, T, i, t0, t1, t2, k_from, k):
     """k = k_from moved (minimum norm) so that P_i = (t0, t1, t2) in finger i's frame."""
     m = al.shape[1]
-    M = np.empty((3, 3))
-    y = np.empty(3)
+    M = stack_empty((3, 3))
+    y = stack_empty(3)
     for r in range(3):
         s = a0[i] if r == 0 else tau0[i, r - 1]
         for j in range(m):
