@@ -49,15 +49,23 @@ def _items_overload(shape):  # type: ignore[no-untyped-def]
     return items
 
 
+@kernel
+def _stack_view(buffer, shape, dtype):
+    """The array of ``shape`` on ``buffer`` (STACK_ITEMS items), or on the heap if larger.
+    (A function of its own, compiled once per shape and type: inlined into every call site,
+    the heap's branch took a minute more to compile the solver.)"""
+    if _items(shape) > STACK_ITEMS:
+        return np.empty(shape, dtype)
+    return carray(buffer, shape)
+
+
 @inline
 def stack_empty(shape, dtype=np.float64):
     """``np.empty(shape, dtype)`` in the stack frame of the kernel this is inlined into: the
     solve's scratch arrays, which a heap allocation each (about 40 ns with its free) made a
     sixth of a three-finger solve. Valid while that kernel runs, so never returned from a
     kernel; a call in a loop gives the same memory every pass."""
-    if _items(shape) > STACK_ITEMS:
-        return np.empty(shape, dtype)
-    return carray(_stack_buffer(dtype), shape)
+    return _stack_view(_stack_buffer(dtype), shape, dtype)
 
 
 @inline
