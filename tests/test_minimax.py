@@ -571,7 +571,7 @@ def test_every_kernel_is_keyed_on_its_package() -> None:
 
 def test_stack_arrays_behave_as_numpys() -> None:
     """The kernels' stack arrays (linalg.stack_*): numpy's shapes, dtypes and values, each call
-    site its own memory, and arrays beyond STACK_ITEMS on the heap, whole."""
+    site its own memory, and arrays larger than their buffer on the heap, whole."""
     from numba import njit
 
     from grasp_env.mechanics.minimax.linalg import STACK_ITEMS, stack_copy, stack_empty, stack_zeros
@@ -586,15 +586,17 @@ def test_stack_arrays_behave_as_numpys() -> None:
         other[0, 0] = 1.0
         copied = stack_copy(other)
         other[0, 0] = 2.0
-        large = stack_empty(big)  # beyond STACK_ITEMS: the heap, every item writable
+        long = stack_empty(big)  # beyond its buffer: on the heap, every item writable
         for q in range(big):
-            large[q] = q
+            long[q] = q
+        large = stack_zeros((2, big))
+        large[1, big - 1] = 1.0
         # (copies on the heap: a stack array must not outlive its kernel)
-        return zeros.copy(), flags.copy(), counts.copy(), copied.copy(), large.sum()
+        return zeros.copy(), flags.copy(), counts.copy(), copied.copy(), long.sum(), large.sum()
 
-    zeros, flags, counts, copied, total = made(4, 10 * STACK_ITEMS)
+    zeros, flags, counts, copied, total, ones = made(4, STACK_ITEMS)
     assert zeros.shape == (4, 3) and zeros.dtype == np.float64 and not zeros.any()
     assert flags.dtype == np.bool_ and not flags.any()
     assert counts.dtype == np.int64 and (counts == 7).all()
     assert copied[0, 0] == 1.0 and copied.sum() == 1.0
-    assert total == sum(range(10 * STACK_ITEMS))
+    assert total == sum(range(STACK_ITEMS)) and ones == 1.0

@@ -14,47 +14,58 @@ from numba.extending import intrinsic, overload
 
 from .jit import inline, kernel
 
-#: The most items an array in a kernel's stack frame holds (512 bytes of float64): a solve's
-#: vectors and matrices are a few to 49 items. A larger one is made on the heap.
+#: The most items a vector (VECTOR_ITEMS) and a matrix (STACK_ITEMS) in a kernel's stack
+#: frame hold: a solve's vectors have n, m or up to 23 constraints' items, its matrices up to
+#: 49. A larger array is made on the heap. (Every call site has its own, so these sizes set
+#: the stack a solve needs: a thread of 48 KiB solves, one of 32 KiB, Python's least, does not.)
+VECTOR_ITEMS = 24
 STACK_ITEMS = 64
 
 
+def _is_vector(shape) -> bool:  # type: ignore[no-untyped-def]
+    return isinstance(shape, types.Integer) or len(shape) == 1
+
+
 @intrinsic
-def _stack_buffer(typingctx, dtype):  # type: ignore[no-untyped-def]
-    """STACK_ITEMS items of ``dtype`` in the stack frame of the compiled function that calls
-    this (an alloca in its entry block: one per call site, reused by every pass of a loop)."""
+def _stack_buffer(typingctx, dtype, shape):  # type: ignore[no-untyped-def]
+    """Room for an array of ``shape``'s rank (VECTOR_ITEMS or STACK_ITEMS items of ``dtype``)
+    in the stack frame of the compiled function that calls this (an alloca in its entry
+    block: one per call site, reused by every pass of a loop)."""
     item = dtype.dtype if isinstance(dtype, types.DType) else dtype.instance_type
+    size = VECTOR_ITEMS if _is_vector(shape) else STACK_ITEMS
 
     def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
-        return cgutils.alloca_once(builder, context.get_data_type(item), size=STACK_ITEMS)
+        return cgutils.alloca_once(builder, context.get_data_type(item), size=size)
 
-    return types.CPointer(item)(dtype), codegen
-
-
-def _items(shape):  # type: ignore[no-untyped-def]
-    """The number of items of an array of ``shape`` (an int or a tuple of ints)."""
+    return types.CPointer(item)(dtype, shape), codegen
 
 
-@overload(_items)
-def _items_overload(shape):  # type: ignore[no-untyped-def]
+def _room(shape):  # type: ignore[no-untyped-def]
+    """(items of an array of ``shape``, an int or a tuple of ints; items its buffer holds)"""
+
+
+@overload(_room)
+def _room_overload(shape):  # type: ignore[no-untyped-def]
     if isinstance(shape, types.Integer):
-        return lambda shape: shape
+        return lambda shape: (shape, VECTOR_ITEMS)
+    room = VECTOR_ITEMS if _is_vector(shape) else STACK_ITEMS
 
     def items(shape):  # type: ignore[no-untyped-def]
         size = 1
         for s in shape:
             size *= s
-        return size
+        return size, room
 
     return items
 
 
 @kernel
 def _stack_view(buffer, shape, dtype):
-    """The array of ``shape`` on ``buffer`` (STACK_ITEMS items), or on the heap if larger.
+    """The array of ``shape`` on ``buffer``, or on the heap if the buffer is too small.
     (A function of its own, compiled once per shape and type: inlined into every call site,
     the heap's branch took a minute more to compile the solver.)"""
-    if _items(shape) > STACK_ITEMS:
+    items, room = _room(shape)
+    if items > room:
         return np.empty(shape, dtype)
     return carray(buffer, shape)
 
@@ -65,7 +76,7 @@ def stack_empty(shape, dtype=np.float64):
     solve's scratch arrays, which a heap allocation each (about 40 ns with its free) made a
     sixth of a three-finger solve. Valid while that kernel runs, so never returned from a
     kernel; a call in a loop gives the same memory every pass."""
-    return _stack_view(_stack_buffer(dtype), shape, dtype)
+    return _stack_view(_stack_buffer(dtype, shape), shape, dtype)
 
 
 @inline
