@@ -56,7 +56,7 @@ from grasp_env.mechanics import Grasp, solve_minimax
 from grasp_env.mechanics.minimax import _THREADS
 from grasp_env.mechanics.minimax.driver import solve_batch
 from grasp_env.mechanics.minimax.fingers import evaluate, finger_derivatives, setup
-from grasp_env.mechanics.minimax.linalg import STACK_ITEMS, VECTOR_ITEMS, lu_solve
+from grasp_env.mechanics.minimax.linalg import lu_solve, stack_room
 
 #: The kernel modules, callees before callers.
 MODULES = ("linalg", "fingers", "starts", "sqp", "certificate", "newton", "barrier", "driver")
@@ -191,13 +191,13 @@ class _CountingNumpy:
 
 
 def _on_stack(make: Callable[..., np.ndarray]) -> Callable[..., np.ndarray]:
-    """``make`` for the kernels' stack arrays (``linalg.stack_*``): those that fit their
-    buffer (VECTOR_ITEMS or STACK_ITEMS items) are not allocated, so not counted as arrays."""
+    """``make`` for the kernels' stack arrays (``linalg.stack_*``): those that fit their room
+    (``linalg.stack_room``) are not allocated, so not counted as arrays."""
 
     def made(shape, dtype=None):  # type: ignore[no-untyped-def]
         before = _Tally.arrays[0]
         array = make(shape, dtype)
-        if array.size <= (VECTOR_ITEMS if array.ndim == 1 else STACK_ITEMS):
+        if array.size <= stack_room(array.ndim):
             _Tally.arrays[0] = before
         return array
 

@@ -22,17 +22,23 @@ VECTOR_ITEMS = 24
 STACK_ITEMS = 64
 
 
-def _is_vector(shape) -> bool:  # type: ignore[no-untyped-def]
-    return isinstance(shape, types.Integer) or len(shape) == 1
+def stack_room(ndim: int) -> int:
+    """The items a stack array of ``ndim`` dimensions has room for."""
+    return VECTOR_ITEMS if ndim == 1 else STACK_ITEMS
+
+
+def _ndim(shape) -> int:  # type: ignore[no-untyped-def]
+    """The dimensions of a shape's numba type (an integer or a tuple of them)."""
+    return 1 if isinstance(shape, types.Integer) else len(shape)
 
 
 @intrinsic
 def _stack_buffer(typingctx, dtype, shape):  # type: ignore[no-untyped-def]
-    """Room for an array of ``shape``'s rank (VECTOR_ITEMS or STACK_ITEMS items of ``dtype``)
-    in the stack frame of the compiled function that calls this (an alloca in its entry
-    block: one per call site, reused by every pass of a loop)."""
+    """Room for an array of ``shape``'s dimensions (:func:`stack_room` items of ``dtype``) in
+    the stack frame of the compiled function that calls this (an alloca in its entry block:
+    one per call site, reused by every pass of a loop)."""
     item = dtype.dtype if isinstance(dtype, types.DType) else dtype.instance_type
-    size = VECTOR_ITEMS if _is_vector(shape) else STACK_ITEMS
+    size = stack_room(_ndim(shape))
 
     def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
         return cgutils.alloca_once(builder, context.get_data_type(item), size=size)
@@ -40,23 +46,32 @@ def _stack_buffer(typingctx, dtype, shape):  # type: ignore[no-untyped-def]
     return types.CPointer(item)(dtype, shape), codegen
 
 
-def _room(shape):  # type: ignore[no-untyped-def]
-    """(items of an array of ``shape``, an int or a tuple of ints; items its buffer holds)"""
+def _items(shape):  # type: ignore[no-untyped-def]
+    """The items of an array of ``shape`` (an int or a tuple of ints)."""
 
 
-@overload(_room)
-def _room_overload(shape):  # type: ignore[no-untyped-def]
+@overload(_items)
+def _items_overload(shape):  # type: ignore[no-untyped-def]
     if isinstance(shape, types.Integer):
-        return lambda shape: (shape, VECTOR_ITEMS)
-    room = VECTOR_ITEMS if _is_vector(shape) else STACK_ITEMS
+        return lambda shape: shape
 
     def items(shape):  # type: ignore[no-untyped-def]
         size = 1
         for s in shape:
             size *= s
-        return size, room
+        return size
 
     return items
+
+
+def _room(shape):  # type: ignore[no-untyped-def]
+    """The items a stack array of ``shape`` has room for (compiled code's stack_room)."""
+
+
+@overload(_room)
+def _room_overload(shape):  # type: ignore[no-untyped-def]
+    room = stack_room(_ndim(shape))
+    return lambda shape: room
 
 
 @kernel
@@ -64,8 +79,7 @@ def _stack_view(buffer, shape, dtype):
     """The array of ``shape`` on ``buffer``, or on the heap if the buffer is too small.
     (A function of its own, compiled once per shape and type: inlined into every call site,
     the heap's branch took a minute more to compile the solver.)"""
-    items, room = _room(shape)
-    if items > room:
+    if _items(shape) > _room(shape):
         return np.empty(shape, dtype)
     return carray(buffer, shape)
 
