@@ -141,7 +141,7 @@ def measure(n: int, seconds: float) -> dict[str, float]:
         ref = reference.solve(g.equilibrating, g.basis, g.normals, k_max[i])
         errors.append(abs(result.max_angle[i] - ref.upper))
     reference_rate = REFERENCE_SCENES / (time.perf_counter() - start)
-    optima = solve_minimax(along, along_k_max, follows=follows).k
+    optima = solve_minimax(along, along_k_max, follows=follows)
     return {
         "limit": limit,
         **speeds,

@@ -52,7 +52,7 @@ import numba
 import numpy as np
 from numba.core.dispatcher import Dispatcher
 
-from grasp_env.mechanics import Grasp, solve_minimax
+from grasp_env.mechanics import Grasp, MinimaxResult, solve_minimax
 from grasp_env.mechanics.minimax import _THREADS
 from grasp_env.mechanics.minimax.driver import solve_batch
 from grasp_env.mechanics.minimax.fingers import evaluate, finger_derivatives, setup
@@ -313,17 +313,20 @@ class Interpreter:
     ) -> tuple[np.ndarray, float, int, int]:
         """``solve_one`` on one grasp (world-frame arrays), counted: (k, lower, status, path).
 
-        nearby: (k_near, k_before, F_near, E_near, N_near), the two previous poses' optima
-        and the previous pose, to start as ``solve_batch`` does along a trajectory (secant).
+        nearby: (k_near, k_before, theta_near, F_near, E_near, N_near), the two previous
+        poses' optima, the previous optimum's angles and the previous pose, to start as
+        ``solve_batch`` does along a trajectory (secant).
         """
         n, m = F.shape[0], E.shape[0]
         k = counted_array(np.zeros(m))
         theta = counted_array(np.zeros(n))
         grasp = counted_array(F), counted_array(E), counted_array(N)
-        near = (k, k, False, False, *grasp)
+        near = (k, k, theta, False, False, *grasp)
         if nearby is not None:
-            k_near, k_before, *previous = (counted_array(np.array(x, float)) for x in nearby)
-            near = (k_near, k_before, True, True, *previous)
+            k_near, k_before, theta_near, *previous = (
+                counted_array(np.array(x, float)) for x in nearby
+            )
+            near = (k_near, k_before, theta_near, True, True, *previous)
         lower, status, path = self.kernel("solve_one")(
             *grasp, Counted(k_max), Counted(f_max), k, theta, *near
         )
@@ -584,17 +587,20 @@ def count_solves(grasps: list[Grasp], k_max: np.ndarray, per_path: int = 3) -> S
     return result
 
 
-def count_along(along: Grasp, k_max: np.ndarray, k: np.ndarray, every: int) -> tuple[float, float]:
+def count_along(
+    along: Grasp, k_max: np.ndarray, optimum: MinimaxResult, every: int
+) -> tuple[float, float]:
     """Mean flops of a solve on the poses of trajectories after their first two, (cold,
-    warm): each pose solved on its own, and started from the two previous poses' optima ``k``
+    warm): each pose solved on its own, and started from the two previous poses' ``optimum``
     as ``solve_batch`` does with ``follows`` (secant). ``along`` is (scenes, poses); every
     ``every``-th scene is counted. The ratio is what the arithmetic allows the warm start."""
+    k, angles = optimum.k, optimum.angles
     interpreter = Interpreter()
     cold, warm = [], []
     for s in range(0, along.equilibrating.shape[0], every):
         F, E, N = along.equilibrating[s], along.basis[s], along.normals[s]
         for b in range(2, F.shape[0]):
-            previous = (k[s, b - 1], k[s, b - 2], F[b - 1], E[b - 1], N[b - 1])
+            previous = (k[s, b - 1], k[s, b - 2], angles[s, b - 1], F[b - 1], E[b - 1], N[b - 1])
             for nearby, flops in ((None, cold), (previous, warm)):
                 interpreter.reset()
                 interpreter.solve(F[b], E[b], N[b], float(k_max[s, 0]), math.inf, nearby)

@@ -9,10 +9,15 @@ import math
 import numpy as np
 import pytest
 
-from grasp_env.mechanics import PAPER_AXIS, pose_rotation, scene_grasp, solve_minimax
+from grasp_env.mechanics import PAPER_AXIS, Grasp, pose_rotation, scene_grasp, solve_minimax
 from grasp_env.mechanics.minimax import Path
 from grasp_env_agents.benchmarks import limits
-from grasp_env_agents.benchmarks.bench_solver import random_grasps, random_scene, stacked
+from grasp_env_agents.benchmarks.bench_solver import (
+    random_grasps,
+    random_scene,
+    stacked,
+    trajectories,
+)
 from grasp_env_agents.benchmarks.limits import Counted, Interpreter, counted_array
 
 
@@ -144,12 +149,33 @@ def test_a_warm_interpreted_solve_is_the_compiled_one_and_costs_less(n):
     compiled = solve_minimax(along, k_max, follows=np.arange(5) > 0)
     F, E, N = along.equilibrating[0], along.basis[0], along.normals[0]
     K = float(k_max[0, 0])
-    k, lower, status, path = Interpreter().solve(
-        F[4], E[4], N[4], K, math.inf, (compiled.k[0, 3], compiled.k[0, 2], F[3], E[3], N[3])
-    )
+    previous = (compiled.k[0, 3], compiled.k[0, 2], compiled.angles[0, 3], F[3], E[3], N[3])
+    k, lower, status, path = Interpreter().solve(F[4], E[4], N[4], K, math.inf, previous)
     assert path == Path.NEARBY  # the warm start certified it, as in the compiled batch
     np.testing.assert_allclose(k, compiled.k[0, 4], rtol=1e-12, atol=1e-12 * K)
     assert lower == pytest.approx(float(compiled.lower_bound[0, 4]), abs=1e-15)
     assert status == compiled.status[0, 4]
-    cold, warm = limits.count_along(along, k_max, compiled.k, every=1)
+    cold, warm = limits.count_along(along, k_max, compiled, every=1)
     assert 0 < warm < cold
+
+
+def test_a_warm_solve_keeps_the_previous_optimums_sets():
+    # a benchmark trajectory on which one finger stays within 0.1 rad of the largest angle
+    # without being at it: taken as active, Newton's method went to the KKT point with it
+    # active (its multiplier negative) and back, two polishes and about ten steps
+    along, k_max, follows = trajectories(3, seed=3)
+    fields = ("positions", "normals", "equilibrating", "basis", "friction_limit")
+    scene = Grasp(*(getattr(along, field)[48:49] for field in fields))
+    compiled = solve_minimax(scene, k_max[48:49], follows=follows)
+    below = compiled.angles[0, 5].max() - compiled.angles[0, 5]
+    assert np.any((1e-3 < below) & (below < 0.1))
+    F, E, N = scene.equilibrating[0], scene.basis[0], scene.normals[0]
+    previous = (compiled.k[0, 4], compiled.k[0, 3], compiled.angles[0, 4], F[4], E[4], N[4])
+    interpreter = Interpreter()
+    *_, path = interpreter.solve(F[5], E[5], N[5], float(k_max[48, 0]), math.inf, previous)
+    assert path == Path.NEARBY
+    assert interpreter.calls["polish"] == 1
+    steps = interpreter.edges[("polish", "lu_solve")]
+    assert steps <= 3
+    # and no iteration only to find that the last step was below rounding
+    assert interpreter.edges[("polish", "evaluate")] == 1 + steps

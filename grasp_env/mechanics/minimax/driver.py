@@ -38,10 +38,15 @@ from .newton import RELEASE, finish, finish_from, sets_from_point
 from .sqp import sqp
 from .starts import apex_start, move_force, normal_start, release_start
 
-#: Starting from a nearby grasp's optimum, the fingers within this of the largest friction
-#: angle are taken as the maximum (radians, about 6 deg; finish repairs a wrong guess at the
-#: cost of a polish, where a finger missed would cost the SQP).
+#: Starting from a nearby grasp's optimum, the fingers at the maximum there are taken as the
+#: maximum again if within NEAR_ANGLES of the largest friction angle (radians, about 6 deg: a
+#: finger missed can leave Newton's method no KKT point, and costs the cold solve), the
+#: others only if within NEW_ANGLES: a finger taken wrongly costs two polishes, one to a KKT
+#: point with its multiplier negative (often 0.1 K away) and one back.
 NEAR_ANGLES = 0.1
+NEW_ANGLES = 1e-3
+#: At a nearby optimum, the fingers within this of its largest angle are at the maximum.
+HELD_ANGLES = 1e-6
 
 
 class Best(NamedTuple):
@@ -105,6 +110,8 @@ def try_releases(a0, al, tau0, T, K, f, k_sqp, best, k_best):
     fixed = stack_zeros(m, dtype=np.int64)
     k = stack_empty(m)
     k_rel = stack_empty(m)
+    tight = stack_empty(n)
+    tight.fill(1e-6)
     evaluate(k_sqp, a0, al, tau0, T, a, tau, rho, theta)
     order = stack_empty(n, dtype=np.int64)  # fingers by |P_i|, smallest first
     for q in range(n):
@@ -125,7 +132,7 @@ def try_releases(a0, al, tau0, T, K, f, k_sqp, best, k_best):
             continue
         if sqp(a0, al, tau0, T, K, f, R, RELEASE, k, lam, nu, 60, 1e-8) < 0:
             continue
-        t_up, low, share = finish_from(a0, al, tau0, T, K, f, k, lam, eta, 1e-6, 1e-6)
+        t_up, low, share = finish_from(a0, al, tau0, T, K, f, k, lam, eta, 1e-6, tight)
         best = fold(best, k_best, k, t_up, low, box_status(share), RELEASED)
         if closed(best):
             return best
@@ -170,6 +177,8 @@ def try_push(a0, al, tau0, T, K, f, k_sqp, best, k_best):
     eta = stack_zeros((n, 3))
     R = stack_zeros(n, dtype=np.bool_)
     k = stack_empty(m)
+    tight = stack_empty(n)
+    tight.fill(1e-6)
     evaluate(k_sqp, a0, al, tau0, T, a, tau, rho, theta)
     typical = 0.0
     weakest = 0
@@ -187,7 +196,7 @@ def try_push(a0, al, tau0, T, K, f, k_sqp, best, k_best):
             k[j] = min(K, max(-K, k[j]))
         if sqp(a0, al, tau0, T, K, f, R, 0.0, k, lam, nu, 60, 1e-8) < 0:
             continue
-        t_up, low, share = finish_from(a0, al, tau0, T, K, f, k, lam, eta, 1e-6, 1e-6)
+        t_up, low, share = finish_from(a0, al, tau0, T, K, f, k, lam, eta, 1e-6, tight)
         best = fold(best, k_best, k, t_up, low, box_status(share), RESTARTED)
         if closed(best):
             return best
@@ -211,11 +220,13 @@ def try_fallback(a0, al, tau0, T, K, f, k_start, best, k_best):
     if closed(best) or status == NOT_PUSHING:
         return best
     k_fallback = stack_copy(k)
+    within = stack_empty(n)
     for tol in (1e-6, 1e-5, 1e-4, 1e-3):
         # the barrier's point is near-optimal to about 1e-8; degenerate optima (a finger
         # with almost no force) need looser tolerances to read the active sets off it
         copy_into(k, k_fallback, k.shape[0])
-        t_up, low, share = finish_from(a0, al, tau0, T, K, f, k, lam, eta, tol, tol)
+        within.fill(tol)
+        t_up, low, share = finish_from(a0, al, tau0, T, K, f, k, lam, eta, tol, within)
         best = fold(best, k_best, k, t_up, low, box_status(share), FALLBACK)
         if closed(best):
             return best
@@ -234,7 +245,9 @@ def try_fallback(a0, al, tau0, T, K, f, k_start, best, k_best):
 
 
 @inline
-def try_weak_finger(F_near, E_near, N_near, a0, al, tau0, T, K, f, scale, k_near, best, k_best):
+def try_weak_finger(
+    F_near, E_near, N_near, a0, al, tau0, T, K, f, scale, k_near, within, best, k_best
+):
     """Four fingers along a trajectory: where the nearby optimum nearly releases a finger, its
     small force's direction swings from pose to pose (at most 0.07 rad at one optimum, 0.91
     with the same k a degree later, measured), so k_near is no start; start instead where
@@ -287,22 +300,37 @@ def try_weak_finger(F_near, E_near, N_near, a0, al, tau0, T, K, f, scale, k_near
     lam = stack_empty(n)
     lam.fill(1.0 / n)
     eta = stack_zeros((n, 3))
-    t_up, low, share = finish_from(a0, al, tau0, T, K, f, k, lam, eta, 1e-6, NEAR_ANGLES)
+    t_up, low, share = finish_from(a0, al, tau0, T, K, f, k, lam, eta, 1e-6, within)
     return fold(best, k_best, k, t_up, low, box_status(share), NEARBY)
 
 
 @inline
 def solve_one(
-    F, E, N, K_in, f_in, k, theta, k_near, k_before, near, secant, F_near, E_near, N_near
+    F,
+    E,
+    N,
+    K_in,
+    f_in,
+    k,
+    theta,
+    k_near,
+    k_before,
+    theta_near,
+    near,
+    secant,
+    F_near,
+    E_near,
+    N_near,
 ):
     """Certified minimax for one grasp; fills k and theta, returns (lower, status, path).
 
     near: k_near (newtons) is the optimum of a nearby grasp (the previous pose of a
-    trajectory): Newton's method starts there, with the sets it nearly has, first; with
-    secant, k_before is the optimum of the pose before that, and the start is extrapolated
-    along the secant, 2 k_near - k_before (an error second-order in the step, not first:
-    13% fewer operations a warm solve with three fingers, 26% with four). F_near, E_near,
-    N_near: the nearby grasp (see :func:`try_weak_finger`).
+    trajectory), theta_near its friction angles: Newton's method starts there, with the
+    sets it has there, first; with secant, k_before is the optimum of the pose before
+    that, and the start is extrapolated along the secant, 2 k_near - k_before (an error
+    second-order in the step, not first: 13% fewer operations a warm solve with three
+    fingers, 26% with four). F_near, E_near, N_near: the nearby grasp (see
+    :func:`try_weak_finger`).
     path: the attempt that certified the result (codes.Path, diagnostic), or a negative
     code for an input refused (INVALID: NaN or inf; BAD_*: see codes).
     """
@@ -349,17 +377,22 @@ def solve_one(
     k_best = stack_empty(m)
     done = False
     if near:
-        # a step along a trajectory moves the optimum a little and its sets rarely: the
-        # fingers within NEAR_ANGLES of the largest angle there are taken as the maximum
+        # a step along a trajectory moves the optimum a little and its sets rarely
         for j in range(m):
             step = k_near[j] - k_before[j] if secant else 0.0
             k[j] = min(K, max(-K, (k_near[j] + step) / scale))
-        t_up, low, share = finish_from(a0, al, tau0, T, K, f, k, lam, eta, 1e-6, NEAR_ANGLES)
+        top = -inf
+        for i in range(n):
+            top = max(top, theta_near[i])
+        within = stack_empty(n)
+        for i in range(n):
+            within[i] = NEAR_ANGLES if theta_near[i] >= top - HELD_ANGLES else NEW_ANGLES
+        t_up, low, share = finish_from(a0, al, tau0, T, K, f, k, lam, eta, 1e-6, within)
         best = fold(best, k_best, k, t_up, low, box_status(share), NEARBY)
         done = closed(best)
         if not done and n == 4:
             best = try_weak_finger(
-                F_near, E_near, N_near, a0, al, tau0, T, K, f, scale, k_near, best, k_best
+                F_near, E_near, N_near, a0, al, tau0, T, K, f, scale, k_near, within, best, k_best
             )
             done = closed(best)
         if not done:  # start afresh (finish_from set lam and eta; its nu is its own)
@@ -411,10 +444,12 @@ def solve_one(
     if not done:
         for i in range(n):
             lam[i] = 1.0 / n
+        tight = stack_empty(n)
+        tight.fill(1e-6)
         steps = sqp(a0, al, tau0, T, K, f, R, 0.0, k_sqp, lam, nu, 60, 1e-8)
         if steps >= 0 or n == 4:
             copy_into(k, k_sqp, m)
-            t_up, low, share = finish_from(a0, al, tau0, T, K, f, k, lam, eta, 1e-6, 1e-6)
+            t_up, low, share = finish_from(a0, al, tau0, T, K, f, k, lam, eta, 1e-6, tight)
             best = fold(best, k_best, k, t_up, low, box_status(share), SQP)
             done = closed(best)
         if not done and steps >= 0:
@@ -422,7 +457,7 @@ def solve_one(
             steps = sqp(a0, al, tau0, T, K, f, R, 0.0, k_sqp, lam, nu, 60, 1e-14)
             if steps >= 0:
                 copy_into(k, k_sqp, m)
-                t_up, low, share = finish_from(a0, al, tau0, T, K, f, k, lam, eta, 1e-6, 1e-6)
+                t_up, low, share = finish_from(a0, al, tau0, T, K, f, k, lam, eta, 1e-6, tight)
                 best = fold(best, k_best, k, t_up, low, box_status(share), SQP)
                 done = closed(best)
     if not done and n == 4:
@@ -479,6 +514,7 @@ def solve_batch(F, E, N, K, f, k, theta, lower, status, path, follows, start, st
             theta[b],
             k[c],
             k[max(b - 2, 0)],
+            theta[c],
             near,
             secant,
             F[c],
@@ -494,4 +530,4 @@ def solve_grasp(F, E, N, K, f, k, theta):
     The entry of a single solve: a batch of one through :func:`solve_batch` made five arrays
     and passed eleven, and took 1.2x as long a call.
     """
-    return solve_one(F, E, N, K, f, k, theta, k, k, False, False, F, E, N)
+    return solve_one(F, E, N, K, f, k, theta, k, k, theta, False, False, F, E, N)

@@ -144,6 +144,7 @@ def polish(a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu, release, max_
     for i in range(n):
         if S[i]:
             t = max(t, theta[i])
+    last = 0.0  # the previous step
     for it in range(max_iter):
         evaluate(k, a0, al, tau0, T, a, tau, rho, theta)
         zero(H)
@@ -235,8 +236,13 @@ def polish(a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu, release, max_
             step = max(step, abs(rhs[p]))
         t += rhs[size - 1]
         read_multipliers(rhs, nf, S, R, Q, lam, eta, nu)
-        if step <= 1e-15 * (1.0 + K) and it > 0:
+        if it > 0 and step <= 1e-15 * (1.0 + K):
             return t
+        # deep in the quadratic phase the next step (about step^3 / last^2) would be below
+        # rounding: it, and the iteration that checks for it, would leave k as it is
+        if it > 0 and step <= 1e-9 * (1.0 + K) and step**3 <= 1e-15 * (1.0 + K) * last**2:
+            return t
+        last = step
     return -1.0
 
 
@@ -422,8 +428,8 @@ def finish(a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu, settle_by):
 
 @kernel
 def finish_from(a0, al, tau0, T, K, f, k, lam, eta, tol, angle_tol):
-    """Read the active sets off a near-optimal point k (within ``tol``; the fingers at the
-    maximum angle within ``angle_tol``), then :func:`finish`."""
+    """Read the active sets off a near-optimal point k (within ``tol``; finger i is at the
+    maximum angle if within ``angle_tol[i]`` of it), then :func:`finish`."""
     n, m = al.shape
     a = stack_empty(n)
     tau = stack_empty((n, 2))
@@ -445,7 +451,7 @@ def finish_from(a0, al, tau0, T, K, f, k, lam, eta, tol, angle_tol):
         if not R[i]:
             t_up = max(t_up, theta[i])
     for i in range(n):
-        S[i] = not R[i] and theta[i] >= t_up - angle_tol
+        S[i] = not R[i] and theta[i] >= t_up - angle_tol[i]
         if f < inf:
             Q[i] = sqrt(a[i] ** 2 + rho[i] ** 2) >= f * (1.0 - tol)
     for j in range(m):
