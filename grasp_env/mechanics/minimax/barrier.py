@@ -11,7 +11,7 @@ import numpy as np
 
 from .certificate import certify_min_slack, dual_value, force_certificate
 from .codes import GAP_TOL, INTERIOR, NOT_PUSHING
-from .fingers import evaluate
+from .fingers import angle_arrays, evaluate
 from .jit import kernel
 from .linalg import cholesky_inverse, copy_into, stack_copy, stack_empty
 
@@ -242,10 +242,7 @@ def fallback(a0, al, tau0, T, K, f, k, gap, centre):
     z = stack_empty((n, 3))
     nuv = stack_empty((n, 3))
     nus = stack_empty(n)
-    a = stack_empty(n)
-    tau = stack_empty((n, 2))
-    rho = stack_empty(n)
-    theta = stack_empty(n)
+    a, tau, rho, theta = angle_arrays(n)
     for j in range(m):
         centre[j] = 0.0  # inside the box and (when f is finite) the force limits
     inner = 1.0 - 1e-9
@@ -355,10 +352,7 @@ def bisect(a0, al, tau0, T, K, f, k_best, centre, lo, hi):
     moves the next one down, so lo is always certified and hi always attained.
     """
     n, m = al.shape
-    a = stack_empty(n)
-    tau = stack_empty((n, 2))
-    rho = stack_empty(n)
-    theta = stack_empty(n)
+    a, tau, rho, theta = angle_arrays(n)
     wts = stack_empty(n)
     x = stack_empty(m + 1)
     share = 0.0

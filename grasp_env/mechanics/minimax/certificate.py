@@ -8,7 +8,7 @@ from math import atan2, cos, inf, sin, sqrt
 
 import numpy as np
 
-from .fingers import evaluate, force_derivatives
+from .fingers import angle_arrays, evaluate, force_derivatives
 from .jit import inline, kernel
 from .linalg import lu_solve, stack_copy, stack_empty, stack_zeros
 
@@ -50,10 +50,7 @@ def certify(a0, al, tau0, T, K, f, k, t_low, S, R, Q, fixed, lam, eta, nu):
     Returns (L, box_share) where box_share is the box term's share of the certificate.
     """
     n, m = al.shape
-    a = stack_empty(n)
-    tau = stack_empty((n, 2))
-    rho = stack_empty(n)
-    theta = stack_empty(n)
+    a, tau, rho, theta = angle_arrays(n)
     evaluate(k, a0, al, tau0, T, a, tau, rho, theta)
     ct, st = cos(t_low), sin(t_low)
     z = stack_zeros((n, 3))  # dual vectors in the finger frames (normal, b, c)
@@ -254,10 +251,7 @@ def force_certificate(a0, al, tau0, T, K, f, k):
         L = sum nu_i (v_i . F_i - f) - K || sum nu_i A_i' v_i ||_1 > 0
     proves the limits infeasible. The nu_i are the least-squares stationarity multipliers."""
     n, m = al.shape
-    a = stack_empty(n)
-    tau = stack_empty((n, 2))
-    rho = stack_empty(n)
-    theta = stack_empty(n)
+    a, tau, rho, theta = angle_arrays(n)
     evaluate(k, a0, al, tau0, T, a, tau, rho, theta)
     P = stack_empty(n)
     worst = 0.0
@@ -327,10 +321,7 @@ def certify_min_slack(a0, al, tau0, T, K, f, t, wts, x, tol):
     rounding (1 / slack) near the optimum, its primal point is not. Returns (L, box_share).
     """
     n, m = al.shape
-    a = stack_empty(n)
-    tau = stack_empty((n, 2))
-    rho = stack_empty(n)
-    theta = stack_empty(n)
+    a, tau, rho, theta = angle_arrays(n)
     k = stack_copy(x[:m])
     evaluate(k, a0, al, tau0, T, a, tau, rho, theta)
     ct, st = cos(t), sin(t)

@@ -31,7 +31,7 @@ from .codes import (
     SQP,
     UNCERTIFIED,
 )
-from .fingers import evaluate, setup
+from .fingers import angle_arrays, evaluate, setup
 from .jit import entry, inline
 from .linalg import all_finite, copy_into, stack_copy, stack_empty, stack_zeros, zero
 from .newton import RELEASE, finish, finish_from, sets_from_point
@@ -97,10 +97,7 @@ def try_releases(a0, al, tau0, T, K, f, k_sqp, best, k_best):
     at once, its dual just outside the polar cone), give it the small force its dual asks
     for and solve with every finger active."""
     n, m = al.shape
-    a = stack_empty(n)
-    tau = stack_empty((n, 2))
-    rho = stack_empty(n)
-    theta = stack_empty(n)
+    a, tau, rho, theta = angle_arrays(n)
     lam = stack_empty(n)
     nu = stack_zeros(n)
     eta = stack_zeros((n, 3))
@@ -168,10 +165,7 @@ def try_push(a0, al, tau0, T, K, f, k_sqp, best, k_best):
     """Four fingers: the SQP may stall where a finger's force vanishes without that being
     optimal; restart it with the weakest finger pushing along its normal."""
     n, m = al.shape
-    a = stack_empty(n)
-    tau = stack_empty((n, 2))
-    rho = stack_empty(n)
-    theta = stack_empty(n)
+    a, tau, rho, theta = angle_arrays(n)
     lam = stack_empty(n)
     nu = stack_zeros(n)
     eta = stack_zeros((n, 3))
@@ -231,10 +225,7 @@ def try_fallback(a0, al, tau0, T, K, f, k_start, best, k_best):
         if closed(best):
             return best
     # the certified bisection, from the best point so far and the best bound
-    a = stack_empty(n)
-    tau = stack_empty((n, 2))
-    rho = stack_empty(n)
-    theta = stack_empty(n)
+    a, tau, rho, theta = angle_arrays(n)
     copy_into(k, k_fallback, k.shape[0])
     t_up = evaluate(k, a0, al, tau0, T, a, tau, rho, theta)
     if best.t < t_up:
@@ -261,10 +252,7 @@ def try_weak_finger(
     scale_near, code = setup(F_near, E_near, N_near, a0_near, al_near, tau0_near, T_near)
     if code != 0 or scale_near == 0.0:
         return best
-    a = stack_empty(n)
-    tau = stack_empty((n, 2))
-    rho = stack_empty(n)
-    theta = stack_empty(n)
+    a, tau, rho, theta = angle_arrays(n)
     k = stack_empty(m)
     for j in range(m):
         k[j] = k_near[j] / scale_near

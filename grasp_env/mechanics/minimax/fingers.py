@@ -17,6 +17,14 @@ from math import atan, atan2, sqrt
 
 from .codes import BAD_NORMAL, UNIT_TOL
 from .jit import inline, kernel
+from .linalg import stack_empty
+
+
+@inline
+def angle_arrays(n):
+    """Arrays for :func:`evaluate`'s outputs (a, tau, rho, theta) of n fingers, in the stack
+    frame of the kernel this is inlined into (see :func:`~.linalg.stack_empty`)."""
+    return stack_empty(n), stack_empty((n, 2)), stack_empty(n), stack_empty(n)
 
 
 @kernel

@@ -9,7 +9,7 @@ from math import inf, pi, sqrt
 import numpy as np
 
 from .certificate import certify
-from .fingers import evaluate, finger_derivatives, force_derivatives
+from .fingers import angle_arrays, evaluate, finger_derivatives, force_derivatives
 from .jit import inline, kernel
 from .linalg import copy_into, lu_solve, stack_copy, stack_empty, stack_zeros, zero
 
@@ -112,10 +112,7 @@ def polish(a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu, release, max_
     max_iter steps, or below SETTLED by step settle_by).
     """
     n, m = al.shape
-    a = stack_empty(n)
-    tau = stack_empty((n, 2))
-    rho = stack_empty(n)
-    theta = stack_empty(n)
+    a, tau, rho, theta = angle_arrays(n)
     grads = stack_empty((n, m))
     fgrads = stack_empty((n, m))
     P = stack_empty(n)
@@ -267,10 +264,7 @@ def polish_degenerate(a0, al, tau0, T, K, f, k, k_in, S, R, Q, fixed, lam, eta, 
     lam0 = stack_copy(lam)
     eta0 = stack_copy(eta)
     nu0 = stack_copy(nu)
-    a = stack_empty(n)
-    tau = stack_empty((n, 2))
-    rho = stack_empty(n)
-    theta = stack_empty(n)
+    a, tau, rho, theta = angle_arrays(n)
     for c in range(2 * n + m):
         if c < n:
             member = S[c] and ns > 1
@@ -329,10 +323,7 @@ def finish(a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu, settle_by):
     Returns (t_up, lower, box_share); lower < 0 when no certificate was found.
     """
     n, m = al.shape
-    a = stack_empty(n)
-    tau = stack_empty((n, 2))
-    rho = stack_empty(n)
-    theta = stack_empty(n)
+    a, tau, rho, theta = angle_arrays(n)
     grads = stack_empty((n, m))
     fg = stack_empty(m)
     Hd = stack_zeros((m, m))
@@ -431,10 +422,7 @@ def finish_from(a0, al, tau0, T, K, f, k, lam, eta, tol, angle_tol):
     """Read the active sets off a near-optimal point k (within ``tol``; finger i is at the
     maximum angle if within ``angle_tol[i]`` of it), then :func:`finish`."""
     n, m = al.shape
-    a = stack_empty(n)
-    tau = stack_empty((n, 2))
-    rho = stack_empty(n)
-    theta = stack_empty(n)
+    a, tau, rho, theta = angle_arrays(n)
     S = stack_zeros(n, dtype=np.bool_)
     R = stack_zeros(n, dtype=np.bool_)
     Q = stack_zeros(n, dtype=np.bool_)

@@ -8,7 +8,7 @@ from math import inf, sqrt
 
 import numpy as np
 
-from .fingers import evaluate, finger_derivatives, force_derivatives
+from .fingers import angle_arrays, evaluate, finger_derivatives, force_derivatives
 from .jit import inline, kernel
 from .linalg import cholesky_inverse, lu_solve, stack_empty, stack_zeros, zero
 
@@ -184,10 +184,7 @@ def sqp(a0, al, tau0, T, K, f, R, release, k, lam, nu, max_iter, tol):
         nr += R[i]
     meq = 3 * nr
     nc = meq + (n - nr) + 2 * m + (n if has_f else 0)
-    a = stack_empty(n)
-    tau = stack_empty((n, 2))
-    rho = stack_empty(n)
-    theta = stack_empty(n)
+    a, tau, rho, theta = angle_arrays(n)
     grads = stack_zeros((n, m))
     fgrads = stack_empty((n, m))
     P = stack_empty(n)
