@@ -143,7 +143,8 @@ def polish(a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu, release, max_
             t = max(t, theta[i])
     last = 0.0  # the previous step
     for it in range(max_iter):
-        evaluate(k, a0, al, tau0, T, a, tau, rho, theta)
+        if it > 0:  # (the first pass is at the k just evaluated)
+            evaluate(k, a0, al, tau0, T, a, tau, rho, theta)
         zero(H)
         for i in range(n):
             if S[i]:
