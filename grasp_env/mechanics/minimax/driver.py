@@ -485,7 +485,7 @@ def solve_batch(F, E, N, K, f, k, theta, lower, status, path, follows, start, st
 
     follows[b]: grasp b is near grasp b - 1 (the next pose of a trajectory), whose optimum
     (if solved in this call and not NOT_PUSHING) is its first start, extrapolated from grasp
-    b - 2's where b - 1 follows it too.
+    b - 2's where b - 1 follows it too, with the active sets its angles show.
     """
     for b in range(start, stop):
         near = follows[b] and b > start and path[b - 1] >= 0 and status[b - 1] != NOT_PUSHING
