@@ -33,8 +33,10 @@ def dual_vectors(al, T, S, R, Q, ct, st, lg, phi, z, u, w):
 
 
 @kernel
-def certify(a0, al, tau0, T, K, f, k, t_low, S, R, Q, fixed, lam, eta, nu):
-    """Evaluate the weak-duality certificate L(t_low) from the KKT multipliers at k.
+def certify(a0, al, tau0, T, K, f, a, tau, rho, t_low, S, R, Q, fixed, lam, eta, nu):
+    """Evaluate the weak-duality certificate L(t_low) from the KKT multipliers at a point k
+    (a, tau, rho: its normal and tangential components, as :func:`~.fingers.evaluate` gives
+    them; every caller has just evaluated them).
 
     For any z_i in the polar cone of {P : theta(P) <= t} (z = l (cos t y b - sin t n),
     l >= 0, |y| <= 1) and any u_i: every k in the box with all theta_i <= t and
@@ -50,8 +52,6 @@ def certify(a0, al, tau0, T, K, f, k, t_low, S, R, Q, fixed, lam, eta, nu):
     Returns (L, box_share) where box_share is the box term's share of the certificate.
     """
     n, m = al.shape
-    a, tau, rho, theta = angle_arrays(n)
-    evaluate(k, a0, al, tau0, T, a, tau, rho, theta)
     ct, st = cos(t_low), sin(t_low)
     z = stack_zeros((n, 3))  # dual vectors in the finger frames (normal, b, c)
     lg = stack_zeros(n)
@@ -408,4 +408,4 @@ def certify_min_slack(a0, al, tau0, T, K, f, t, wts, x, tol):
         if Q[i]:
             nu[i] = b[c]
             c += 1
-    return certify(a0, al, tau0, T, K, f, k, t, S, R, Q, fixed, lam, eta, nu)
+    return certify(a0, al, tau0, T, K, f, a, tau, rho, t, S, R, Q, fixed, lam, eta, nu)

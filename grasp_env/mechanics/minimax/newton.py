@@ -412,7 +412,7 @@ def finish(a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu, settle_by):
         t_low = t_up - delta
         if t_low <= 0.0:
             return t_up, 0.0, 0.0
-        L, share = certify(a0, al, tau0, T, K, f, k, t_low, S, R, Q, fixed, lam, eta, nu)
+        L, share = certify(a0, al, tau0, T, K, f, a, tau, rho, t_low, S, R, Q, fixed, lam, eta, nu)
         if L >= 0.0:
             return t_up, t_low, share
     return t_up, -1.0, 0.0
