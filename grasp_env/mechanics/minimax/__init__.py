@@ -63,6 +63,10 @@ from .driver import solve_batch, solve_grasp
 _THREADS = available_cores()
 _PARALLEL_FROM = 64  # smaller batches are not worth the hand-off to threads
 _CHUNKS_PER_THREAD = 4
+_FLOAT = np.dtype(float)
+#: the shapes of one grasp's basis and normals, by the shape of its equilibrating forces
+_ONE_GRASP = {(3, 3): ((3, 3, 3), (3, 3)), (4, 3): ((6, 4, 3), (4, 3))}
+_STATUSES = tuple(np.int8(status) for status in Status)  # made once: np.int8() takes 0.4 us
 
 
 class MinimaxResult(NamedTuple):
@@ -140,7 +144,7 @@ def _positive_number(name: str, value: ArrayLike) -> float:
 
 def _kernel_array(array: np.ndarray) -> np.ndarray:
     """Float64, C-contiguous and writable: the one array type the kernels are compiled for."""
-    if array.dtype == np.float64 and array.flags.c_contiguous and array.flags.writeable:
+    if array.dtype is _FLOAT and array.flags.carray:  # (carray: C-contiguous, aligned, writable)
         return array
     return np.array(array, dtype=float, order="C")
 
@@ -193,6 +197,25 @@ def _refused(
     return ValueError("the grasp's equilibrating forces, basis or normals contain NaN or inf")
 
 
+def _solve_one(
+    F: np.ndarray, E: np.ndarray, N: np.ndarray, k_max: ArrayLike, f_max: ArrayLike | None
+) -> MinimaxResult:
+    """One grasp (shapes checked): the lean path and entry (numpy's and numba's per-call
+    costs, 0.1 to 0.5 us for each array or scalar made, passed or checked, would rival the
+    kernel's 13 us)."""
+    k_lim = _positive_number("k_max", k_max)
+    f_lim = math.inf if f_max is None else _positive_number("f_max", f_max)
+    F, E, N = _kernel_array(F), _kernel_array(E), _kernel_array(N)
+    k = np.empty(E.shape[0])
+    angles = np.empty(F.shape[0])
+    largest, lower, status, path = solve_grasp(F, E, N, k_lim, f_lim, k, angles)
+    if path < 0:
+        raise _refused(np.array([path]), F[None], N[None], np.array([k_lim]), np.array([f_lim]))
+    # (_make: a third of the keyword constructor's cost)
+    result = (k, angles, np.float64(largest), np.float64(lower), _STATUSES[status])
+    return MinimaxResult._make(result)
+
+
 def solve_minimax(
     grasp: Grasp,
     k_max: ArrayLike,
@@ -228,9 +251,19 @@ def solve_minimax(
     """
     if not isinstance(grasp, Grasp):
         raise ValueError(f"grasp must be a Grasp (from scene_grasp), got {type(grasp).__name__}")
-    F = np.asarray(grasp.equilibrating, dtype=float)
-    E = np.asarray(grasp.basis, dtype=float)
-    N = np.asarray(grasp.normals, dtype=float)
+    F, E, N = grasp.equilibrating, grasp.basis, grasp.normals
+    if (
+        type(F) is np.ndarray
+        and type(E) is np.ndarray
+        and type(N) is np.ndarray
+        and _ONE_GRASP.get(F.shape) == (E.shape, N.shape)
+        and _scalar(k_max)
+        and _scalar(f_max)
+    ):
+        return _solve_one(F, E, N, k_max, f_max)  # the usual single grasp, checked cheaply
+    F = np.asarray(F, dtype=float)
+    E = np.asarray(E, dtype=float)
+    N = np.asarray(N, dtype=float)
     if F.ndim < 2 or F.shape[-1] != 3 or F.shape[-2] not in (3, 4):
         raise ValueError(f"grasp forces must have shape (..., 3 or 4, 3), got {F.shape}")
     n = F.shape[-2]
@@ -241,18 +274,7 @@ def solve_minimax(
             f"got {E.shape} and {N.shape}"
         )
     if F.ndim == 2 and E.ndim == 3 and N.ndim == 2 and _scalar(k_max) and _scalar(f_max):
-        # one grasp: the lean path and entry (numpy's and numba's per-call costs, a fraction
-        # of a microsecond for each array made or passed, would rival the kernel's)
-        k_lim = _positive_number("k_max", k_max)
-        f_lim = math.inf if f_max is None else _positive_number("f_max", f_max)
-        F, E, N = _kernel_array(F), _kernel_array(E), _kernel_array(N)
-        k = np.empty(m)
-        angles = np.empty(n)
-        lower, status, path = solve_grasp(F, E, N, k_lim, f_lim, k, angles)
-        if path < 0:
-            raise _refused(np.array([path]), F[None], N[None], np.array([k_lim]), np.array([f_lim]))
-        largest = max(angles.tolist())
-        return MinimaxResult(k, angles, np.float64(largest), np.float64(lower), np.int8(status))
+        return _solve_one(F, E, N, k_max, f_max)
     try:
         batch = np.broadcast_shapes(F.shape[:-2], N.shape[:-2], E.shape[:-3])
     except ValueError:

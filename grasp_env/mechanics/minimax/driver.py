@@ -513,9 +513,10 @@ def solve_batch(F, E, N, K, f, k, theta, lower, status, path, follows, start, st
 
 @entry
 def solve_grasp(F, E, N, K, f, k, theta):
-    """:func:`solve_one` for one grasp, on its own: returns (lower, status, path).
+    """:func:`solve_one` for one grasp, on its own: returns (max angle, lower, status, path).
 
     The entry of a single solve: a batch of one through :func:`solve_batch` made five arrays
     and passed eleven, and took 1.2x as long a call.
     """
-    return solve_one(F, E, N, K, f, k, theta, k, k, theta, False, False, F, E, N)
+    lower, status, path = solve_one(F, E, N, K, f, k, theta, k, k, theta, False, False, F, E, N)
+    return theta.max(), lower, status, path
