@@ -359,7 +359,10 @@ def finish(a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu, settle_by):
                 Q[i] = False
                 changed = True
         # a fixed k_j whose multiplier pulls inwards: free it
-        if not changed:
+        bound = False
+        for j in range(m):
+            bound = bound or fixed[j] != 0
+        if bound and not changed:  # (the derivatives cost a Newton step's with none fixed)
             g = stack_zeros(m)
             for i in range(n):
                 if S[i]:
