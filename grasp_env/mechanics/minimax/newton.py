@@ -21,6 +21,9 @@ RELEASE = 1e-10
 #: Newton's KKT residual that an attempt from a far start must reach within its first few
 #: iterations (see polish): one that has not is rarely converging, and costs as much as the SQP.
 SETTLED = 1e-4
+#: Newton's KKT residual at which polish stops: the max angle is then within about as much
+#: (radians) of the optimum for its sets
+CONVERGED = 1e-12
 
 
 @inline
@@ -145,18 +148,15 @@ def polish(a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu, release, max_
     for it in range(max_iter):
         if it > 0:  # (the first pass is at the k just evaluated)
             evaluate(k, a0, al, tau0, T, a, tau, rho, theta)
-        zero(H)
-        for i in range(n):
-            if S[i]:
-                finger_derivatives(True, i, lam[i], a, tau, rho, al, T, grads[i], H)
-            if Q[i]:
-                P[i] = force_derivatives(i, nu[i], a, tau, al, T, fgrads[i], H)
-        big = 1e-12
-        for j in range(m):
-            big = max(big, abs(H[j, j]))
         if it > 0:
-            # converged: the KKT residual is at rounding level (steps may not be, along
-            # directions in which the optimum is not unique)
+            # converged: the KKT residual is below CONVERGED (steps may not be, along
+            # directions in which the optimum is not unique); the gradients alone first, so
+            # that the last pass costs no Hessian
+            for i in range(n):
+                if S[i]:
+                    finger_derivatives(True, i, 0.0, a, tau, rho, al, T, grads[i], H)
+                if Q[i]:
+                    P[i] = force_derivatives(i, 0.0, a, tau, al, T, fgrads[i], H)
             resid = 0.0
             for i in range(n):
                 if S[i]:
@@ -176,10 +176,19 @@ def polish(a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu, release, max_
                     if Q[i]:
                         g += nu[i] * fgrads[i, j]
                 resid = max(resid, abs(g))
-            if resid <= 1e-14:
+            if resid <= CONVERGED:
                 return t
             if it >= settle_by and resid > SETTLED:
                 return -1.0  # not in Newton's quadratic phase yet: the caller tries otherwise
+        zero(H)
+        for i in range(n):
+            if S[i]:
+                finger_derivatives(True, i, lam[i], a, tau, rho, al, T, grads[i], H)
+            if Q[i]:
+                P[i] = force_derivatives(i, nu[i], a, tau, al, T, fgrads[i], H)
+        big = 1e-12
+        for j in range(m):
+            big = max(big, abs(H[j, j]))
         for p in range(size):
             for q in range(size):
                 A[p, q] = 0.0
