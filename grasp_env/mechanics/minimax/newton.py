@@ -105,17 +105,21 @@ def multiplier_estimate(a, tau, rho, al, T, S, R, Q, fixed, lam, eta, nu):
 
 
 @kernel
-def polish(a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu, release, max_iter, settle_by):
+def polish(
+    a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu, release, max_iter, settle_by,
+    a, tau, rho, theta,
+):  # fmt: skip
     """Newton's method on the KKT system of the minimax for fixed active sets; returns t.
 
     S: fingers with theta_i = t (multipliers lam, summing to 1); R: released fingers,
     P_i = release * n_i (the cone's apex, nudged inside; multipliers eta, 3 each, finger
     frame); Q: fingers at |P_i| = f (nu); fixed: -1/0/+1 per k_j for k_j = -K / free / +K.
     Returns -1 when the Newton matrix is singular or the iteration does not settle (within
-    max_iter steps, or below SETTLED by step settle_by).
+    max_iter steps, or below SETTLED by step settle_by). a, tau, rho, theta: scratch for the
+    angles' components, which hold them at the returned k when t >= 0 (the caller's next
+    look at the point).
     """
     n, m = al.shape
-    a, tau, rho, theta = angle_arrays(n)
     grads = stack_empty((n, m))
     fgrads = stack_empty((n, m))
     P = stack_empty(n)
@@ -243,18 +247,23 @@ def polish(a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu, release, max_
             step = max(step, abs(rhs[p]))
         t += rhs[size - 1]
         read_multipliers(rhs, nf, S, R, Q, lam, eta, nu)
-        if it > 0 and step <= 1e-15 * (1.0 + K):
-            return t
-        # deep in the quadratic phase the next step (about step^3 / last^2) would be below
-        # rounding: it, and the iteration that checks for it, would leave k as it is
-        if it > 0 and step <= 1e-9 * (1.0 + K) and step**3 <= 1e-15 * (1.0 + K) * last**2:
+        # a step that does not move k; or, deep in the quadratic phase, one whose successor
+        # (about step^3 / last^2) would be below rounding: it, and the iteration that checks
+        # for it, would leave k as it is
+        if it > 0 and (
+            step <= 1e-15 * (1.0 + K)
+            or (step <= 1e-9 * (1.0 + K) and step**3 <= 1e-15 * (1.0 + K) * last**2)
+        ):
+            evaluate(k, a0, al, tau0, T, a, tau, rho, theta)
             return t
         last = step
     return -1.0
 
 
 @kernel
-def polish_degenerate(a0, al, tau0, T, K, f, k, k_in, S, R, Q, fixed, lam, eta, nu):
+def polish_degenerate(
+    a0, al, tau0, T, K, f, k, k_in, S, R, Q, fixed, lam, eta, nu, a, tau, rho, theta
+):
     """:func:`polish` once more with one constraint fewer, where the sets hold more
     equations than there are unknowns (free k_j and t): at such a degenerate optimum
     (e.g. three equal angles and two fingers at the force limit, with three k_j free) one
@@ -274,7 +283,6 @@ def polish_degenerate(a0, al, tau0, T, K, f, k, k_in, S, R, Q, fixed, lam, eta, 
     lam0 = stack_copy(lam)
     eta0 = stack_copy(eta)
     nu0 = stack_copy(nu)
-    a, tau, rho, theta = angle_arrays(n)
     for c in range(2 * n + m):
         if c < n:
             member = S[c] and ns > 1
@@ -298,10 +306,12 @@ def polish_degenerate(a0, al, tau0, T, K, f, k, k_in, S, R, Q, fixed, lam, eta, 
         for i in range(n):
             for q in range(3):
                 eta[i, q] = eta0[i, q]
-        t = polish(a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu, RELEASE, 12, 12)
+        t = polish(
+            a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu, RELEASE, 12, 12,
+            a, tau, rho, theta,
+        )  # fmt: skip
         if t >= 0.0:
             # a KKT point of the original sets: multipliers >= 0, the dropped one holds
-            evaluate(k, a0, al, tau0, T, a, tau, rho, theta)
             ok = True
             for i in range(n):
                 ok = ok and not (S[i] and lam[i] < -1e-12) and not (Q[i] and nu[i] < -1e-12)
@@ -339,14 +349,18 @@ def finish(a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu, settle_by):
     Hd = stack_zeros((m, m))
     k_in = stack_copy(k)
     for _ in range(6):
-        t = polish(a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu, RELEASE, 12, settle_by)
+        t = polish(
+            a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu, RELEASE, 12, settle_by,
+            a, tau, rho, theta,
+        )  # fmt: skip
         if t < 0.0:
-            t = polish_degenerate(a0, al, tau0, T, K, f, k, k_in, S, R, Q, fixed, lam, eta, nu)
+            t = polish_degenerate(
+                a0, al, tau0, T, K, f, k, k_in, S, R, Q, fixed, lam, eta, nu, a, tau, rho, theta
+            )
         if t < 0.0:
             for j in range(m):
                 k[j] = k_in[j]
             return -1.0, -1.0, 0.0
-        evaluate(k, a0, al, tau0, T, a, tau, rho, theta)
         changed = False
         # a free k_j beyond the box: fix it at the bound
         for j in range(m):
