@@ -177,6 +177,7 @@ def test_a_warm_solve_keeps_the_previous_optimums_sets():
     assert interpreter.calls["polish"] == 1
     steps = interpreter.edges[("polish", "lu_solve")]
     assert steps <= 2
-    # the angles evaluated once before each step and once after the last, where the KKT
-    # residual (the gradients alone, no Hessian) is below CONVERGED
-    assert interpreter.edges[("polish", "evaluate")] == steps + 1
+    # the angles evaluated once after each step (at the start by finish_from, once), the
+    # last time where the KKT residual (the gradients alone, no Hessian) is below CONVERGED
+    assert interpreter.edges[("finish_from", "evaluate")] == 1
+    assert interpreter.edges[("polish", "evaluate")] == steps

@@ -152,8 +152,11 @@ def try_releases(a0, al, tau0, T, K, f, k_sqp, best, k_best):
                 R[q] = False
                 lam[q] = 1.0 / n
             evaluate(k, a0, al, tau0, T, a, tau, rho, theta)
-            sets_from_point(K, f, k, a, rho, Q, fixed)
-            t_up, low, share = finish(a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu, 12)
+            sets_from_point(K, f, k, a, rho, Q, fixed)  # (which may move k onto the box)
+            t_up, low, share = finish(
+                a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu, 12,
+                a, tau, rho, theta, False,
+            )  # fmt: skip
             best = fold(best, k_best, k, t_up, low, box_status(share), RELEASED)
             if closed(best):
                 return best
@@ -425,7 +428,9 @@ def solve_one(
         # early where Newton is not converging (then the SQP costs less than finishing)
         for j in range(m):
             fixed[j] = 1 if k[j] >= K else (-1 if k[j] <= -K else 0)
-        t_up, low, share = finish(a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu, 5)
+        t_up, low, share = finish(
+            a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu, 5, a, tau, rho, theta, True
+        )
         best = fold(best, k_best, k, t_up, low, box_status(share), DIRECT)
         done = closed(best)
     k_sqp = stack_copy(k_start)

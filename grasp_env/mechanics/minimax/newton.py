@@ -107,7 +107,7 @@ def multiplier_estimate(a, tau, rho, al, T, S, R, Q, fixed, lam, eta, nu):
 @kernel
 def polish(
     a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu, release, max_iter, settle_by,
-    a, tau, rho, theta,
+    a, tau, rho, theta, evaluated,
 ):  # fmt: skip
     """Newton's method on the KKT system of the minimax for fixed active sets; returns t.
 
@@ -115,9 +115,10 @@ def polish(
     P_i = release * n_i (the cone's apex, nudged inside; multipliers eta, 3 each, finger
     frame); Q: fingers at |P_i| = f (nu); fixed: -1/0/+1 per k_j for k_j = -K / free / +K.
     Returns -1 when the Newton matrix is singular or the iteration does not settle (within
-    max_iter steps, or below SETTLED by step settle_by). a, tau, rho, theta: scratch for the
-    angles' components, which hold them at the returned k when t >= 0 (the caller's next
-    look at the point).
+    max_iter steps, or below SETTLED by step settle_by). a, tau, rho, theta: the angles'
+    components, which hold them at the returned k when t >= 0 (the caller's next look at the
+    point); evaluated: they hold them at k already (then only a fixed k_j moved onto the box
+    has them evaluated again).
     """
     n, m = al.shape
     grads = stack_empty((n, m))
@@ -128,8 +129,9 @@ def polish(
     rhs = stack_empty(24)
     free = stack_empty(m, dtype=np.int64)
     for j in range(m):
-        if fixed[j] != 0:
+        if fixed[j] != 0 and k[j] != fixed[j] * K:
             k[j] = fixed[j] * K
+            evaluated = False
     nf = 0
     for j in range(m):
         if fixed[j] == 0:
@@ -143,7 +145,8 @@ def polish(
         nr += R[i]
         nq += Q[i]
     size = nf + ns + 3 * nr + nq + 1
-    evaluate(k, a0, al, tau0, T, a, tau, rho, theta)
+    if not evaluated:
+        evaluate(k, a0, al, tau0, T, a, tau, rho, theta)
     t = -inf
     for i in range(n):
         if S[i]:
@@ -308,7 +311,7 @@ def polish_degenerate(
                 eta[i, q] = eta0[i, q]
         t = polish(
             a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu, RELEASE, 12, 12,
-            a, tau, rho, theta,
+            a, tau, rho, theta, False,
         )  # fmt: skip
         if t >= 0.0:
             # a KKT point of the original sets: multipliers >= 0, the dropped one holds
@@ -336,14 +339,17 @@ def polish_degenerate(
 
 
 @kernel
-def finish(a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu, settle_by):
+def finish(
+    a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu, settle_by, a, tau, rho, theta,
+    evaluated,
+):  # fmt: skip
     """Polish the KKT point for the given sets, repairing them, then certify it.
 
-    settle_by: see :func:`polish` (12, its step limit, when k starts near the optimum).
+    settle_by: see :func:`polish` (12, its step limit, when k starts near the optimum);
+    a, tau, rho, theta and evaluated: the angles' components, as for :func:`polish`.
     Returns (t_up, lower, box_share); lower < 0 when no certificate was found.
     """
     n, m = al.shape
-    a, tau, rho, theta = angle_arrays(n)
     grads = stack_empty((n, m))
     fg = stack_empty(m)
     Hd = stack_zeros((m, m))
@@ -351,8 +357,9 @@ def finish(a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu, settle_by):
     for _ in range(6):
         t = polish(
             a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu, RELEASE, 12, settle_by,
-            a, tau, rho, theta,
+            a, tau, rho, theta, evaluated,
         )  # fmt: skip
+        evaluated = True  # (at the polished k, whose sets the loop may change, not k)
         if t < 0.0:
             t = polish_degenerate(
                 a0, al, tau0, T, K, f, k, k_in, S, R, Q, fixed, lam, eta, nu, a, tau, rho, theta
@@ -475,7 +482,9 @@ def finish_from(a0, al, tau0, T, K, f, k, lam, eta, tol, angle_tol):
         elif k[j] <= -K * (1.0 - tol):
             fixed[j] = -1
     multiplier_estimate(a, tau, rho, al, T, S, R, Q, fixed, lam, eta, nu)
-    return finish(a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu, 12)
+    return finish(
+        a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu, 12, a, tau, rho, theta, True
+    )
 
 
 @inline
