@@ -12,8 +12,8 @@ for each grasp:
    finger at the maximum (the typical optimum, the paper's closing observation) is tried
    first for three fingers without a force limit; otherwise an SQP method with a line
    search on max_i theta_i finds the active set (fingers at the maximum, k_ij on the box,
-   fingers at the force limit) and Newton's method on its KKT system converges to rounding
-   level. With four fingers one of them may let go at the optimum (P_i = 0, the cone's
+   fingers at the force limit) and Newton's method on its KKT system converges (to a
+   residual of 1e-12, within about as much of the optimum). With four fingers one of them may let go at the optimum (P_i = 0, the cone's
    apex, where theta_i is singular and the SQP stalls): each finger is then tried released,
    and restarts cover stalls near the apex that are not optimal. Along a trajectory
    (``follows``), Newton's method starts from the previous pose's optimum and the sets it
