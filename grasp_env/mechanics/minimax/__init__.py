@@ -231,7 +231,7 @@ def solve_minimax(
         f_max: optional limit on each finger's force |P_i|, newtons, > 0; broadcasts.
         follows: optional bool, broadcasts against the batch: grasp b (in C order) is the
             next pose, along a trajectory, after grasp b - 1, whose optimum is then its first
-            start (along 1-degree steps 1.5x to 1.8x faster with three fingers, about 3x
+            start (along 1-degree steps 1.8x to 2x faster with three fingers, about 4x
             with four). Every optimum is certified as without it; where the optimum is not unique
             (the box binds), k may be another optimal point than a solve on its own would
             return.
