@@ -8,16 +8,17 @@ for each grasp:
 
 1. **Primal.** From the k that minimises the tangential forces (exact when they can all
    vanish: the paper's scene, whose normal lines meet at the centre of gravity, has optimum
-   0), Newton's method on the KKT system of  min t s.t. theta_i(k) <= t  (eq. 2) with every
+   0), Newton's method on the KKT system of min t s.t. theta_i(k) <= t (eq. 2) with every
    finger at the maximum (the typical optimum, the paper's closing observation) is tried
-   first for three fingers without a force limit; otherwise an SQP method with a line
-   search on max_i theta_i finds the active set (fingers at the maximum, k_ij on the box,
-   fingers at the force limit) and Newton's method on its KKT system converges (to a
-   residual of 1e-12, within about as much of the optimum). With four fingers one of them may let go at the optimum (P_i = 0, the cone's
-   apex, where theta_i is singular and the SQP stalls): each finger is then tried released,
-   and restarts cover stalls near the apex that are not optimal. Along a trajectory
-   (``follows``), Newton's method starts from the previous pose's optimum and the sets it
-   nearly has, first: 19 poses in 20 of the random environment's trajectories need no more.
+   first for three fingers without a force limit; otherwise an SQP method with a line search
+   on max_i theta_i finds the active set (fingers at the maximum, k_ij on the box, fingers
+   at the force limit) and Newton's method on its KKT system converges (to a residual of
+   1e-12, within about as much of the optimum). With four fingers one of them may let go at
+   the optimum (P_i = 0, the cone's apex, where theta_i is singular and the SQP stalls):
+   each finger is then tried released, and restarts cover stalls near the apex that are not
+   optimal. Along a trajectory (``follows``), Newton's method starts from the previous
+   pose's optimum and the sets it nearly has, first: 19 poses in 20 of the random
+   environment's trajectories need no more.
 2. **Certificate.** Weak duality: for weights l_i >= 0 and |y_i| <= 1 the vectors
    z_i = l_i (cos t B_i y_i - sin t n_i) satisfy z_i . P <= 0 for every P in the cone, and
    for any u_i, u_i . P - |u_i| f_max <= 0 for every |P| <= f_max, so if
