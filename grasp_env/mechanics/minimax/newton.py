@@ -392,7 +392,7 @@ def finish(
         bound = False
         for j in range(m):
             bound = bound or fixed[j] != 0
-        if bound and not changed:  # (the derivatives cost a Newton step's with none fixed)
+        if bound and not changed:  # (with none fixed its gradients would go unused)
             g = stack_zeros(m)
             for i in range(n):
                 if S[i]:
