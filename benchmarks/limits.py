@@ -56,7 +56,7 @@ from grasp_env.mechanics import Grasp, MinimaxResult, solve_minimax
 from grasp_env.mechanics.minimax import _THREADS
 from grasp_env.mechanics.minimax.driver import solve_batch
 from grasp_env.mechanics.minimax.fingers import evaluate, finger_derivatives, setup
-from grasp_env.mechanics.minimax.linalg import lu_solve, stack_room
+from grasp_env.mechanics.minimax.linalg import lu_solve
 
 #: The kernel modules, callees before callers.
 MODULES = ("linalg", "fingers", "starts", "sqp", "certificate", "newton", "barrier", "driver")
@@ -71,9 +71,6 @@ class _Tally:
     current: ClassVar[list[int]] = [0] * len(KINDS)
     #: every operation counted so far, in any kernel
     grand: ClassVar[list[int]] = [0]
-    #: arrays the kernels allocated on the heap so far (np.empty, zeros, ones, full, and
-    #: stack arrays too large for the stack; not .copy())
-    arrays: ClassVar[list[int]] = [0]
 
 
 def _inexact(x: float, y: float, op: Callable[[np.float64, np.float64], np.float64]) -> float:
@@ -167,7 +164,6 @@ class _CountingNumpy:
 
     @staticmethod
     def full(shape, value, dtype=None):  # type: ignore[no-untyped-def]
-        _Tally.arrays[0] += 1
         if not _is_float(dtype):
             return np.full(shape, value, dtype)
         array = np.empty(shape, dtype=object)
@@ -182,7 +178,6 @@ class _CountingNumpy:
     def empty(shape, dtype=None):  # type: ignore[no-untyped-def]
         if _is_float(dtype):
             return _CountingNumpy.zeros(shape)
-        _Tally.arrays[0] += 1
         return np.empty(shape, dtype)
 
     @staticmethod
@@ -190,25 +185,12 @@ class _CountingNumpy:
         return _CountingNumpy.full(shape, 1.0, dtype)
 
 
-def _on_stack(make: Callable[..., np.ndarray]) -> Callable[..., np.ndarray]:
-    """``make`` for the kernels' stack arrays (``linalg.stack_*``): those that fit their room
-    (``linalg.stack_room``) are not allocated, so not counted as arrays."""
-
-    def made(shape, dtype=None):  # type: ignore[no-untyped-def]
-        before = _Tally.arrays[0]
-        array = make(shape, dtype)
-        if array.size <= stack_room(array.ndim):
-            _Tally.arrays[0] = before
-        return array
-
-    return made
-
-
 #: The interpreted kernels' arrays in a stack frame, as the compiled ones' (linalg.py).
 _STACK = {
-    "stack_empty": _on_stack(_CountingNumpy.empty),
-    "stack_zeros": _on_stack(_CountingNumpy.zeros),
-    "stack_copy": lambda x: x.copy(),  # (.copy() is not counted either)
+    "stack_empty": _CountingNumpy.empty,
+    "stack_zeros": _CountingNumpy.zeros,
+    "stack_large": _CountingNumpy.zeros,
+    "stack_copy": lambda x: x.copy(),
 }
 
 
@@ -468,30 +450,6 @@ def machine_rate(
     return done * flops / elapsed, best * flops
 
 
-@numba.njit(nogil=True, cache=True)
-def _allocations(sizes, repeats):
-    """``repeats`` x one float array of each size in ``sizes``, written and read once."""
-    total = 0.0
-    for r in range(repeats):
-        for size in sizes:
-            x = np.empty(size)
-            x[0] = r
-            total += x[0]
-    return total
-
-
-def allocation_seconds(seconds: float) -> float:
-    """Seconds per array allocated (and freed) in compiled code, of the kernels' sizes."""
-    sizes = np.array([3, 4, 6, 8, 12, 16, 36, 96, 576])
-    _allocations(sizes, 10)
-    repeats, done = 1 << 12, 0
-    start = time.perf_counter()
-    while (elapsed := time.perf_counter() - start) < seconds:
-        _allocations(sizes, repeats)
-        done += repeats * len(sizes)
-    return elapsed / done
-
-
 # ------------------------------------------------------------------ the flops of a solve
 
 
@@ -536,7 +494,6 @@ class SolveCount:
         self.kinds: dict[str, float] = dict.fromkeys(KINDS, 0.0)
         self.units: dict[str, tuple[float, float]] = {}
         self.evaluations = 0.0
-        self.arrays = 0.0  # allocated per solve
         self.paths: dict[int, tuple[float, float]] = {}
         self.counted = 0
 
@@ -562,7 +519,6 @@ def count_solves(grasps: list[Grasp], k_max: np.ndarray, per_path: int = 3) -> S
         for b in chosen:
             g = grasps[b]
             interpreter.reset()
-            arrays = _Tally.arrays[0]
             _, _, _, path = interpreter.solve(
                 g.equilibrating, g.basis, g.normals, float(k_max[b]), math.inf
             )
@@ -578,7 +534,6 @@ def count_solves(grasps: list[Grasp], k_max: np.ndarray, per_path: int = 3) -> S
                 units[name][0] += weight * count
                 units[name][1] += weight * interpreter.inclusive[kernel]
             result.evaluations += weight * interpreter.calls["evaluate"]
-            result.arrays += weight * (_Tally.arrays[0] - arrays)
             result.counted += 1
         result.paths[int(code)] = (float(share), flops)
     result.units = {
@@ -637,7 +592,6 @@ class Limit:
         self._k_max = float(k_max[0])
         self.rate: dict[str, float] = {}  # flops per second by mode (the mean)
         self.best: dict[str, float] = {}  # (the best burst)
-        self.allocation = math.nan  # seconds per array
         self.call = math.nan  # seconds per call of solve_minimax without load
 
     def measure(self, mode: str, seconds: float) -> None:
@@ -646,7 +600,6 @@ class Limit:
         threads = 1 if mode == "single" else self.threads
         self.rate[mode], self.best[mode] = machine_rate(self.inputs, threads, seconds)
         if mode == "single":
-            self.allocation = allocation_seconds(seconds / 4)
             done, start = 0, time.perf_counter()
             while (elapsed := time.perf_counter() - start) < seconds / 4:
                 for _ in range(64):
@@ -696,14 +649,11 @@ class Limit:
         lines.append(f"    the solver reaches, of the limit measured beside it: {reach}")
         spent = 1 / speeds["single"]
         arithmetic = c.flops / self.rate["single"]
-        allocating = c.arrays * self.allocation
         lines.append(
             f"    a single solve takes {spent * 1e6:.1f} us: its arithmetic at the limit "
-            f"{arithmetic * 1e6:.1f}, its {c.arrays:.0f} arrays allocated (at least; "
-            f"{self.allocation * 1e9:.0f} ns each) {allocating * 1e6:.1f}, the call "
-            f"(solve_minimax without load) {self.call * 1e6:.1f}, the rest "
-            f"{(spent - arithmetic - allocating - self.call) * 1e6:.1f} (branches, loads, "
-            "the kernels' calls)"
+            f"{arithmetic * 1e6:.1f}, the call (solve_minimax without load) "
+            f"{self.call * 1e6:.1f}, the rest {(spent - arithmetic - self.call) * 1e6:.1f} "
+            "(branches, loads, the kernels' calls; they allocate nothing)"
         )
         for mode, target in TARGETS.get(self.n, {}).items():
             share = target / self.idle(mode)

@@ -571,13 +571,21 @@ def test_every_kernel_is_keyed_on_its_package() -> None:
 
 def test_stack_arrays_behave_as_numpys() -> None:
     """The kernels' stack arrays (linalg.stack_*): numpy's shapes, dtypes and values, each call
-    site its own memory, and arrays larger than their buffer on the heap, whole."""
+    site its own memory, every item of a full room writable, and an array beyond its room
+    refused (there is no heap to fall back on)."""
     from numba import njit
 
-    from grasp_env.mechanics.minimax.linalg import STACK_ITEMS, stack_copy, stack_empty, stack_zeros
+    from grasp_env.mechanics.minimax.linalg import (
+        LARGE_ITEMS,
+        VECTOR_ITEMS,
+        stack_copy,
+        stack_empty,
+        stack_large,
+        stack_zeros,
+    )
 
     @njit
-    def made(n: int, big: int):  # type: ignore[no-untyped-def]
+    def made(n: int, items: int, large_rows: int):  # type: ignore[no-untyped-def]
         zeros = stack_zeros((n, 3))
         flags = stack_zeros(n, dtype=np.bool_)
         counts = stack_empty(n, dtype=np.int64)
@@ -586,17 +594,21 @@ def test_stack_arrays_behave_as_numpys() -> None:
         other[0, 0] = 1.0
         copied = stack_copy(other)
         other[0, 0] = 2.0
-        long = stack_empty(big)  # beyond its buffer: on the heap, every item writable
-        for q in range(big):
-            long[q] = q
-        large = stack_zeros((2, big))
-        large[1, big - 1] = 1.0
+        full = stack_empty(items)
+        for q in range(items):
+            full[q] = q
+        large = stack_large((large_rows, 24))
+        large[large_rows - 1, 23] = 1.0
         # (copies on the heap: a stack array must not outlive its kernel)
-        return zeros.copy(), flags.copy(), counts.copy(), copied.copy(), long.sum(), large.sum()
+        return zeros.copy(), flags.copy(), counts.copy(), copied.copy(), full.sum(), large.sum()
 
-    zeros, flags, counts, copied, total, ones = made(4, STACK_ITEMS)
+    zeros, flags, counts, copied, total, ones = made(4, VECTOR_ITEMS, LARGE_ITEMS // 24)
     assert zeros.shape == (4, 3) and zeros.dtype == np.float64 and not zeros.any()
     assert flags.dtype == np.bool_ and not flags.any()
     assert counts.dtype == np.int64 and (counts == 7).all()
     assert copied[0, 0] == 1.0 and copied.sum() == 1.0
-    assert total == sum(range(STACK_ITEMS)) and ones == 1.0
+    assert total == sum(range(VECTOR_ITEMS)) and ones == 1.0
+    with pytest.raises(ValueError, match="beyond its room"):
+        made(4, VECTOR_ITEMS + 1, 1)
+    with pytest.raises(ValueError, match="beyond its room"):
+        made(4, 1, LARGE_ITEMS // 24 + 1)

@@ -10,7 +10,7 @@ import numpy as np
 
 from .fingers import angle_arrays, evaluate, force_derivatives
 from .jit import inline, kernel
-from .linalg import lu_solve, stack_copy, stack_empty, stack_zeros
+from .linalg import lu_solve, stack_copy, stack_empty, stack_large, stack_zeros
 
 
 @inline
@@ -95,7 +95,7 @@ def certify(a0, al, tau0, T, K, f, a, tau, rho, t_low, S, R, Q, fixed, lam, eta,
     ncols = 0
     for i in range(n):
         ncols += 2 * Sm[i] + 3 * Rm[i] + 3 * Q[i]
-    J = stack_zeros((m, 20))
+    J = stack_large((m, 20))
     G = stack_empty((m, m))
     y = stack_empty(m)
     for _ in range(4 if nf > 0 and ncols > 0 else 0):
@@ -343,7 +343,7 @@ def certify_min_slack(a0, al, tau0, T, K, f, t, wts, x, tol):
         fixed[j] = 1 if k[j] >= K * (1.0 - tol) else (-1 if k[j] <= -K * (1.0 - tol) else 0)
     # columns: d(z_i . A_i)/d l_i for the cones, A_i for the apex fingers' z_i, v_i . A_i
     # for the force limits (free rows only)
-    cols = stack_zeros((m, 4 * n))
+    cols = stack_large((m, 4 * n))
     nc = 0
     for i in range(n):
         if S[i]:
@@ -370,7 +370,7 @@ def certify_min_slack(a0, al, tau0, T, K, f, t, wts, x, tol):
             nc += 1
     if ns == 0:
         return -1.0, 0.0
-    A = stack_zeros((nc + 1, nc + 1))
+    A = stack_large((nc + 1, nc + 1))
     b = stack_zeros(nc + 1)
     diag = 0.0
     for p in range(nc):

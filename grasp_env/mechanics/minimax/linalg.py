@@ -5,21 +5,25 @@ LAPACK calls).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from math import isfinite, sqrt
 
 import numpy as np
-from numba import carray, types
+from numba import types
 from numba.core import cgutils
 from numba.extending import intrinsic, overload
+from numba.np.arrayobj import populate_array
 
 from .jit import inline, kernel
 
 #: The most items a vector (VECTOR_ITEMS) and a matrix (STACK_ITEMS) in a kernel's stack
-#: frame hold: a solve's vectors have n, m or up to 23 constraints' items, its matrices up to
-#: 49. A larger array is made on the heap. (Every call site has its own, so these sizes set
-#: the stack a solve needs: a thread of 48 KiB solves, one of 32 KiB, Python's least, does not.)
-VECTOR_ITEMS = 24
+#: frame hold, and a large matrix (LARGE_ITEMS, :func:`stack_large`): a solve's vectors have
+#: n, m or up to 28 constraints' items, its matrices up to 49 with three fingers, and the
+#: large ones (the KKT and constraint matrices of four fingers) up to 23 x 23. Every call site
+#: has its own room, so these sizes set the stack a solve needs (see stack_empty).
+VECTOR_ITEMS = 32
 STACK_ITEMS = 64
+LARGE_ITEMS = 576
 
 
 def stack_room(ndim: int) -> int:
@@ -32,18 +36,50 @@ def _ndim(shape) -> int:  # type: ignore[no-untyped-def]
     return 1 if isinstance(shape, types.Integer) else len(shape)
 
 
-@intrinsic
-def _stack_buffer(typingctx, dtype, shape):  # type: ignore[no-untyped-def]
-    """Room for an array of ``shape``'s dimensions (:func:`stack_room` items of ``dtype``) in
-    the stack frame of the compiled function that calls this (an alloca in its entry block:
-    one per call site, reused by every pass of a loop)."""
-    item = dtype.dtype if isinstance(dtype, types.DType) else dtype.instance_type
-    size = stack_room(_ndim(shape))
+def _stack_intrinsic(room: Callable[[int], int]):  # type: ignore[no-untyped-def]
+    """An intrinsic ``(dtype, shape) -> array`` of ``room(ndim)`` items in the stack frame of
+    the compiled function that calls it: an alloca in its entry block (one per call site,
+    reused by every pass of a loop) viewed as a C-contiguous array with no meminfo, which
+    needs no reference counts (the kernels compile without numba's runtime, see jit.py)."""
 
-    def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
-        return cgutils.alloca_once(builder, context.get_data_type(item), size=size)
+    @intrinsic
+    def stack_array(typingctx, dtype, shape):  # type: ignore[no-untyped-def]
+        item = dtype.dtype if isinstance(dtype, types.DType) else dtype.instance_type
+        ndim = _ndim(shape)
+        array_type = types.Array(item, ndim, "C")
 
-    return types.CPointer(item)(dtype, shape), codegen
+        def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
+            data_type = context.get_data_type(item)
+            data = cgutils.alloca_once(builder, data_type, size=room(ndim))
+            shape_type, shape_value = signature.args[1], args[1]
+            if isinstance(shape_type, types.Integer):
+                dims = [context.cast(builder, shape_value, shape_type, types.intp)]
+            else:
+                dims = [
+                    context.cast(
+                        builder, builder.extract_value(shape_value, d), shape_type[d], types.intp
+                    )
+                    for d in range(ndim)
+                ]
+            itemsize = context.get_constant(types.intp, context.get_abi_sizeof(data_type))
+            strides = []
+            stride = itemsize
+            for d in reversed(range(ndim)):
+                strides.insert(0, stride)
+                stride = builder.mul(stride, dims[d])
+            array = context.make_array(array_type)(context, builder)
+            populate_array(
+                array, data=data, shape=dims, strides=strides, itemsize=itemsize, meminfo=None
+            )
+            return array._getvalue()
+
+        return array_type(dtype, shape), codegen
+
+    return stack_array
+
+
+_stack_array = _stack_intrinsic(stack_room)
+_large_stack_array = _stack_intrinsic(lambda ndim: LARGE_ITEMS)
 
 
 def _items(shape):  # type: ignore[no-untyped-def]
@@ -74,23 +110,27 @@ def _room_overload(shape):  # type: ignore[no-untyped-def]
     return lambda shape: room
 
 
-@kernel
-def _stack_view(buffer, shape, dtype):
-    """The array of ``shape`` on ``buffer``, or on the heap if the buffer is too small.
-    (A function of its own, compiled once per shape and type: inlined into every call site,
-    the heap's branch took a minute more to compile the solver.)"""
-    if _items(shape) > _room(shape):
-        return np.empty(shape, dtype)
-    return carray(buffer, shape)
-
-
 @inline
 def stack_empty(shape, dtype=np.float64):
     """``np.empty(shape, dtype)`` in the stack frame of the kernel this is inlined into: the
-    solve's scratch arrays, which a heap allocation each (about 40 ns with its free) made a
-    sixth of a three-finger solve. Valid while that kernel runs, so never returned from a
-    kernel; a call in a loop gives the same memory every pass."""
-    return _stack_view(_stack_buffer(dtype, shape), shape, dtype)
+    solve's scratch arrays, with no heap allocation (about 40 ns each with its free, a sixth
+    of a three-finger solve when they were numpy's) and no reference counts. Valid while that
+    kernel runs, so never returned from a kernel; a call in a loop gives the same memory
+    every pass. The rooms of every call site on a solve's deepest path need a thread stack
+    of 64 KiB (48 KiB crashes; threads get 8 MiB on Linux, 512 KiB on macOS)."""
+    if _items(shape) > _room(shape):
+        raise ValueError("a stack array beyond its room (linalg.STACK_ITEMS)")
+    return _stack_array(dtype, shape)
+
+
+@inline
+def stack_large(shape):
+    """A float64 matrix of zeros of up to LARGE_ITEMS items, as :func:`stack_empty`."""
+    if _items(shape) > LARGE_ITEMS:
+        raise ValueError("a stack array beyond its room (linalg.LARGE_ITEMS)")
+    x = _large_stack_array(np.float64, shape)
+    x.fill(0)
+    return x
 
 
 @inline
@@ -105,13 +145,15 @@ def stack_zeros(shape, dtype=np.float64):
 def stack_copy(x):
     """``x.copy()`` of a C-contiguous array, in the calling kernel's stack frame."""
     y = stack_empty(x.shape, x.dtype)
-    copy_into(y.ravel(), x.ravel(), x.size)
+    flat = y.flat
+    for i, value in enumerate(x.flat):
+        flat[i] = value
     return y
 
 
 @inline
 def all_finite(x):
-    for value in x.ravel():
+    for value in x.flat:
         if not isfinite(value):
             return False
     return True

@@ -11,7 +11,7 @@ import numpy as np
 from .certificate import certify
 from .fingers import angle_arrays, evaluate, finger_derivatives, force_derivatives
 from .jit import inline, kernel
-from .linalg import copy_into, lu_solve, stack_copy, stack_empty, stack_zeros, zero
+from .linalg import copy_into, lu_solve, stack_copy, stack_empty, stack_large, stack_zeros, zero
 
 #: Offsets below the primal value at which the dual certificate is tried, radians.
 DELTAS = (1e-11, 1e-10, 5e-10)
@@ -56,7 +56,7 @@ def multiplier_estimate(a, tau, rho, al, T, S, R, Q, fixed, lam, eta, nu):
     its point: equal weights can be far off where a finger's force is small (its angle
     then has a large gradient and curvature)."""
     n, m = al.shape
-    cols = stack_zeros((m, 16))  # one column per unknown multiplier, free rows only
+    cols = stack_large((m, 16))  # one column per unknown multiplier, free rows only
     Hd = stack_zeros((m, m))
     g = stack_empty(m)
     nc = 0
@@ -83,7 +83,7 @@ def multiplier_estimate(a, tau, rho, al, T, S, R, Q, fixed, lam, eta, nu):
     if ns == 0:
         return
     # [C'C  e; e' 0] [x; mu] = [0; 1], e marking the lam entries (sum lam = 1)
-    A = stack_zeros((nc + 1, nc + 1))
+    A = stack_large((nc + 1, nc + 1))
     b = stack_zeros(nc + 1)
     big = 0.0
     for p in range(nc):
@@ -125,8 +125,6 @@ def polish(
     fgrads = stack_empty((n, m))
     P = stack_empty(n)
     H = stack_empty((m, m))
-    A = stack_empty((24, 24))
-    rhs = stack_empty(24)
     free = stack_empty(m, dtype=np.int64)
     for j in range(m):
         if fixed[j] != 0 and k[j] != fixed[j] * K:
@@ -145,6 +143,8 @@ def polish(
         nr += R[i]
         nq += Q[i]
     size = nf + ns + 3 * nr + nq + 1
+    A = stack_large((size, size))
+    rhs = stack_empty(size)
     if not evaluated:
         evaluate(k, a0, al, tau0, T, a, tau, rho, theta)
     t = -inf

@@ -10,7 +10,7 @@ import numpy as np
 
 from .fingers import angle_arrays, evaluate, finger_derivatives, force_derivatives
 from .jit import inline, kernel
-from .linalg import cholesky_inverse, lu_solve, stack_empty, stack_zeros, zero
+from .linalg import cholesky_inverse, lu_solve, stack_empty, stack_large, stack_zeros, zero
 
 
 @inline
@@ -194,7 +194,7 @@ def sqp(a0, al, tau0, T, K, f, R, release, k, lam, nu, max_iter, tol):
     Ginv = stack_zeros((dim, dim))
     c = stack_zeros(dim)
     c[m] = 1.0
-    C = stack_zeros((nc, dim))
+    C = stack_large((nc, dim))
     b = stack_empty(nc)
     x = stack_empty(dim)
     u = stack_empty(nc)
@@ -204,7 +204,7 @@ def sqp(a0, al, tau0, T, K, f, R, release, k, lam, nu, max_iter, tol):
     Lic = stack_empty((m, m))
     GN = stack_empty((dim, dim))
     M = stack_empty((dim, dim))
-    vec = stack_empty((6, max(dim, nc)))
+    vec = stack_large((6, max(dim, nc)))
     active = stack_empty(dim, dtype=np.int64)
     is_active = stack_empty(nc, dtype=np.bool_)
     Ginv[m, m] = 1.0
