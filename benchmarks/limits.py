@@ -326,12 +326,11 @@ def evaluate_flops(n: int, m: int) -> int:
 
 def finger_derivatives_flops(m: int, exact: bool) -> int:
     """``finger_derivatives`` for one finger with rho_i > 0, a_i > 0 and a weight: the unit
-    tangent (2 div), r2 (3), the gradient (7 per component), the Hessian's coefficients c1
-    (3) and, exact only, c2 (6) and c3 (5), per row p its two rotated gradients (6), per
-    entry (p, q) those of q (6) and the three terms added to H (13; with exact False the
-    coefficients c2 = c3 = 0 are runtime values, multiplied all the same), the angle (div,
-    atan)."""
-    return 10 + (11 if exact else 0) + 13 * m + 19 * m * m
+    tangent (2 div), r2 (3), per component the gradient (7, the rotated gradient along u
+    among them) and the rotated gradient across u (3), the Hessian's coefficients c1 (3)
+    and, exact only, c2 (6) and c3 (5), per entry (p, q) the three terms added to H (13; with
+    exact False the coefficients c2 = c3 = 0 are runtime values, multiplied all the same)."""
+    return 8 + (11 if exact else 0) + 10 * m + 13 * m * m
 
 
 def lu_solve_flops(size: int) -> int:

@@ -109,7 +109,7 @@ def evaluate(k, a0, al, tau0, T, a, tau, rho, theta):
 
 @kernel
 def finger_derivatives(exact, i, w, a, tau, rho, al, T, grad, H):
-    """theta_i(k) (paper eq. 2), its gradient (into grad) and w x its Hessian (added to H).
+    """The gradient of theta_i(k) (paper eq. 2) into grad, and w x its Hessian added to H.
 
     With exact False only the convex, circumferential part of the Hessian is added (the
     curvature of the cone |tau| <= tan(t) a), a positive semidefinite stand-in that the SQP
@@ -122,24 +122,25 @@ def finger_derivatives(exact, i, w, a, tau, rho, al, T, grad, H):
     else:
         u0, u1 = 1.0, 0.0
     r2 = ri * ri + ai * ai
+    gr = stack_empty(m)  # the gradient of |tau_i| (tau_i's along its direction u)
     for j in range(m):
-        grad[j] = (ai * (T[i, 0, j] * u0 + T[i, 1, j] * u1) - ri * al[i, j]) / r2
-    if w != 0.0:
-        c1 = w * (ai if exact else abs(ai)) / (r2 * max(ri, 1e-300))
-        c2 = w * (ri * ri - ai * ai) / (r2 * r2) if exact else 0.0
-        c3 = w * 2.0 * ai * ri / (r2 * r2) if exact else 0.0
-        for p in range(m):
-            gr_p = T[i, 0, p] * u0 + T[i, 1, p] * u1
-            gv_p = T[i, 1, p] * u0 - T[i, 0, p] * u1
-            for q in range(m):
-                gr_q = T[i, 0, q] * u0 + T[i, 1, q] * u1
-                gv_q = T[i, 1, q] * u0 - T[i, 0, q] * u1
-                H[p, q] += (
-                    c1 * gv_p * gv_q
-                    + c2 * (gr_p * al[i, q] + al[i, p] * gr_q)
-                    + c3 * (al[i, p] * al[i, q] - gr_p * gr_q)
-                )
-    return angle(ri, ai)
+        gr[j] = T[i, 0, j] * u0 + T[i, 1, j] * u1
+        grad[j] = (ai * gr[j] - ri * al[i, j]) / r2
+    if w == 0.0:
+        return
+    gv = stack_empty(m)  # tau_i's across u
+    for j in range(m):
+        gv[j] = T[i, 1, j] * u0 - T[i, 0, j] * u1
+    c1 = w * (ai if exact else abs(ai)) / (r2 * max(ri, 1e-300))
+    c2 = w * (ri * ri - ai * ai) / (r2 * r2) if exact else 0.0
+    c3 = w * 2.0 * ai * ri / (r2 * r2) if exact else 0.0
+    for p in range(m):
+        for q in range(m):
+            H[p, q] += (
+                c1 * gv[p] * gv[q]
+                + c2 * (gr[p] * al[i, q] + al[i, p] * gr[q])
+                + c3 * (al[i, p] * al[i, q] - gr[p] * gr[q])
+            )
 
 
 @kernel
