@@ -524,7 +524,7 @@ def solve_grasp(F, E, N, K, f, k, theta):
     and passed eleven, and took 1.2x as long a call.
     """
     lower, status, path = solve_one(F, E, N, K, f, k, theta, k, k, theta, False, False, F, E, N)
-    worst = theta[0]
+    worst = theta[0]  # (theta.max() would need numba's runtime, see jit.py)
     for i in range(1, theta.shape[0]):
         worst = max(worst, theta[i])
     return worst, lower, status, path
