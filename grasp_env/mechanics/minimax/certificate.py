@@ -4,7 +4,7 @@ angle <= t within the force limits; see the package doc, stage 2.
 
 from __future__ import annotations
 
-from math import atan2, cos, inf, sin, sqrt
+from math import cos, inf, sin, sqrt
 
 import numpy as np
 
@@ -14,14 +14,14 @@ from .linalg import lu_solve, stack_copy, stack_empty, stack_large, stack_zeros
 
 
 @inline
-def dual_vectors(al, T, S, R, Q, ct, st, lg, phi, z, u, w):
+def dual_vectors(al, T, S, R, Q, ct, st, lg, direction, z, u, w):
     """Smooth fingers' dual vectors at the angle (ct, st) into z; w = sum A_i' (z_i + u_i)."""
     n, m = al.shape
     for i in range(n):
         if S[i]:
             z[i, 0] = -lg[i] * st
-            z[i, 1] = lg[i] * ct * cos(phi[i])
-            z[i, 2] = lg[i] * ct * sin(phi[i])
+            z[i, 1] = lg[i] * ct * direction[i, 0]
+            z[i, 2] = lg[i] * ct * direction[i, 1]
     for j in range(m):
         s = 0.0
         for i in range(n):
@@ -30,6 +30,18 @@ def dual_vectors(al, T, S, R, Q, ct, st, lg, phi, z, u, w):
             if Q[i]:
                 s += u[i, 0] * al[i, j] + u[i, 1] * T[i, 0, j] + u[i, 2] * T[i, 1, j]
         w[j] = s
+
+
+@inline
+def unit_into(y, i, c0, c1):
+    """y[i] = (c0, c1) / |(c0, c1)|, or (1, 0) for the zero vector (as atan2(0, 0) = 0)."""
+    r = sqrt(c0 * c0 + c1 * c1)
+    if r > 0.0:
+        y[i, 0] = c0 / r
+        y[i, 1] = c1 / r
+    else:
+        y[i, 0] = 1.0
+        y[i, 1] = 0.0
 
 
 @kernel
@@ -55,13 +67,15 @@ def certify(a0, al, tau0, T, K, f, a, tau, rho, t_low, S, R, Q, fixed, lam, eta,
     ct, st = cos(t_low), sin(t_low)
     z = stack_zeros((n, 3))  # dual vectors in the finger frames (normal, b, c)
     lg = stack_zeros(n)
-    phi = stack_zeros(n)
+    # each smooth finger's tangential dual direction y_i, kept as a unit vector (not an
+    # angle: its corrections need no trigonometry)
+    direction = stack_zeros((n, 2))
     u = stack_zeros((n, 3))  # force-limit duals nu_i P_i / |P_i|
     for i in range(n):
         Pn = sqrt(a[i] ** 2 + rho[i] ** 2)
         if S[i]:
             lg[i] = max(0.0, lam[i]) / Pn
-            phi[i] = atan2(tau[i, 1], tau[i, 0])
+            unit_into(direction, i, tau[i, 0], tau[i, 1])
         if Q[i]:
             scale_u = max(0.0, nu[i]) / Pn
             u[i, 0] = a[i] * scale_u
@@ -84,7 +98,7 @@ def certify(a0, al, tau0, T, K, f, a, tau, rho, t_low, S, R, Q, fixed, lam, eta,
                 Sm[i] = True
                 Rm[i] = False
                 lg[i] = x0 / st
-                phi[i] = atan2(z[i, 2], z[i, 1])
+                unit_into(direction, i, z[i, 1], z[i, 2])
     w = stack_zeros(m)
     free = stack_empty(m, dtype=np.int64)
     nf = 0
@@ -100,11 +114,11 @@ def certify(a0, al, tau0, T, K, f, a, tau, rho, t_low, S, R, Q, fixed, lam, eta,
     y = stack_empty(m)
     for _ in range(4 if nf > 0 and ncols > 0 else 0):
         # minimum-norm correction J dc = -w_free
-        dual_vectors(al, T, Sm, Rm, Q, ct, st, lg, phi, z, u, w)
+        dual_vectors(al, T, Sm, Rm, Q, ct, st, lg, direction, z, u, w)
         col = 0
         for i in range(n):
             if Sm[i]:
-                cp, sp = cos(phi[i]), sin(phi[i])
+                cp, sp = direction[i, 0], direction[i, 1]
                 for p in range(nf):
                     j = free[p]
                     J[p, col] = -st * al[i, j] + ct * (cp * T[i, 0, j] + sp * T[i, 1, j])
@@ -145,7 +159,9 @@ def certify(a0, al, tau0, T, K, f, a, tau, rho, t_low, S, R, Q, fixed, lam, eta,
                     d_l += J[p, col] * y[p]
                     d_p += J[p, col + 1] * y[p]
                 lg[i] = max(0.0, lg[i] + d_l)
-                phi[i] += d_p
+                # turned by d_p: a step d_p across it, normalised (an angle of atan(d_p))
+                c0, c1 = direction[i, 0], direction[i, 1]
+                unit_into(direction, i, c0 - d_p * c1, c1 + d_p * c0)
                 col += 2
             if Rm[i]:
                 for c in range(3):
@@ -173,7 +189,7 @@ def certify(a0, al, tau0, T, K, f, a, tau, rho, t_low, S, R, Q, fixed, lam, eta,
                     z[i, 0] = -s
                     z[i, 1] *= kappa * s / r
                     z[i, 2] *= kappa * s / r
-    dual_vectors(al, T, Sm, Rm, Q, ct, st, lg, phi, z, u, w)
+    dual_vectors(al, T, Sm, Rm, Q, ct, st, lg, direction, z, u, w)
     value = 0.0
     size = 0.0  # the terms' magnitudes, for the box share
     for i in range(n):
