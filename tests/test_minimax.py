@@ -612,3 +612,27 @@ def test_stack_arrays_behave_as_numpys() -> None:
         made(4, VECTOR_ITEMS + 1, 1)
     with pytest.raises(ValueError, match="beyond its room"):
         made(4, 1, LARGE_ITEMS // 24 + 1)
+
+
+def test_lu_solve_matches_numpy_at_every_size() -> None:
+    """linalg.lu_solve solves as numpy does at every size a solve uses, pivoting where the
+    leading entry is zero, and refuses a singular matrix."""
+    from numba import njit
+
+    from grasp_env.mechanics.minimax.linalg import lu_solve
+
+    @njit
+    def solve(A, b):  # type: ignore[no-untyped-def]
+        A, b = A.copy(), b.copy()
+        return lu_solve(A, b, A.shape[0]), b
+
+    rng = np.random.default_rng(0)
+    for size in range(2, 12):
+        for _ in range(5):
+            A = rng.normal(size=(size, size))
+            A[0, 0] = 0.0  # the first column needs a pivot
+            b = rng.normal(size=size)
+            ok, x = solve(A, b)
+            assert ok and np.allclose(x, np.linalg.solve(A, b), rtol=1e-10, atol=1e-12), size
+        A[-1] = A[0]  # two equal rows
+        assert not solve(A, b)[0], size

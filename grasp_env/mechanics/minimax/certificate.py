@@ -8,9 +8,16 @@ from math import cos, inf, sin, sqrt
 
 import numpy as np
 
-from .fingers import angle_arrays, evaluate, force_derivatives
+from .fingers import angle_arrays, apex_columns, evaluate, force_derivatives
 from .jit import inline, kernel
-from .linalg import lu_solve, stack_copy, stack_empty, stack_large, stack_zeros
+from .linalg import (
+    bordered_least_squares,
+    lu_solve,
+    stack_copy,
+    stack_empty,
+    stack_large,
+    stack_zeros,
+)
 
 
 @inline
@@ -370,13 +377,7 @@ def certify_min_slack(a0, al, tau0, T, K, f, t, wts, x, tol):
                     cols[j, nc] = -st * al[i, j] + ct * (u0 * T[i, 0, j] + u1 * T[i, 1, j])
             nc += 1
     ns = nc
-    for i in range(n):
-        if R[i]:
-            for c in range(3):
-                for j in range(m):
-                    if fixed[j] == 0:
-                        cols[j, nc] = al[i, j] if c == 0 else T[i, c - 1, j]
-                nc += 1
+    nc = apex_columns(al, T, R, fixed, cols, nc)
     for i in range(n):
         if Q[i]:
             for j in range(m):
@@ -386,26 +387,14 @@ def certify_min_slack(a0, al, tau0, T, K, f, t, wts, x, tol):
             nc += 1
     if ns == 0:
         return -1.0, 0.0
-    A = stack_large((nc + 1, nc + 1))
-    b = stack_zeros(nc + 1)
-    diag = 0.0
-    for p in range(nc):
-        for q in range(nc):
-            v = 0.0
-            for j in range(m):
-                v += cols[j, p] * cols[j, q]
-            A[p, q] = v
-        diag = max(diag, A[p, p])
-    for p in range(nc):
-        A[p, p] += 1e-12 * diag + 1e-300
+    border = stack_empty(n)
     c = 0
     for i in range(n):
         if S[i]:
-            A[c, nc] = wts[i]
-            A[nc, c] = wts[i]
+            border[c] = wts[i]
             c += 1
-    b[nc] = 1.0
-    if not lu_solve(A, b, nc + 1):
+    b = stack_empty(nc + 1)
+    if not bordered_least_squares(cols, m, nc, border, ns, b):  # (sum l_i w_i = 1)
         return -1.0, 0.0
     lam = stack_zeros(n)
     nu = stack_zeros(n)

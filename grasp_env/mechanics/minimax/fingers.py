@@ -158,3 +158,18 @@ def force_derivatives(i, w, a, tau, al, T, grad, H):
                 AtA = al[i, p] * al[i, q] + T[i, 0, p] * T[i, 0, q] + T[i, 1, p] * T[i, 1, q]
                 H[p, q] += w * (AtA - grad[p] * grad[q]) / Ps
     return P
+
+
+@inline
+def apex_columns(al, T, R, fixed, cols, nc):
+    """The columns A_i = (al_i, T_i) of the fingers at their cone's apex (R), three each, into
+    cols from column nc, on the free k_j only (``fixed`` 0; cols is zero elsewhere); returns
+    the next column."""
+    for i in range(R.shape[0]):
+        if R[i]:
+            for c in range(3):
+                for j in range(al.shape[1]):
+                    if fixed[j] == 0:
+                        cols[j, nc] = al[i, j] if c == 0 else T[i, c - 1, j]
+                nc += 1
+    return nc

@@ -209,6 +209,32 @@ def lu_solve(A, b, size):
     return True
 
 
+@inline
+def bordered_least_squares(cols, rows, count, border, bordered, x):
+    """x[:count] <- the combination of the columns cols[:rows, :count] of least norm,
+    |sum_p x_p cols[:, p]|^2, with sum_p border[p] x_p = 1 over the first ``bordered``
+    columns (x needs count + 1 items; x[count] is the constraint's multiplier). Solved by
+    its KKT system [C'C e; e' 0], a relative 1e-12 added to C'C's diagonal; False if it is
+    singular."""
+    A = stack_large((count + 1, count + 1))
+    big = 0.0
+    for p in range(count):
+        for q in range(count):
+            s = 0.0
+            for j in range(rows):
+                s += cols[j, p] * cols[j, q]
+            A[p, q] = s
+        big = max(big, A[p, p])
+    for p in range(count):
+        A[p, p] += 1e-12 * big + 1e-300
+        x[p] = 0.0
+    for p in range(bordered):
+        A[p, count] = border[p]
+        A[count, p] = border[p]
+    x[count] = 1.0
+    return lu_solve(A, x, count + 1)
+
+
 @kernel
 def cholesky_inverse(H, size, out, L, Li):
     """out <- H^-1 for symmetric H via Cholesky (L, Li scratch); False unless H is positive

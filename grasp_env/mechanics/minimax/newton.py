@@ -9,9 +9,18 @@ from math import inf, pi, sqrt
 import numpy as np
 
 from .certificate import certify
-from .fingers import angle_arrays, evaluate, finger_derivatives, force_derivatives
+from .fingers import angle_arrays, apex_columns, evaluate, finger_derivatives, force_derivatives
 from .jit import inline, kernel
-from .linalg import copy_into, lu_solve, stack_copy, stack_empty, stack_large, stack_zeros, zero
+from .linalg import (
+    bordered_least_squares,
+    copy_into,
+    lu_solve,
+    stack_copy,
+    stack_empty,
+    stack_large,
+    stack_zeros,
+    zero,
+)
 
 #: Offsets below the primal value at which the dual certificate is tried, radians.
 DELTAS = (1e-11, 1e-10, 5e-10)
@@ -67,13 +76,7 @@ def multiplier_estimate(a, tau, rho, al, T, S, R, Q, fixed, lam, eta, nu):
                 cols[j, nc] = g[j] if fixed[j] == 0 else 0.0
             nc += 1
     ns = nc
-    for i in range(n):
-        if R[i]:
-            for c in range(3):
-                for j in range(m):
-                    v = al[i, j] if c == 0 else T[i, c - 1, j]
-                    cols[j, nc] = v if fixed[j] == 0 else 0.0
-                nc += 1
+    nc = apex_columns(al, T, R, fixed, cols, nc)
     for i in range(n):
         if Q[i]:
             force_derivatives(i, 0.0, a, tau, al, T, g, Hd)
@@ -82,24 +85,10 @@ def multiplier_estimate(a, tau, rho, al, T, S, R, Q, fixed, lam, eta, nu):
             nc += 1
     if ns == 0:
         return
-    # [C'C  e; e' 0] [x; mu] = [0; 1], e marking the lam entries (sum lam = 1)
-    A = stack_large((nc + 1, nc + 1))
-    b = stack_zeros(nc + 1)
-    big = 0.0
-    for p in range(nc):
-        for q in range(nc):
-            s = 0.0
-            for j in range(m):
-                s += cols[j, p] * cols[j, q]
-            A[p, q] = s
-        big = max(big, A[p, p])
-    for p in range(nc):
-        A[p, p] += 1e-12 * big + 1e-300
-    for p in range(ns):
-        A[p, nc] = 1.0
-        A[nc, p] = 1.0
-    b[nc] = 1.0
-    if not lu_solve(A, b, nc + 1):
+    b = stack_empty(nc + 1)
+    ones = stack_empty(ns)
+    ones.fill(1.0)
+    if not bordered_least_squares(cols, m, nc, ones, ns, b):  # (sum lam = 1)
         return
     read_multipliers(b, 0, S, R, Q, lam, eta, nu)
 
