@@ -53,6 +53,7 @@ from .validation import (
     check_max_episode_steps,
     check_number,
     check_seed,
+    end_step,
     refuse_ended,
     split_reset_mask,
 )
@@ -976,6 +977,13 @@ class CubeGaitVectorEnv(VectorEnv):
         observations[self._dropped, self.task.pose_size() : -self.task.reach_obs.shape[1]] = 0.0
         return observations, {}
 
+    def _restart(self, envs: np.ndarray) -> np.ndarray:
+        """Start new episodes in ``envs`` (SAME_STEP autoreset); their first observations."""
+        self._x[envs] = self.task.start
+        self._t[envs] = 0
+        self._dropped[envs] = False
+        return self._observations(self._x[envs], self._t[envs])
+
     def step(
         self, actions: Any
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
@@ -1018,25 +1026,10 @@ class CubeGaitVectorEnv(VectorEnv):
             terminated[restarting] = False
             truncated[restarting] = False
             mask[restarting] = False
-        done = terminated | truncated
         self._dropped = dropped & terminated  # not the restarted ones
-        if self.autoreset_mode == AutoresetMode.SAME_STEP and done.any():
-            ended = np.flatnonzero(done)
-            final_obs = np.full(self.num_envs, None, dtype=object)
-            final_obs[ended] = list(observations[ended])
-            final_info = {**info, **{f"_{key}": done for key in info}}
-            self._x[ended] = task.start
-            self._t[ended] = 0
-            self._dropped[ended] = False
-            observations[ended] = self._observations(self._x[ended], self._t[ended])
-            info.update({f"_{key}": ~done for key in list(info)})
-            info.update(
-                final_obs=final_obs, _final_obs=done, final_info=final_info, _final_info=done
-            )
-        else:  # NEXT_STEP resets the ended episodes at the next step, DISABLED never
-            if self.autoreset_mode != AutoresetMode.SAME_STEP:
-                self._autoreset = done
-            info.update({f"_{key}": mask for key in list(info)})
+        self._autoreset = end_step(
+            self.autoreset_mode, observations, info, terminated | truncated, mask, self._restart
+        )
         return observations, reward, terminated, truncated, info
 
 

@@ -285,8 +285,7 @@ class _MujocoVectorEnv(_CubeGraspVectorEnv):
                     "physics_trajectory": trajectories,
                 }
                 final_info = {**final, **{f"_{key}": done for key in final}}
-                self._start(ended, None)
-                observations[ended] = self._store.arrays["observations"][self._base[ended]]
+                observations[ended] = self._restart(ended)
                 info.update(
                     final_obs=final_obs, _final_obs=done, final_info=final_info, _final_info=done
                 )

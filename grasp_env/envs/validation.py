@@ -8,7 +8,7 @@ strings and None are refused rather than converted, and flags must be booleans.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -190,3 +190,36 @@ def refuse_ended(mode: AutoresetMode, ended: np.ndarray) -> None:
         " reset(options={'reset_mask': mask}), mask a numpy bool array of shape"
         f" ({len(ended)},) True for them (here {shown})"
     )
+
+
+def end_step(
+    mode: AutoresetMode,
+    observations: np.ndarray,
+    info: dict[str, Any],
+    done: np.ndarray,
+    mask: np.ndarray,
+    restart: Callable[[np.ndarray], np.ndarray],
+) -> np.ndarray:
+    """A vector env's step under autoreset ``mode``, finished in place on its
+    ``observations`` and ``info``; ``done`` (num_envs,) marks the episodes that ended.
+
+    SAME_STEP, when some ended: as Gymnasium's SyncVectorEnv, their last observation and info
+    move to ``final_obs`` and ``final_info``, and ``restart(ended)`` (their indices) starts
+    their next episodes and returns its first observations. Otherwise every info key gets the
+    mask ``mask``. Returns the sub-environments whose episodes the next step must reset
+    (NEXT_STEP) or refuses to step (DISABLED): ``done``, and none under SAME_STEP.
+    """
+    if mode != AutoresetMode.SAME_STEP:
+        info.update({f"_{key}": mask for key in list(info)})
+        return done
+    if done.any():
+        ended = np.flatnonzero(done)
+        final_obs = np.full(len(done), None, dtype=object)
+        final_obs[ended] = list(observations[ended])
+        final_info = {**info, **{f"_{key}": done for key in info}}
+        observations[ended] = restart(ended)
+        info.update({f"_{key}": ~done for key in list(info)})
+        info.update(final_obs=final_obs, _final_obs=done, final_info=final_info, _final_info=done)
+    else:
+        info.update({f"_{key}": mask for key in list(info)})
+    return np.zeros_like(done)

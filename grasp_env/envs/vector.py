@@ -29,6 +29,7 @@ from .validation import (
     check_integer,
     check_max_episode_steps,
     check_seed,
+    end_step,
     refuse_ended,
     split_reset_mask,
 )
@@ -498,25 +499,15 @@ class _CubeGraspVectorEnv(VectorEnv):
             mask = active
         else:
             mask = np.ones(count, bool)
-        done = terminated | truncated
-        if self.autoreset_mode == AutoresetMode.SAME_STEP and done.any():
-            # As Gymnasium's SyncVectorEnv: the ended episodes' last observation and info move
-            # to final_obs and final_info, and the new episodes' first observation replaces it.
-            ended = np.flatnonzero(done)
-            final_obs = np.full(count, None, dtype=object)
-            final_obs[ended] = list(observations[ended])
-            final_info = {**info, **{f"_{key}": done for key in info}}
-            self._start(ended, None)
-            observations[ended] = self._store.arrays["observations"][self._base[ended]]
-            info.update({f"_{key}": ~done for key in list(info)})
-            info.update(
-                final_obs=final_obs, _final_obs=done, final_info=final_info, _final_info=done
-            )
-        else:  # NEXT_STEP resets the ended episodes at the next step, DISABLED never
-            if self.autoreset_mode != AutoresetMode.SAME_STEP:
-                self._autoreset = done
-            info.update({f"_{key}": mask for key in list(info)})
+        self._autoreset = end_step(
+            self.autoreset_mode, observations, info, terminated | truncated, mask, self._restart
+        )
         return observations, reward, terminated, truncated, info
+
+    def _restart(self, envs: np.ndarray) -> np.ndarray:
+        """Start new episodes in ``envs`` (SAME_STEP autoreset); their first observations."""
+        self._start(envs, None)
+        return self._store.arrays["observations"][self._base[envs]]
 
     def _refuse_ended(self) -> None:
         """With autoreset disabled, a RuntimeError if an ended episode was not reset (raised
