@@ -7,8 +7,9 @@ alone would leave the cores idle while the Python plans and measures.
 
 A batch of runs steps in lockstep through chunks of steps. Chunks end where the settle ends (the
 settle runs on a copy of the model with a high friction coefficient) and where a finger is
-placed or lifted in any run: between chunks those fingertips are moved (a placed one to its
-contact, just inside the face; a lifted one to its parking place off the face). The forces of
+placed or lifted in any run: between chunks those fingertips are moved (a placed one into
+its face, pressing in at the pace its force grows; a lifted one to its parking place off the
+face). The forces of
 fingers that do not touch (released, see :mod:`~grasp_env.physics.motion`) act on the object
 directly, at their contact points. Shorter runs
 are padded by holding their last step, and measured over their own steps only.
@@ -132,6 +133,41 @@ class PhysicsModel:
         self.wrench_start = self.nu + 6 * self.object
         self._data: dict[int, mujoco.MjData] = {}
         self._initial: dict[bytes, np.ndarray] = {}
+        self._response = self._contact_response()
+
+    def _contact_response(self) -> tuple[float, float, float, float]:
+        """A fingertip contact's stiffness K I, damping B, regulariser R and inverse inertia A
+        as MuJoCo sets them (its soft constraint, read at the initial state)."""
+        data = self.data()
+        mujoco.mj_setState(self.model, data, self._initial_state(np.ones(self.n, bool)), _STATE)
+        mujoco.mj_forward(self.model, data)
+        row = data.contact[0].efc_address  # the normal row of a fingertip's contact
+        stiffness, damping, impedance, _ = data.efc_KBIP[row]
+        regulariser = data.efc_R[row]  # (1 - I) / I x A
+        return (
+            float(stiffness * impedance),
+            float(damping),
+            float(regulariser),
+            float(regulariser * impedance / (1.0 - impedance)),
+        )
+
+    def placing(self, normal_force: float, rate: float) -> tuple[float, float]:
+        """Where a fingertip placed under a normal force N (w) growing at ``rate`` (w/s) goes:
+        its depth in the face, L, and its inward speed, L/s.
+
+        MuJoCo's soft contact pushes with f = (B v + K I d + A N) / (A + R) (v and d the tip's
+        inward speed and depth), so the tip presses in at A / (A + R) (R N - B v - K I d). A
+        force growing exponentially, N e^(c t) with c = rate / N, is followed exactly by
+        d = D e^(c t) with D (c^2 + A / (A + R) (B c + K I)) = A / (A + R) R N; placed there,
+        moving at c D, the contact's force keeps pace with the commanded one from the first
+        step. (A linear ramp from a small force has no such state: the damping of its
+        pressing-in alone would exceed the force, so a tip placed at rest lags, and its friction
+        falls short for a few steps; docs/physics.md, "Placing a finger".)"""
+        stiffness, damping, regulariser, inertia = self._response
+        c = max(rate, 0.0) / normal_force
+        share = inertia / (inertia + regulariser)
+        depth = share * regulariser * normal_force / (c * c + share * (damping * c + stiffness))
+        return depth, c * depth
 
     def data(self) -> mujoco.MjData:
         """The calling thread's MjData of this model, kept for reuse."""
@@ -334,19 +370,34 @@ def _controls(
 
 
 def _move_fingers(
-    physics: PhysicsModel, state: np.ndarray, place: np.ndarray, lift: np.ndarray
+    physics: PhysicsModel,
+    state: np.ndarray,
+    motion: Motion,
+    step: int,
+    place: np.ndarray,
+    lift: np.ndarray,
 ) -> None:
-    """Place (at the contact, just inside the face) or lift (to the parking place) fingers in
-    the full physics ``state``, moving with the object (its velocity at that point)."""
+    """Place (into the face, pressing in as :meth:`PhysicsModel.placing` says for the
+    ``motion``'s normal force at ``step``) or lift (to the parking place) fingers in the full
+    physics ``state``, moving with the object (its velocity at that point)."""
     nq = physics.nq
     qpos, qvel = state[1 : 1 + nq], state[1 + nq : 1 + nq + physics.nv]
     position, rotation = qpos[:3], quaternion_matrix(qpos[3:7])
     velocity, spin = qvel[:3], rotation @ qvel[3:6]  # free joint: angular velocity is local
+    normal = np.einsum("ij,ij->i", motion.forces[step], physics.normals)
+    after = np.einsum("ij,ij->i", motion.forces[min(step + 1, len(motion) - 1)], physics.normals)
     for i in np.flatnonzero(place | lift):
-        local = physics.placed[i] if place[i] else physics.parked[i]
+        depth, press = 0.0, 0.0
+        if place[i]:
+            depth, press = physics.placing(normal[i], (after[i] - normal[i]) / physics.timestep)
+            local = physics.contacts[i] - (physics.radius - depth) * physics.normals[i]
+        else:
+            local = physics.parked[i]
         tip = position + rotation @ local
         qpos[7 + 3 * i : 10 + 3 * i] = tip
-        qvel[6 + 3 * i : 9 + 3 * i] = velocity + np.cross(spin, tip - position)
+        qvel[6 + 3 * i : 9 + 3 * i] = (
+            velocity + np.cross(spin, tip - position) + press * (rotation @ physics.normals[i])
+        )
 
 
 def _moves(motion: Motion) -> tuple[np.ndarray, np.ndarray]:
@@ -496,7 +547,7 @@ def _simulate_batch(
     for a, b in itertools.pairwise(bounds):
         if a in events:
             for r, p in enumerate(physics):
-                _move_fingers(p, state[r], moves[r][0][a], moves[r][1][a])
+                _move_fingers(p, state[r], motions[r], a, moves[r][0][a], moves[r][1][a])
         # Inputs are laid out as mujoco.rollout wants them (contiguous float64, one model and
         # initial state per run, the output allocated here), so its checks are skipped.
         states = np.empty((count, b - a, physics0.nstate))
