@@ -252,6 +252,8 @@ def test_a_placed_tip_keeps_pace_with_its_growing_force(paper):
     assert physics.placing(1e-3, 0.0) == pytest.approx(
         (physics._response[2] * 1e-3 / physics._response[0], 0.0)
     )  # a steady force: the static depth R N / (K I), at rest
+    for pulling in (0.0, -1e-3):  # no force into the face: placed as at the start, at rest
+        assert physics.placing(pulling, 1.0) == (1e-3 * physics.radius, 0.0)
 
 
 def test_fingers_placed_near_their_cones_edge_hold(monkeypatch):

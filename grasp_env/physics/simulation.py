@@ -37,6 +37,7 @@ from grasp_env.mechanics.checks import is_integer
 from grasp_env.mechanics.threads import available_cores, in_parts
 
 from .model import (
+    TIP_PENETRATION,
     build_mjcf,
     model_cg,
     model_contacts,
@@ -162,7 +163,11 @@ class PhysicsModel:
         moving at c D, the contact's force keeps pace with the commanded one from the first
         step. (A linear ramp from a small force has no such state: the damping of its
         pressing-in alone would exceed the force, so a tip placed at rest lags, and its friction
-        falls short for a few steps; docs/physics.md, "Placing a finger".)"""
+        falls short for a few steps; docs/physics.md, "Placing a finger".) A force that does not
+        press into the face (N <= 0: it is outside its cone and slips however it starts) is
+        placed as the fingers are at the start, at rest just inside the face."""
+        if not normal_force > 0.0:
+            return TIP_PENETRATION * self.radius, 0.0
         stiffness, damping, regulariser, inertia = self._response
         c = max(rate, 0.0) / normal_force
         share = inertia / (inertia + regulariser)
