@@ -9,10 +9,9 @@ A batch of runs steps in lockstep through chunks of steps. Chunks end where the 
 settle runs on a copy of the model with a high friction coefficient) and where a finger is
 placed or lifted in any run: between chunks those fingertips are moved (a placed one into
 its face, pressing in at the pace its force grows; a lifted one to its parking place off the
-face). The forces of
-fingers that do not touch (released, see :mod:`~grasp_env.physics.motion`) act on the object
-directly, at their contact points. Shorter runs
-are padded by holding their last step, and measured over their own steps only.
+face). The forces of fingers that do not touch (released, see
+:mod:`~grasp_env.physics.motion`) act on the object directly, at their contact points. Shorter
+runs are padded by holding their last step, and measured over their own steps only.
 
 The Python around the rollout is kept to whole-batch array work, since it does not run in
 parallel: the controls of a batch are built in one pass, initial states are cached per finger
@@ -392,7 +391,7 @@ def _move_fingers(
     normal = np.einsum("ij,ij->i", motion.forces[step], physics.normals)
     after = np.einsum("ij,ij->i", motion.forces[min(step + 1, len(motion) - 1)], physics.normals)
     for i in np.flatnonzero(place | lift):
-        depth, press = 0.0, 0.0
+        press = 0.0
         if place[i]:
             depth, press = physics.placing(normal[i], (after[i] - normal[i]) / physics.timestep)
             local = physics.contacts[i] - (physics.radius - depth) * physics.normals[i]
