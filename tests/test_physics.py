@@ -659,7 +659,9 @@ def test_gait_windows_touch_at_most_four_sites_and_cover_the_gait():
 
 def test_the_polish_stops_where_a_secant_would_leave_the_bisected_scale():
     """A secant across a nearly flat stretch once jumped from the bisected scale c = 0.34 to
-    forces of 212 w, which the MuJoCo check refuses: the 200-scene study failed."""
+    forces of 212 w, which the MuJoCo check refuses: the 200-scene study failed. Where the
+    polish does not converge the perturbation is refused: its margin on the steps run is not
+    the target (seed 1's study had an "inside" grip 0.084 deg outside its cone)."""
     from grasp_env.physics.agreement import _polished
 
     asked = []
@@ -668,7 +670,7 @@ def test_the_polish_stops_where_a_secant_would_leave_the_bisected_scale():
         asked.append(c)
         return 0.5 + 1e-8 - 1e-8 * (c - 1.0)
 
-    assert _polished(1.0, largest, 0.5) == 1.0  # the path's scale: no convergence nearby
+    assert _polished(1.0, largest, 0.5) is None  # no convergence nearby
     assert max(asked) < 1.01  # the jump to c = 2 was never run
 
     def steep(c: float) -> float:

@@ -324,12 +324,13 @@ PATH_SETTINGS = path_settings(SETTINGS)
 
 def _polished(
     scale: float, largest: Callable[[float], float], target: float, tries: int = 8
-) -> float:
+) -> float | None:
     """``scale`` refined by secant steps until the run's own largest friction angle,
-    ``largest(c)``, equals ``target`` radians (within 1e-10); the path's scale if they do not
-    converge (its margin is then the target to the path's sampling). The run's steps differ
-    from the path's samples by little, so a step of more than 1% of ``scale`` is a secant
-    gone astray (a kink of the max), not convergence: it stops there."""
+    ``largest(c)``, equals ``target`` radians (within 1e-10); None if they do not converge.
+    The run's steps differ from the path's samples by little, so a step of more than 1% of
+    ``scale`` is a secant gone astray, not convergence: the run's largest angle jumps there
+    (the timing moved a step onto a finger's force passing near zero, where its direction
+    swings), and the grip's margin on the steps run is not the target."""
     a, fa = scale, largest(scale) - target
     b = scale * (1 + 1e-6) + 1e-9
     fb = largest(b) - target
@@ -343,7 +344,7 @@ def _polished(
             break
         a, fa, b, fb = a - step, 0.0, a, fa
         fa = largest(a) - target
-    return a if abs(fa) <= 1e-10 else scale
+    return a if abs(fa) <= 1e-10 else None
 
 
 def _step_angles(scene: Scene, forces: np.ndarray, settle: int) -> float:
@@ -411,7 +412,9 @@ def perturbed_k(
             def run(c: float, forces=pose_forces, change=pose_change) -> float:
                 return _run_angle(scene, rotations, forces + c * change, None)
 
-            return k + _polished(high, run, target) * bump
+            scale = _polished(high, run, target)
+            if scale is not None:
+                return k + scale * bump
     return None
 
 
@@ -425,7 +428,8 @@ def _bisected_bump(
 ) -> float | None:
     """The scale c in [0, 4] of the force change ``bump`` (T, n, 3) at which the largest
     friction angle over the run's steps of ``forces`` + c ``bump`` equals ``target`` radians;
-    None if c = 4 does not reach it or the angle jumps past it (a finger becoming loaded)."""
+    None if c = 4 does not reach it or the angle jumps past it (a finger becoming loaded, or
+    on the run's steps, :func:`_polished`)."""
     base = plan_motion(scene, rotations, forces, in_contact, PATH_SETTINGS)
     moved = plan_motion(scene, rotations, forces + bump, in_contact, PATH_SETTINGS)
     change = moved.forces - base.forces  # the steps' forces are affine in c

@@ -142,18 +142,6 @@ def _load(scene: Scene, rotations: np.ndarray) -> np.ndarray:
 
 #: Path samples per base step from which a segment's timing is computed.
 FINE = 8
-#: A touching finger's normal force grows by at most this fraction of its force per second,
-#: 1/s (besides ``force_rate``'s bound, which allows ``force_rate`` x ``force_floor`` w/s at
-#: any small force). MuJoCo's soft contact cannot follow a force growing linearly from almost
-#: nothing (the damping of the tip's pressing-in alone would exceed the force), but it follows
-#: an exponential growth, short only by the light tip's own inertia (0.2% here). So a placed
-#: finger's force grows exponentially up to about ``force_rate`` x ``force_floor`` /
-#: LIGHT_FORCE_RATE (0.01 w at the defaults), and the tip is placed on that exponential
-#: (``simulation.PhysicsModel.placing``). Falling forces are left alone (a bound there
-#: lengthens the runs, and holding grips creep): a fall that starts leaves the contact's
-#: normal force above the commanded one, which only adds friction, but one that stops at a
-#: small force leaves it below for a few steps (docs/physics.md, "Placing a finger").
-LIGHT_FORCE_RATE = 30.0
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy")
@@ -174,14 +162,13 @@ def timed_segments(
     else is computed: empty arrays and False). The base timing (``base_steps`` x
     ``timestep`` seconds, s uniform in time) slowed wherever a touching finger's normal
     force N_i would change faster than ``force_rate`` x max(|P_i|, ``force_floor``) per
-    second, or grow faster than :data:`LIGHT_FORCE_RATE` x |P_i| (|P_i| rather than N_i: a
-    finger pushing nearly along its face is far outside its cone anyway, and must not stall
-    the run). Each segment's path is sampled :data:`FINE` times per base step, its forces
-    (units of w) there given by ``terms`` (S, 5, n x 3) as (cos phi, 1 - cos phi, sin phi,
-    1 - s, s) @ terms[t] with phi = s x ``angles``[t]; ``normals`` (n, 3) are the inward
-    normals, ``touching`` (S, n) each segment's fingers in contact. Each sample interval
-    takes the time the bound needs (at least its base time), and the steps are spaced evenly
-    in that clock (s interpolated between the samples).
+    second (|P_i| rather than N_i: a finger pushing nearly along its face is far outside its
+    cone anyway, and must not stall the run). Each segment's path is sampled :data:`FINE`
+    times per base step, its forces (units of w) there given by ``terms`` (S, 5, n x 3) as
+    (cos phi, 1 - cos phi, sin phi, 1 - s, s) @ terms[t] with phi = s x ``angles``[t];
+    ``normals`` (n, 3) are the inward normals, ``touching`` (S, n) each segment's fingers in
+    contact. Each sample interval takes the time the bound needs (at least its base time),
+    and the steps are spaced evenly in that clock (s interpolated between the samples).
 
     Only the timing changes: the steps are points of the same path, so the forces both
     verdicts judge are the path's. The soft contact needs this: a tip's penetration follows
@@ -216,12 +203,8 @@ def timed_segments(
             for i in range(n):
                 loaded = magnitude[j, i] > released_force or magnitude[j + 1, i] > released_force
                 if touching[t, i] and loaded:  # in contact in the interval
-                    size = max(min(magnitude[j, i], magnitude[j + 1, i]), released_force)
-                    rate = force_rate * max(size, force_floor)
-                    growing = normal[j + 1, i] > normal[j, i]
-                    if growing and rate < np.inf:  # (an infinite force_rate: untimed)
-                        rate = min(rate, LIGHT_FORCE_RATE * size)
-                    need = max(need, abs(normal[j + 1, i] - normal[j, i]) / rate)
+                    size = max(min(magnitude[j, i], magnitude[j + 1, i]), force_floor)
+                    need = max(need, abs(normal[j + 1, i] - normal[j, i]) / (force_rate * size))
             clock[j + 1] = clock[j] + need
         steps_needed = max(1.0, np.rint(clock[-1] / timestep))
         if total + steps_needed > max_steps:  # a mistyped setting: stop before allocating

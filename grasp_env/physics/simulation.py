@@ -7,11 +7,13 @@ alone would leave the cores idle while the Python plans and measures.
 
 A batch of runs steps in lockstep through chunks of steps. Chunks end where the settle ends (the
 settle runs on a copy of the model with a high friction coefficient) and where a finger is
-placed or lifted in any run: between chunks those fingertips are moved (a placed one into
-its face, pressing in at the pace its force grows; a lifted one to its parking place off the
-face). The forces of fingers that do not touch (released, see
-:mod:`~grasp_env.physics.motion`) act on the object directly, at their contact points. Shorter
-runs are padded by holding their last step, and measured over their own steps only.
+placed or lifted in any run: between chunks those fingertips are moved (a placed one to its
+contact, just inside the face; a lifted one to its parking place off the face). A touching
+fingertip's motor pushes with its commanded force plus what its own mass needs to follow it
+(:func:`_tip_inertia`), so that its contact pushes with the commanded force. The forces of
+fingers that do not touch (released, see :mod:`~grasp_env.physics.motion`) act on the object
+directly, at their contact points. Shorter runs are padded by holding their last step, and
+measured over their own steps only.
 
 The Python around the rollout is kept to whole-batch array work, since it does not run in
 parallel: the controls of a batch are built in one pass, initial states are cached per finger
@@ -28,6 +30,7 @@ from dataclasses import dataclass
 
 import mujoco
 import mujoco.rollout
+import numba
 import numpy as np
 from numpy.typing import ArrayLike
 
@@ -134,6 +137,7 @@ class PhysicsModel:
         self._data: dict[int, mujoco.MjData] = {}
         self._initial: dict[bytes, np.ndarray] = {}
         self._response = self._contact_response()
+        self.rest_depth = TIP_PENETRATION * self.radius  # of a placed tip
 
     def _contact_response(self) -> tuple[float, float, float, float]:
         """A fingertip contact's stiffness K I, damping B, regulariser R and inverse inertia A
@@ -150,28 +154,6 @@ class PhysicsModel:
             float(regulariser),
             float(regulariser * impedance / (1.0 - impedance)),
         )
-
-    def placing(self, normal_force: float, rate: float) -> tuple[float, float]:
-        """Where a fingertip placed under a normal force N (w) growing at ``rate`` (w/s) goes:
-        its depth in the face, L, and its inward speed, L/s.
-
-        MuJoCo's soft contact pushes with f = (B v + K I d + A N) / (A + R) (v and d the tip's
-        inward speed and depth), so the tip presses in at A / (A + R) (R N - B v - K I d). A
-        force growing exponentially, N e^(c t) with c = rate / N, is followed exactly by
-        d = D e^(c t) with D (c^2 + A / (A + R) (B c + K I)) = A / (A + R) R N; placed there,
-        moving at c D, the contact's force keeps pace with the commanded one from the first
-        step. (A linear ramp from a small force has no such state: the damping of its
-        pressing-in alone would exceed the force, so a tip placed at rest lags, and its friction
-        falls short for a few steps; docs/physics.md, "Placing a finger".) A force that does not
-        press into the face (N <= 0: it is outside its cone and slips however it starts) is
-        placed as the fingers are at the start, at rest just inside the face."""
-        if not normal_force > 0.0:
-            return TIP_PENETRATION * self.radius, 0.0
-        stiffness, damping, regulariser, inertia = self._response
-        c = max(rate, 0.0) / normal_force
-        share = inertia / (inertia + regulariser)
-        depth = share * regulariser * normal_force / (c * c + share * (damping * c + stiffness))
-        return depth, c * depth
 
     def data(self) -> mujoco.MjData:
         """The calling thread's MjData of this model, kept for reuse."""
@@ -203,6 +185,43 @@ class PhysicsModel:
         state = np.empty(self.nstate)
         mujoco.mj_getState(self.model, data, state, _STATE)
         return state
+
+
+@numba.njit(nogil=True, cache=True)
+def _tip_inertia(
+    normal: np.ndarray,
+    contact: np.ndarray,
+    response: np.ndarray,
+    rest_depth: np.ndarray,
+    timestep: float,
+) -> np.ndarray:
+    """The motor force beyond the commanded normal force N that keeps a touching fingertip's
+    contact pushing with N itself, (B, N, n) in w for B runs' normal forces ``normal`` (B, N,
+    n) and ``contact`` (B, N, n); ``response`` (B, 4) and ``rest_depth`` (B,) per run.
+
+    MuJoCo's soft contact pushes with f = (B v + K I d + A u) / (A + R) under a motor force u
+    (v and d the tip's inward speed and depth). So f = N for u = N + a / A, where
+    a = R N - B v - K I d is then the tip's inward acceleration: the force its mass needs to
+    follow N. The depth is integrated along N as MuJoCo integrates it (semi-implicit Euler),
+    from a placed tip's: at rest, ``rest_depth`` into the face. Without it, wherever N bends
+    (a placement, a force that stops falling) the contact's force differs from N for a few
+    steps by the tip's mass times its acceleration, and near the cone's edge that is a slip
+    (docs/physics.md, "The tip's inertia")."""
+    count, steps, n = normal.shape
+    out = np.zeros((count, steps, n))
+    for r in range(count):
+        stiffness, damping, regulariser, inertia = response[r]
+        for i in range(n):
+            depth, speed = rest_depth[r], 0.0
+            for k in range(steps):
+                if not contact[r, k, i]:
+                    depth, speed = rest_depth[r], 0.0  # placed again at rest
+                    continue
+                acceleration = regulariser * normal[r, k, i] - damping * speed - stiffness * depth
+                out[r, k, i] = acceleration / inertia
+                speed += timestep * acceleration
+                depth += timestep * speed
+    return out
 
 
 @dataclass(frozen=True)
@@ -355,13 +374,24 @@ def _controls(
 ) -> np.ndarray:
     """(B, N, ncontrol) rows of ctrl then xfrc_applied of B runs of N steps, (B, N, n, 3),
     (B, N, 6) and (B, N, n): the touching fingertips' forces as motor forces; the load, and the
-    forces of fingers that do not touch (at their contact points), on the object."""
+    forces of fingers that do not touch (at their contact points), on the object. A touching
+    fingertip's motor also carries its own inertia along the normal (:func:`_tip_inertia`), so
+    that its contact pushes with the commanded force."""
     count, steps = contact.shape[:2]
     physics0 = physics[0]
     controls = np.zeros((count, steps, physics0.ncontrol))
     nu, start = physics0.nu, physics0.wrench_start
     touching = contact[..., None]
-    controls[..., :nu] = np.where(touching, forces, 0.0).reshape(count, steps, nu)
+    normals = _constant(physics, "normals")
+    inertial = _tip_inertia(
+        np.sum(forces * normals, axis=-1),
+        np.ascontiguousarray(contact),
+        np.array([p._response for p in physics]),
+        np.array([p.rest_depth for p in physics]),
+        physics0.timestep,
+    )
+    pushed = forces + inertial[..., None] * normals
+    controls[..., :nu] = np.where(touching, pushed, 0.0).reshape(count, steps, nu)
     if contact.all():  # no ideal forces: the load alone
         controls[..., start : start + 6] = load
         return controls
@@ -374,34 +404,19 @@ def _controls(
 
 
 def _move_fingers(
-    physics: PhysicsModel,
-    state: np.ndarray,
-    motion: Motion,
-    step: int,
-    place: np.ndarray,
-    lift: np.ndarray,
+    physics: PhysicsModel, state: np.ndarray, place: np.ndarray, lift: np.ndarray
 ) -> None:
-    """Place (into the face, pressing in as :meth:`PhysicsModel.placing` says for the
-    ``motion``'s normal force at ``step``) or lift (to the parking place) fingers in the full
-    physics ``state``, moving with the object (its velocity at that point)."""
+    """Place (at the contact, just inside the face) or lift (to the parking place) fingers in
+    the full physics ``state``, moving with the object (its velocity at that point)."""
     nq = physics.nq
     qpos, qvel = state[1 : 1 + nq], state[1 + nq : 1 + nq + physics.nv]
     position, rotation = qpos[:3], quaternion_matrix(qpos[3:7])
     velocity, spin = qvel[:3], rotation @ qvel[3:6]  # free joint: angular velocity is local
-    normal = np.einsum("ij,ij->i", motion.forces[step], physics.normals)
-    after = np.einsum("ij,ij->i", motion.forces[min(step + 1, len(motion) - 1)], physics.normals)
     for i in np.flatnonzero(place | lift):
-        press = 0.0
-        if place[i]:
-            depth, press = physics.placing(normal[i], (after[i] - normal[i]) / physics.timestep)
-            local = physics.contacts[i] - (physics.radius - depth) * physics.normals[i]
-        else:
-            local = physics.parked[i]
+        local = physics.placed[i] if place[i] else physics.parked[i]
         tip = position + rotation @ local
         qpos[7 + 3 * i : 10 + 3 * i] = tip
-        qvel[6 + 3 * i : 9 + 3 * i] = (
-            velocity + np.cross(spin, tip - position) + press * (rotation @ physics.normals[i])
-        )
+        qvel[6 + 3 * i : 9 + 3 * i] = velocity + np.cross(spin, tip - position)
 
 
 def _moves(motion: Motion) -> tuple[np.ndarray, np.ndarray]:
@@ -551,7 +566,7 @@ def _simulate_batch(
     for a, b in itertools.pairwise(bounds):
         if a in events:
             for r, p in enumerate(physics):
-                _move_fingers(p, state[r], motions[r], a, moves[r][0][a], moves[r][1][a])
+                _move_fingers(p, state[r], moves[r][0][a], moves[r][1][a])
         # Inputs are laid out as mujoco.rollout wants them (contiguous float64, one model and
         # initial state per run, the output allocated here), so its checks are skipped.
         states = np.empty((count, b - a, physics0.nstate))
