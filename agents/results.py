@@ -88,10 +88,20 @@ class Estimate:
         return f"{fmt.format(self.iqm)} [{fmt.format(self.low)}, {fmt.format(self.high)}]"
 
 
+def _aggregate_iqm(scores: np.ndarray) -> float:
+    """rliable's ``metrics.aggregate_iqm`` (``scipy.stats.trim_mean(scores, 0.25, axis=None)``)
+    of float scores, computed as scipy computes it, bit for bit (tested), without scipy's
+    per-call argument handling: that handling was 90% of a 20,000-resample bootstrap's time."""
+    scores = np.ravel(scores)
+    cut = int(0.25 * len(scores))
+    middle = np.partition(scores, (cut, len(scores) - cut - 1))[cut : len(scores) - cut]
+    return float(np.mean(middle))
+
+
 def iqm_interval(values: Sequence[float], reps: int = BOOTSTRAP_REPS) -> Estimate:
     """IQM of per-run values and its 95% stratified-bootstrap interval (rliable)."""
     try:
-        from rliable import library, metrics
+        from rliable import library
     except ImportError:
         raise ValueError(
             'aggregates over runs need rliable: pip install "grasp-env[results]"'
@@ -112,7 +122,7 @@ def iqm_interval(values: Sequence[float], reps: int = BOOTSTRAP_REPS) -> Estimat
             warnings.simplefilter("ignore", FutureWarning)
             point, interval = library.get_interval_estimates(
                 {"runs": scores},
-                lambda x: np.array([metrics.aggregate_iqm(x)]),
+                lambda x: np.array([_aggregate_iqm(x)]),
                 reps=reps,
                 random_state=np.random.RandomState(BOOTSTRAP_SEED),
             )

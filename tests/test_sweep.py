@@ -55,6 +55,16 @@ def test_iqm_is_the_mean_of_the_middle_runs_and_its_interval_a_bootstrap() -> No
     assert np.random.randint(1 << 30) == np.random.RandomState(7).randint(1 << 30)  # noqa: NPY002
 
 
+def test_the_bootstraps_iqm_is_rliables_bit_for_bit() -> None:
+    from rliable import metrics
+
+    rng = np.random.default_rng(0)
+    for runs in (1, 2, 3, 4, 5, 8, 13, 30):
+        for _ in range(50):
+            scores = rng.normal(size=(runs, 1)) * 10 ** rng.uniform(-3, 3)
+            assert results._aggregate_iqm(scores) == metrics.aggregate_iqm(scores)
+
+
 def test_iqm_refuses_missing_or_nan_values() -> None:
     with pytest.raises(ValueError, match="finite"):
         results.iqm_interval([0.1, float("nan")])
