@@ -569,6 +569,40 @@ def test_every_kernel_is_keyed_on_its_package() -> None:
     assert count >= 30
 
 
+def test_every_way_in_reaches_the_one_compiled_signature() -> None:
+    """The wheel ships numba's cache of the solver's entries as warm.py compiles them; any other
+    array type (a read-only view, another dtype) would compile the whole solver again, minutes
+    at a user's first command. Every way of calling solve_minimax reaches those same types."""
+    from grasp_env.mechanics.minimax import driver
+    from grasp_env.mechanics.minimax.warm import warm
+
+    warm()
+    scene = Scene.on_faces(offsets=[[0.3, -0.2], [0.1, 0.25], [-0.2, 0.1]])
+    rotations = np.stack([pose_rotation(PAPER_AXIS, np.radians(a)) for a in (-5.0, 0.0, 5.0)])
+    moving = scene_grasp(scene, rotations)
+    arrays = [np.array(a) for a in (moving.positions, moving.normals, moving.equilibrating)]
+    arrays.append(np.array(moving.basis, dtype=np.float32))  # another dtype
+    for array in arrays:
+        array.flags.writeable = False
+    read_only = Grasp(*arrays, friction_limit=moving.friction_limit)
+    follows = np.array([False, True, True])
+    frozen = follows.copy()
+    frozen.flags.writeable = False
+    weight = 2.0 * scene.weight
+    for kwargs in (
+        {},
+        {"follows": follows},  # as the environments pass it: the batch's own shape
+        {"follows": frozen},
+        {"follows": True},
+        {"f_max": np.full(3, 4.0 * scene.weight)},
+    ):
+        solve_minimax(moving, weight, **kwargs)
+    solve_minimax(read_only, 2, follows=follows)
+    solve_minimax(scene_grasp(scene, rotations[1]), weight)
+    assert len(driver.solve_batch.signatures) == 1, driver.solve_batch.signatures
+    assert len(driver.solve_grasp.signatures) == 1, driver.solve_grasp.signatures
+
+
 def test_stack_arrays_behave_as_numpys() -> None:
     """The kernels' stack arrays (linalg.stack_*): numpy's shapes, dtypes and values, each call
     site its own memory, every item of a full room writable, and an array beyond its room

@@ -154,7 +154,9 @@ def _flat_bool(name: str, value: ArrayLike, batch: tuple[int, ...]) -> np.ndarra
     array = np.asarray(value)
     if array.dtype != bool:
         raise ValueError(f"{name} must be boolean, got dtype {array.dtype}")
-    return np.ascontiguousarray(_broadcast(name, array, batch)).reshape(-1)
+    # a copy: a broadcast view is read-only, and a read-only array is another type to numba
+    # (a second compilation of the whole solver, minutes)
+    return np.array(_broadcast(name, array, batch), order="C").reshape(-1)
 
 
 def _flat(array: np.ndarray, batch: tuple[int, ...], item: tuple[int, ...]) -> np.ndarray:
