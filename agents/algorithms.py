@@ -59,8 +59,7 @@ class WarmCriticPPO(PPO):
     """SB3's PPO whose actor (network, head and log std) stays fixed for the first
     ``critic_warmup`` rollouts while the critic fits the value of the current policy; with
     ``baseline="mean_action"``, advantages measured against the reward of the policy's own
-    mean action instead of the critic's value; with ``log_std_schedule=(start, final)``, the
-    Gaussian's log std not learnt but set before each update, linear in the run's progress.
+    mean action instead of the critic's value.
 
     The warm-up is counted in PPO's own steps (``num_timesteps``), which a checkpoint keeps: a
     resumed run does not warm up again.
@@ -80,7 +79,6 @@ class WarmCriticPPO(PPO):
         *args: Any,
         critic_warmup: int = 0,
         baseline: str = "critic",
-        log_std_schedule: tuple[float, float] | None = None,
         k_max_ratio: float = DEFAULT_K_MAX_RATIO,
         **kwargs: Any,
     ) -> None:
@@ -88,7 +86,6 @@ class WarmCriticPPO(PPO):
             raise ValueError(f"baseline must be 'critic' or 'mean_action', got {baseline!r}")
         self.critic_warmup = critic_warmup
         self.baseline = baseline
-        self.log_std_schedule = log_std_schedule
         self.k_max_ratio = k_max_ratio  # the environment's action scale, for the baseline
         super().__init__(*args, **kwargs)
 
@@ -125,12 +122,6 @@ class WarmCriticPPO(PPO):
         buffer.returns = buffer.rewards.copy()
 
     def train(self) -> None:
-        if self.log_std_schedule is not None:
-            # the std of the rollouts to come, linear in the run's progress, and not learnt
-            start, final = self.log_std_schedule
-            log_std = self.policy.log_std
-            log_std.data.fill_(final + (start - final) * self._current_progress_remaining)
-            log_std.requires_grad_(False)
         # train() follows the collection of a rollout: num_timesteps counts it already
         warming = self.num_timesteps <= self.critic_warmup * self.n_steps * self.n_envs
         actor = self.actor_parameters() if warming else []
@@ -269,9 +260,6 @@ def new_model(config: TrainConfig, env: VecEnv) -> BaseAlgorithm:
             env,
             critic_warmup=ppo.critic_warmup,
             baseline=ppo.baseline,
-            log_std_schedule=(
-                None if ppo.log_std_final is None else (policy.log_std_init, ppo.log_std_final)
-            ),
             k_max_ratio=config.k_max_ratio,
             # SB3's own class, not a lambda: a model file then holds a reference, not code
             learning_rate=(

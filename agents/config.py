@@ -151,8 +151,6 @@ class PPOConfig(_Section):
             reward, the min friction-angle margin; the critic is still fitted, and unused).
         use_sde: generalised state-dependent exploration (gSDE) instead of a fixed Gaussian.
         sde_sample_freq: with gSDE, steps between new noise matrices (-1: once per rollout).
-        log_std_final: an exploration schedule: the Gaussian's log std is not learnt but goes
-            linearly from ``policy.log_std_init`` to this over the run (None: learnt).
     """
 
     learning_rate: _range(Float, 0.0, 1.0, low_open=True) = 3e-4
@@ -171,7 +169,6 @@ class PPOConfig(_Section):
     baseline: Literal["critic", "mean_action"] = "critic"
     use_sde: StrictBool = False
     sde_sample_freq: _range(Int, -1, 1 << 20) = -1
-    log_std_final: _range(Float, -20.0, 2.0) | None = None
 
 
 class OffPolicyConfig(_Section):
@@ -345,11 +342,6 @@ class TrainConfig(_Section):
             raise ValueError(
                 f"ppo.n_steps * n_envs must be >= 2 (a PPO rollout normalises its advantages"
                 f" over its samples), got {self.ppo.n_steps} * {self.n_envs}"
-            )
-        if self.ppo.use_sde and self.ppo.log_std_final is not None:
-            raise ValueError(
-                "ppo.log_std_final schedules the Gaussian's log std; gSDE learns its own"
-                " (use_sde: true): set one of them"
             )
         if self.policy.output == "force_directions" and self.policy.features != "grasp":
             raise ValueError(

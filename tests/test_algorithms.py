@@ -296,8 +296,6 @@ TINY = {
         ({"algo": "sac", "offpolicy": {"action_noise": 0.1}}, "offpolicy.action_noise is TD3's"),
         ({"ppo": {"baseline": "zero"}}, "baseline"),
         ({"ppo": {"baseline": "mean_action", "gamma": 0.9}}, "exact for gamma = 0"),
-        ({"ppo": {"log_std_final": -30.0}}, "log_std_final"),
-        ({"ppo": {"use_sde": True, "log_std_final": -5.0}}, "gSDE learns its own"),
     ],
 )
 def test_algo_keys_are_checked(change: dict, message: str) -> None:
@@ -461,30 +459,6 @@ def test_critic_warmup_is_counted_in_steps_so_a_resumed_model_does_not_warm_up_a
     actor = snapshot(model.policy.action_net)
     model.learn(16 * env.num_envs, reset_num_timesteps=False)
     assert changed(actor, model.policy.action_net)
-
-
-def test_the_exploration_schedule_sets_the_log_std_and_does_not_learn_it(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    import grasp_env_agents.algorithms as algorithms
-    from grasp_env_agents.config import config_from_dict
-    from grasp_env_agents.train import train
-
-    seen = []  # (progress remaining, log std) after each update
-
-    class Recording(WarmCriticPPO):
-        def train(self) -> None:
-            super().train()
-            seen.append((self._current_progress_remaining, self.policy.log_std.detach().clone()))
-
-    monkeypatch.setattr(algorithms, "WarmCriticPPO", Recording)
-    policy = {**TINY["policy"], "log_std_init": -2.0}
-    ppo = {"n_steps": 16, "batch_size": 32, "n_epochs": 1, "log_std_final": -6.0}
-    model = train(config_from_dict({**TINY, "policy": policy, "ppo": ppo}), tmp_path / "run")
-    assert [left for left, _ in seen] == pytest.approx([0.75, 0.5, 0.25, 0.0])  # 4 rollouts
-    for left, log_std in seen:  # set by the schedule before each update, not moved by it
-        torch.testing.assert_close(log_std, torch.full((3,), -6.0 + 4.0 * left))
-    assert not model.policy.log_std.requires_grad
 
 
 def test_ppo_keys_reach_the_model_and_a_gsde_run_loads_safely(tmp_path: Path) -> None:
