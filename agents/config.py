@@ -147,8 +147,9 @@ class PPOConfig(_Section):
         baseline: what an action's advantage is measured against: ``critic``, PPO's learned
             value V(s), or ``mean_action``, the reward of the policy's own mean action at the
             same pose, computed exactly from the observation (a self-critical baseline; needs
-            gamma = 0, where the advantage is r(s, a) - b(s), and the grasp environments'
-            reward, the min friction-angle margin; the critic is still fitted, and unused).
+            gamma = 0, where the advantage is r(s, a) - b(s), the grasp environments' reward,
+            the min friction-angle margin, and the raw observation: normalize false; the
+            critic is still fitted, and unused).
         use_sde: generalised state-dependent exploration (gSDE) instead of a fixed Gaussian.
         sde_sample_freq: with gSDE, steps between new noise matrices (-1: once per rollout).
     """
@@ -352,6 +353,12 @@ class TrainConfig(_Section):
             raise ValueError(
                 "ppo.baseline: mean_action is exact for gamma = 0 (each pose a bandit), got"
                 f" ppo.gamma: {self.ppo.gamma}; use baseline: critic"
+            )
+        if self.ppo.baseline == "mean_action" and self.normalize:
+            raise ValueError(
+                "ppo.baseline: mean_action computes the reward from the raw observation, which"
+                " normalize: true hides from the rollout; set normalize: false or use"
+                " baseline: critic"
             )
         if self.policy.features == "grasp" and self.normalize:
             raise ValueError(

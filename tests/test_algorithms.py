@@ -296,6 +296,10 @@ TINY = {
         ({"algo": "sac", "offpolicy": {"action_noise": 0.1}}, "offpolicy.action_noise is TD3's"),
         ({"ppo": {"baseline": "zero"}}, "baseline"),
         ({"ppo": {"baseline": "mean_action", "gamma": 0.9}}, "exact for gamma = 0"),
+        (
+            {"normalize": True, "policy": {"net_arch": [16]}, "ppo": {"baseline": "mean_action"}},
+            "raw observation, which normalize: true hides",
+        ),
     ],
 )
 def test_algo_keys_are_checked(change: dict, message: str) -> None:
