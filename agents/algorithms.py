@@ -40,6 +40,7 @@ from grasp_env.envs.validation import DEFAULT_K_MAX_RATIO
 
 if TYPE_CHECKING:
     from .config import TrainConfig
+from .envs import sample_poses
 from .features import GraspFeatures, grasp_tensors, max_friction_angle
 from .imitation import mean_action
 from .policy import ForceDirectionHead, ForceDirectionPolicy
@@ -255,7 +256,7 @@ def new_model(config: TrainConfig, env: VecEnv) -> BaseAlgorithm:
     directions = policy.output == "force_directions"
     if config.algo == "ppo":
         ppo = config.ppo
-        return WarmCriticPPO(
+        model = WarmCriticPPO(
             ForceDirectionPolicy if directions else "MlpPolicy",
             env,
             critic_warmup=ppo.critic_warmup,
@@ -289,11 +290,15 @@ def new_model(config: TrainConfig, env: VecEnv) -> BaseAlgorithm:
                     else {}
                 ),
                 **({"k_max_ratio": config.k_max_ratio} if directions else {}),
+                **({"normalize_features": True} if policy.normalize_features else {}),
             },
             seed=config.seed,
             device="cpu",
             verbose=0,
         )
+        if policy.normalize_features:
+            model.policy.set_feature_statistics(sample_poses(config.env_id, config.env_kwargs))
+        return model
     off = config.offpolicy
     assert off is not None  # an off-policy config always has the section (config.py)
     policy_kwargs: dict[str, Any] = {"net_arch": list(policy.net_arch), "activation_fn": activation}

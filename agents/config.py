@@ -114,6 +114,11 @@ class PolicyConfig(_Section):
             action layer), or each finger's ``force_directions``, from which the action is the
             least-squares grip that realises them (:mod:`grasp_env_agents.policy`; needs
             features: grasp).
+        normalize_features: the hidden layers see the grasp features standardised by their
+            mean and standard deviation over 4,096 poses of the config's scenes, fixed when the
+            model is made (the head still reads the grasp itself; needs output:
+            force_directions and algo: ppo). The grasp features vary by about 0.1 around
+            means near 0.2-0.7, so unscaled they reach the network nearly constant.
     """
 
     net_arch: Annotated[list[_range(Int, 1, 1 << 16)], Field(min_length=1)] = [256, 256]
@@ -121,6 +126,7 @@ class PolicyConfig(_Section):
     log_std_init: _range(Float, -20.0, 2.0) = 0.0
     features: Literal["observation", "grasp"] = "observation"
     output: Literal["k", "force_directions"] = "k"
+    normalize_features: StrictBool = False
 
 
 class PPOConfig(_Section):
@@ -354,6 +360,14 @@ class TrainConfig(_Section):
                 "ppo.baseline: mean_action is exact for gamma = 0 (each pose a bandit), got"
                 f" ppo.gamma: {self.ppo.gamma}; use baseline: critic"
             )
+        if self.policy.normalize_features and not (
+            self.policy.output == "force_directions" and self.algo == "ppo"
+        ):
+            raise ValueError(
+                "policy.normalize_features standardises the inputs of PPO's force-direction"
+                f" policy: it needs policy.output: force_directions and algo: ppo, got output:"
+                f" {self.policy.output} and algo: {self.algo}"
+            )
         if self.ppo.baseline == "mean_action" and self.normalize:
             raise ValueError(
                 "ppo.baseline: mean_action computes the reward from the raw observation, which"
@@ -363,7 +377,7 @@ class TrainConfig(_Section):
         if self.policy.features == "grasp" and self.normalize:
             raise ValueError(
                 "normalize must be false with policy.features: grasp (the grasp features are "
-                "computed from the raw observation)"
+                "computed from the raw observation; policy.normalize_features standardises them)"
             )
         return self
 

@@ -25,6 +25,9 @@ import grasp_env  # noqa: F401  (registers the environments)
 
 #: Seeds of the held-out scenes: far from the training seeds (a run's seed + env index).
 HELD_OUT_SEED = 1_000_000
+#: Seeds of the scenes whose poses give a network its input statistics (:func:`sample_poses`),
+#: apart from the training and held-out seeds: the same statistics for every seed of a config.
+STATISTICS_SEED = 2_000_000
 
 
 def make_vec_env(env_id: str, env_kwargs: dict[str, Any], n_envs: int, seed: int) -> VecEnv:
@@ -153,6 +156,21 @@ def make_held_out_env(
     if "terminate_on_slip" in _accepted_keywords(env_id):
         kwargs["terminate_on_slip"] = False
     return VecMonitor(HeldOutScenes(_vec_env(env_id, kwargs, episodes), seed))
+
+
+def sample_poses(env_id: str, env_kwargs: dict[str, Any], scenes: int = 128) -> np.ndarray:
+    """The observations at every pose of ``scenes`` trajectories (from :data:`STATISTICS_SEED`),
+    (poses, size): the environment's pose distribution, for input statistics."""
+    env = make_held_out_env(env_id, env_kwargs, scenes, STATISTICS_SEED)
+    obs = env.reset()
+    zero = np.zeros((scenes, *env.action_space.shape), env.action_space.dtype)
+    poses, running = [], np.ones(scenes, bool)
+    while running.any():  # the poses do not depend on the actions
+        poses.append(obs[running])
+        obs, _, dones, _ = env.step(zero)
+        running &= ~dones
+    env.close()
+    return np.concatenate(poses)
 
 
 def find_held_out(env: VecEnv) -> HeldOutScenes:

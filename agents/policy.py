@@ -125,22 +125,42 @@ class ForceDirectionHead(torch.nn.Module):
 
 
 class _LatentWithFeatures(MlpExtractor):
-    """SB3's MlpExtractor whose actor latent also carries the features (the head needs them)."""
+    """SB3's MlpExtractor whose actor latent also carries the features (the head needs them).
 
-    def __init__(self, feature_dim: int, **kwargs: Any) -> None:
+    With ``normalize_features`` the hidden layers (actor and critic) see the features
+    standardised by the buffers ``feature_mean`` and ``feature_std``
+    (:meth:`ForceDirectionPolicy.set_feature_statistics`); the head still reads them as they are.
+    """
+
+    def __init__(self, feature_dim: int, normalize_features: bool = False, **kwargs: Any) -> None:
         super().__init__(feature_dim, **kwargs)
         self.hidden_dim = self.latent_dim_pi
         self.latent_dim_pi += feature_dim
+        self.normalize_features = normalize_features
+        if normalize_features:  # buffers: saved and loaded with the weights, never trained
+            self.register_buffer("feature_mean", torch.zeros(feature_dim))
+            self.register_buffer("feature_std", torch.ones(feature_dim))
+
+    def hidden_inputs(self, features: torch.Tensor) -> torch.Tensor:
+        """What the hidden layers see of ``features``."""
+        if not self.normalize_features:
+            return features
+        return (features - self.feature_mean) / self.feature_std
 
     def forward_actor(self, features: torch.Tensor) -> torch.Tensor:
-        return torch.cat([self.policy_net(features), features], -1)
+        return torch.cat([self.policy_net(self.hidden_inputs(features)), features], -1)
+
+    def forward_critic(self, features: torch.Tensor) -> torch.Tensor:
+        return self.value_net(self.hidden_inputs(features))
 
 
 class ForceDirectionPolicy(ActorCriticPolicy):
     """SB3's actor-critic with the force-direction head (module docstring) as its mean action.
 
     Takes ``ActorCriticPolicy``'s arguments, plus ``k_max_ratio`` (k_max / w, the environment's
-    action scale); its features are always :class:`~grasp_env_agents.features.GraspFeatures`.
+    action scale) and ``normalize_features`` (the hidden layers' inputs standardised, once
+    :meth:`set_feature_statistics` has measured them); its features are always
+    :class:`~grasp_env_agents.features.GraspFeatures`.
     """
 
     def __init__(
@@ -149,15 +169,18 @@ class ForceDirectionPolicy(ActorCriticPolicy):
         action_space: gym.spaces.Box,
         lr_schedule: Any,
         k_max_ratio: float = DEFAULT_K_MAX_RATIO,
+        normalize_features: bool = False,
         **kwargs: Any,
     ) -> None:
         self.k_max_ratio = k_max_ratio
+        self.normalize_features = normalize_features
         kwargs["features_extractor_class"] = GraspFeatures
         super().__init__(observation_space, action_space, lr_schedule, **kwargs)
 
     def _build_mlp_extractor(self) -> None:
         self.mlp_extractor = _LatentWithFeatures(
             self.features_dim,
+            normalize_features=self.normalize_features,
             net_arch=self.net_arch,
             activation_fn=self.activation_fn,
             device=self.device,
@@ -177,4 +200,20 @@ class ForceDirectionPolicy(ActorCriticPolicy):
         )
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
-        return {**super()._get_constructor_parameters(), "k_max_ratio": self.k_max_ratio}
+        parameters = {**super()._get_constructor_parameters(), "k_max_ratio": self.k_max_ratio}
+        if self.normalize_features:  # files written without it load as before
+            parameters["normalize_features"] = True
+        return parameters
+
+    def set_feature_statistics(self, observations: np.ndarray) -> None:
+        """Standardise the hidden layers' inputs by the mean and standard deviation of the
+        grasp features of ``observations`` (poses, size), for example
+        :func:`grasp_env_agents.envs.sample_poses`. A feature that does not vary there (the
+        object-frame normals of a cube's faces) is only centred."""
+        if not self.normalize_features:
+            raise ValueError("set_feature_statistics needs a policy made with normalize_features")
+        with torch.no_grad():
+            features = self.pi_features_extractor(torch.as_tensor(observations, device=self.device))
+            std = features.std(0)
+            self.mlp_extractor.feature_mean.copy_(features.mean(0))
+            self.mlp_extractor.feature_std.copy_(torch.where(std > 1e-6, std, 1.0))

@@ -300,6 +300,14 @@ TINY = {
             {"normalize": True, "policy": {"net_arch": [16]}, "ppo": {"baseline": "mean_action"}},
             "raw observation, which normalize: true hides",
         ),
+        (
+            {"policy": {"net_arch": [16], "features": "grasp", "normalize_features": True}},
+            "needs policy.output: force_directions and algo: ppo",
+        ),
+        (
+            {"algo": "td3", "policy": {**TINY["policy"], "normalize_features": True}},
+            "needs policy.output: force_directions and algo: ppo",
+        ),
     ],
 )
 def test_algo_keys_are_checked(change: dict, message: str) -> None:
@@ -495,3 +503,35 @@ def test_ppo_keys_reach_the_model_and_a_gsde_run_loads_safely(tmp_path: Path) ->
     assert not np.allclose(model.predict(obs)[0], mean)  # gSDE's noise moves the action
     agent = load_agent(tmp_path / "run", "ppo")
     np.testing.assert_allclose(agent.predict(obs)[0], mean, atol=1e-6)
+
+
+def test_normalized_features_reach_the_hidden_layers_and_a_run_loads_safely(
+    tmp_path: Path,
+) -> None:
+    from grasp_env_agents.config import config_from_dict
+    from grasp_env_agents.envs import sample_poses
+    from grasp_env_agents.models import load_agent
+    from grasp_env_agents.train import train
+
+    policy = {**TINY["policy"], "normalize_features": True}
+    config = config_from_dict({**TINY, "policy": policy, "ppo": {"baseline": "mean_action"}})
+    model = train(config, tmp_path / "run", progress_bar=False)
+    extractor = model.policy.mlp_extractor
+    # standardised over the environment's poses: each varying feature at mean 0 and std 1
+    features = model.policy.pi_features_extractor(torch.as_tensor(sample_poses(ENV_ID, {})))
+    varying = features.std(0) > 1e-6
+    assert varying.sum() == 19  # of 28: R^T F_i, R^T u_ij and the friction limit; not the normals
+    inputs = extractor.hidden_inputs(features).detach()
+    np.testing.assert_allclose(inputs.mean(0), 0, atol=1e-5)
+    np.testing.assert_allclose(inputs.std(0)[varying], 1, atol=1e-5)
+    # the head still reads the grasp itself
+    assert torch.equal(extractor.forward_actor(features)[:, extractor.hidden_dim :], features)
+    # the statistics travel in the model file: the safe loader predicts as the model does
+    obs = model.get_env().reset()
+    agent = load_agent(tmp_path / "run", "ppo")
+    np.testing.assert_allclose(
+        agent.predict(obs)[0], model.predict(obs, deterministic=True)[0], atol=1e-6
+    )
+    loaded = agent.model.policy.mlp_extractor
+    assert torch.equal(loaded.feature_std, extractor.feature_std)
+    assert not torch.equal(loaded.feature_std, torch.ones_like(loaded.feature_std))
