@@ -476,7 +476,7 @@ def with_contact(i, point, contacts=None):
         ({"contacts": with_contact(0, [-0.4, 0, 0])}, "not on a face"),
         ({"contacts": with_contact(0, [np.nan, 0, 0])}, "finite"),
         ({"contacts": np.zeros((2, 3))}, "shape"),
-        ({"contacts": np.zeros((5, 3))}, "shape"),
+        ({"contacts": np.zeros((9, 3))}, "shape"),  # 3 to 8 contacts
         ({"weight": 0.0}, "weight"),
         ({"weight": -1.0}, "weight"),
         ({"weight": np.inf}, "weight"),
