@@ -295,6 +295,7 @@ def test_mesh_refuses_flat_or_bad_vertex_sets():
         (tilted, "vertices are flat"),
         (np.vstack([tilted, [[0.5, 0.5, 0.25 + 1e-11]]]), "vertices are flat"),
         (np.vstack([square, [[0.5, 0.5, 1e-7]]]), "bounding box whose edges"),
+        (np.vstack([tilted, [[0.5, 0.5, 0.25 + 1e-9]]]), "vertices are flat"),
         (square[:3], r"vertices must be a \(V, 3\) array .* got shape \(3, 3\)"),
         (np.zeros((5, 2)), "vertices must be"),
         (cube_corners(1e7), r"bounding box whose edges are each in \[1e-06, 1e\+06\]"),
@@ -302,6 +303,24 @@ def test_mesh_refuses_flat_or_bad_vertex_sets():
     ):
         with pytest.raises(ValueError, match=match):
             ConvexMesh(vertices=vertices)
+
+
+def test_thin_but_solid_and_large_meshes_build():
+    square = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], float)
+    tilted = square @ [[1, 0, 0.3], [0, 1, 0.2], [0, 0, 1]]
+    pyramid = ConvexMesh(vertices=np.vstack([tilted, [[0.5, 0.5, 0.25 + 1e-6]]]))
+    assert len(pyramid.faces) == 5 and pyramid.contains([0.0, 0.0, 0.0])
+    # a cloud of 3000 points on and in a sphere: hundreds of faces, each a triangle
+    rng = np.random.default_rng(10)
+    directions = rng.normal(size=(3000, 3))
+    cloud = directions / np.linalg.norm(directions, axis=1, keepdims=True)
+    cloud[:1000] *= rng.uniform(0.1, 0.99, size=(1000, 1))
+    mesh = ConvexMesh(vertices=cloud)
+    assert len(mesh.vertices) == 2000 and len(mesh.faces) == 2 * 2000 - 4
+    points = np.array([mesh.face_point(f) for f in range(0, len(mesh.faces), 7)])
+    np.testing.assert_allclose(
+        mesh.inward_normals(points), -mesh.face_normals[::7], rtol=0, atol=1e-15
+    )
 
 
 def test_meshes_compare_pickle_and_hash_by_vertices():
@@ -450,6 +469,16 @@ def test_a_cylinder_scene_with_five_contacts():
     # dataclasses.replace passes the stored size back: it agrees with the shape
     lighter = dataclasses.replace(scene, weight=1.0)
     assert lighter.weight == 1.0 and lighter.shape == CAN
+    ball = Sphere(radius=0.05)
+    moved = [ball.point(d) for d in ([-1, 0, 0], [0, -1, 0], [0, 0, -1], [1, 1, 1])]
+    on_ball = dataclasses.replace(scene, shape=ball, contacts=moved, size=None)
+    assert on_ball.shape == ball and on_ball.size.tolist() == [0.1] * 3
+    with pytest.raises(ValueError, match="disagrees with the sphere's bounding box"):
+        dataclasses.replace(scene, shape=ball, contacts=moved)
+    mesh = ConvexMesh(vertices=icosahedron() * 0.03)
+    on_mesh = Scene(shape=mesh, contacts=[mesh.face_point(f) for f in (0, 5, 10, 15)])
+    again = pickle.loads(pickle.dumps(on_mesh))
+    assert again == on_mesh and hash(again) == hash(on_mesh) and again.shape.faces == mesh.faces
 
 
 def test_scenes_refuse_bad_layouts_on_any_shape():

@@ -191,6 +191,10 @@ class Shape(ArrayRecord):
         points = real_array("points", points, must)
         if points.ndim != 2 or points.shape[1] != 3:
             raise ValueError(f"points must be {must}, got shape {points.shape}")
+        return self._inward_normals(points)
+
+    def _inward_normals(self, points: np.ndarray) -> np.ndarray:
+        """:meth:`inward_normals` of checked float64 ``points`` (n, 3)."""
         tolerance = self.tolerance()
         normals = np.zeros_like(points)
         for i, point in enumerate(points):
@@ -269,14 +273,15 @@ class Box(Shape):
 
     def _normal(self, index: int, point: np.ndarray, tolerance: float) -> np.ndarray:
         distance = np.abs(point) - self.size / 2  # 0 on a face, < 0 inside
-        where = self._where(index, point)
         if np.any(distance > tolerance):
-            raise ValueError(f"{where} lies outside the box {self.size.tolist()}")
+            raise ValueError(
+                f"{self._where(index, point)} lies outside the box {self.size.tolist()}"
+            )
         on = np.flatnonzero(np.abs(distance) <= tolerance)
         if on.size == 0:
-            raise ValueError(f"{where} is not on a face of the box")
+            raise ValueError(f"{self._where(index, point)} is not on a face of the box")
         if on.size > 1:
-            raise ValueError(f"{where} is on an edge: its normal is ambiguous")
+            raise ValueError(f"{self._where(index, point)} is on an edge: its normal is ambiguous")
         normal = np.zeros(3)
         normal[on[0]] = -np.sign(point[on[0]])
         return normal
@@ -347,22 +352,24 @@ class Cylinder(Shape):
     def _normal(self, index: int, point: np.ndarray, tolerance: float) -> np.ndarray:
         rho = float(np.hypot(point[0], point[1]))
         side, cap = rho - self.radius, abs(float(point[2])) - self.height / 2  # 0 on, < 0 in
-        where = self._where(index, point)
         if side > tolerance or cap > tolerance:
             raise ValueError(
-                f"{where} lies outside the cylinder (radius {self.radius}, height {self.height})"
+                f"{self._where(index, point)} lies outside the cylinder (radius {self.radius},"
+                f" height {self.height})"
             )
         on_side, on_cap = abs(side) <= tolerance and rho > 0, abs(cap) <= tolerance
         if on_side and on_cap:
             raise ValueError(
-                f"{where} is on the cylinder's rim, where its side meets a cap: its normal is"
-                " ambiguous"
+                f"{self._where(index, point)} is on the cylinder's rim, where its side meets a"
+                " cap: its normal is ambiguous"
             )
         if on_cap:
             return np.array([0.0, 0.0, -np.sign(point[2])])
         if on_side:
             return np.array([-point[0] / rho, -point[1] / rho, 0.0]) + 0.0  # no -0.0
-        raise ValueError(f"{where} is not on the surface of the cylinder (it lies inside)")
+        raise ValueError(
+            f"{self._where(index, point)} is not on the surface of the cylinder (it lies inside)"
+        )
 
     def _contains(self, point: np.ndarray) -> bool:
         return bool(np.hypot(point[0], point[1]) < self.radius and abs(point[2]) < self.height / 2)
@@ -406,11 +413,14 @@ class Sphere(Shape):
 
     def _normal(self, index: int, point: np.ndarray, tolerance: float) -> np.ndarray:
         length = float(np.linalg.norm(point))
-        where = self._where(index, point)
         if length - self.radius > tolerance:
-            raise ValueError(f"{where} lies outside the sphere (radius {self.radius})")
+            raise ValueError(
+                f"{self._where(index, point)} lies outside the sphere (radius {self.radius})"
+            )
         if length - self.radius < -tolerance:
-            raise ValueError(f"{where} is not on the surface of the sphere (it lies inside)")
+            raise ValueError(
+                f"{self._where(index, point)} is not on the surface of the sphere (it lies inside)"
+            )
         return -point / length
 
     def _contains(self, point: np.ndarray) -> bool:
@@ -518,16 +528,18 @@ class ConvexMesh(Shape):
 
     def _normal(self, index: int, point: np.ndarray, tolerance: float) -> np.ndarray:
         distance = self._distances(point)
-        where = self._where(index, point)
         if np.any(distance > tolerance):
-            raise ValueError(f"{where} lies outside the convex mesh")
+            raise ValueError(f"{self._where(index, point)} lies outside the convex mesh")
         on = np.flatnonzero(np.abs(distance) <= tolerance)
         if on.size == 0:
-            raise ValueError(f"{where} is not on the surface of the convex mesh (it lies inside)")
+            raise ValueError(
+                f"{self._where(index, point)} is not on the surface of the convex mesh"
+                " (it lies inside)"
+            )
         if on.size > 1:
             raise ValueError(
-                f"{where} is on an edge or vertex of the convex mesh (faces {on.tolist()} meet"
-                " there): its normal is ambiguous"
+                f"{self._where(index, point)} is on an edge or vertex of the convex mesh"
+                f" (faces {on.tolist()} meet there): its normal is ambiguous"
             )
         return -self.face_normals[on[0]]
 
@@ -564,20 +576,28 @@ def _merge_facets(
 ) -> tuple[tuple[tuple[int, ...], ...], np.ndarray, np.ndarray]:
     """The faces (vertex indices, counter-clockwise from outside), outward unit normals and
     offsets of ``hull``'s facets merged by plane: on a convex hull, the facets in one
-    supporting plane make one face."""
+    supporting plane make one face, connected through neighbours in that plane."""
     equations = hull.equations  # n . x + e = 0, n outward
-    groups: list[list[int]] = []
-    for f, (normal, offset) in enumerate(zip(equations[:, :3], equations[:, 3], strict=True)):
-        for group in groups:
-            first = equations[group[0]]
-            if (
-                np.abs(normal - first[:3]).max() <= _COPLANAR
-                and abs(offset - first[3]) <= tolerance
-            ):
-                group.append(f)
-                break
-        else:
-            groups.append([f])
+    count = len(equations)
+    facets = np.repeat(np.arange(count), 3)
+    neighbours = hull.neighbors.ravel()
+    same = (np.abs(equations[facets, :3] - equations[neighbours, :3]).max(axis=1) <= _COPLANAR) & (
+        np.abs(equations[facets, 3] - equations[neighbours, 3]) <= tolerance
+    )
+    root = list(range(count))  # union-find over the facets joined to a neighbour in-plane
+
+    def find(f: int) -> int:
+        while root[f] != f:
+            root[f] = root[root[f]]
+            f = root[f]
+        return f
+
+    for f, g in zip(facets[same].tolist(), neighbours[same].tolist(), strict=True):
+        root[find(f)] = find(g)
+    members: dict[int, list[int]] = {}
+    for f in range(count):
+        members.setdefault(find(f), []).append(f)
+    groups = list(members.values())  # in the order of their first facet
     faces, normals, offsets = [], [], []
     for group in groups:
         normal = equations[group, :3].mean(axis=0)

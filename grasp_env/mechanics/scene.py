@@ -87,9 +87,10 @@ class Scene(ArrayRecord):
         size: box edge lengths (a number for a cube), metres, each in :data:`SIZE_RANGE`;
             without a ``shape``, the box is ``Box(size=size)`` (default 1.0, the unit cube).
             With a ``shape`` leave it out: given, it must equal the shape's bounding box (as
-            ``dataclasses.replace`` passes it back). Stored, it is always the edge lengths (3,)
-            of the shape's axis-aligned bounding box: a box's size, a cylinder's (2r, 2r, h),
-            a sphere's (2r, 2r, 2r), a mesh's vertices' extents.
+            ``dataclasses.replace`` passes it back; to replace the shape, pass ``size=None``).
+            Stored, it is always the edge lengths (3,) of the shape's axis-aligned bounding
+            box: a box's size, a cylinder's (2r, 2r, h), a sphere's (2r, 2r, 2r), a mesh's
+            vertices' extents.
         weight: weight w > 0, newtons, acting along world -z at the centre of gravity.
         mu: Coulomb friction coefficient > 0; the friction angle limit is atan(mu).
         cg_offset: (3,) centre of gravity relative to the shape's centre; must lie strictly
@@ -148,13 +149,13 @@ class Scene(ArrayRecord):
             value = real_number(name, getattr(self, name), 0.0, open_low=True)
             object.__setattr__(self, name, value)
         cg = vector("cg_offset")
-        if not shape.contains(cg):
+        if not shape._contains(cg):  # checked here: a finite 3-vector
             raise ValueError(
                 f"cg_offset {cg.tolist()} must lie inside the {shape.kind} ({shape.interior})"
             )
         vector("extra_force")
         vector("extra_torque")
-        frozen("normals", shape.inward_normals(contacts))
+        frozen("normals", shape._inward_normals(contacts))  # checked contacts
         _check_layout(contacts, float(self.size.max()))
 
     def _shape(self) -> Shape:
