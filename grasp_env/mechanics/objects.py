@@ -32,13 +32,15 @@ command line names shapes with :func:`parse_object` (``"cube"``, ``"can"``, ``"b
 from __future__ import annotations
 
 from dataclasses import dataclass, field, fields
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.spatial import ConvexHull, QhullError
 
 from .checks import is_integer, real_array, real_number
+
+if TYPE_CHECKING:
+    from scipy.spatial import ConvexHull
 
 #: Accepted box edge lengths, metres: within them a contact on a face is told from one on an
 #: edge (to 1e-9 m, or 1e-9 of the edge beyond 1 m), and the grasp's arithmetic neither
@@ -476,6 +478,9 @@ class ConvexMesh(Shape):
             f"vertices are flat (all in one plane, to {_FLAT:g} of their bounding box's"
             " volume): a convex mesh needs a solid hull"
         )
+        # imported here: scipy.spatial takes longer to import than the rest of the mechanics
+        from scipy.spatial import ConvexHull, QhullError
+
         try:
             hull = ConvexHull(points)
         except QhullError:

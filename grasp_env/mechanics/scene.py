@@ -1,4 +1,5 @@
-"""The grasped object, its contacts and its load (docs/design.md, "Mechanics")."""
+"""The grasped object (any shape of :mod:`.objects`), its 3 to 8 contacts and its load
+(docs/design.md §1, "Mechanics")."""
 
 from __future__ import annotations
 
