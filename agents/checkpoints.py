@@ -28,6 +28,7 @@ from __future__ import annotations
 import io
 import os
 import re
+import zipfile
 from dataclasses import dataclass
 from operator import attrgetter
 from pathlib import Path
@@ -39,8 +40,16 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.logger import Logger, TensorBoardOutputFormat
 from torch.utils.tensorboard import SummaryWriter
 
-from .models import ALGORITHMS, check_tensors, load_replay_buffer, load_vecnormalize, read_archive
+from .models import (
+    ALGORITHMS,
+    check_tensors,
+    load_replay_buffer,
+    load_tensors,
+    load_vecnormalize,
+    read_archive,
+)
 from .progress import say
+from .safe_files import ROUND_DATA, check_zip_directory
 
 IMITATION_PREFIX = "imitation_round"
 #: A checkpoint of an algorithm's model: ``<algo>_<N>_steps.zip``.
@@ -165,6 +174,14 @@ def save_round_data(
 
 
 def load_round_data(path: Path) -> tuple[np.ndarray, np.ndarray, int]:
+    """The states, labels and environment steps of an imitation round (:func:`save_round_data`);
+    ValueError if the file is damaged, or its zip directory declares a zip bomb."""
+    try:
+        archive = zipfile.ZipFile(path)
+    except Exception as error:  # missing, not a zip, a damaged directory
+        raise ValueError(f"{path} is damaged ({type(error).__name__}: {error})") from None
+    with archive:
+        check_zip_directory(archive, str(path), ROUND_DATA)  # before np.load inflates
     try:
         with np.load(path, allow_pickle=False) as data:
             return data["observations"], data["labels"], int(data["env_steps"])
@@ -236,9 +253,7 @@ def restore(model: BaseAlgorithm, start: Start) -> None:
     names = model._get_torch_save_params()[1]
     if names:
         _, archive = read_archive(start.checkpoint)
-        saved = torch.load(
-            io.BytesIO(archive.read("pytorch_variables.pth")), map_location="cpu", weights_only=True
-        )
+        saved = load_tensors(start.checkpoint, archive, "pytorch_variables.pth")
         with torch.no_grad():  # in place, as SB3's load: the optimisers hold these tensors
             for name in names:
                 attrgetter(name)(model).copy_(saved[name])

@@ -23,8 +23,14 @@ So every file is read here, never by SB3's unpickling:
 
 Models pickled while the package was importable as ``agents`` (``agents.policy``,
 ``agents.features``) load through :data:`RENAMED`. A truncated or garbage zip, a missing member,
-damaged tensors or weights that do not fit the network raise a ValueError naming the file and
-what is wrong.
+damaged tensors, weights that are NaN or infinite or that do not fit the network raise a
+ValueError naming the file and what is wrong.
+
+A hostile file is refused before it costs much (:mod:`grasp_env_agents.safe_files`): a zip
+whose directory declares members past :data:`~grasp_env_agents.safe_files.MODEL_ZIP`'s bounds
+(a zip bomb: gigabytes from a few megabytes) before any member is inflated, the torch zips
+inside it likewise, and ``data`` JSON or a pickle nested deeper than
+:data:`~grasp_env_agents.safe_files.MAX_NESTING` levels before Python's recursion fails on it.
 
 :func:`load_agent` is the entry point (a model file or a run directory, with its observation
 normalisation): ``grasp-env evaluate`` and ``verify --policy`` load models through it.
@@ -36,6 +42,7 @@ import base64
 import io
 import json
 import pickle
+import reprlib
 import warnings
 import zipfile
 from pathlib import Path
@@ -51,6 +58,16 @@ from stable_baselines3.common.running_mean_std import RunningMeanStd
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
 from .baselines import TrainedAgent
+from .safe_files import (
+    MODEL_ZIP,
+    NestedTooDeep,
+    check_json_depth,
+    check_object_depth,
+    check_zip_directory,
+    nested_too_deep,
+    read_member,
+    size_text,
+)
 
 #: The algorithms a model file may be loaded as; its policy class says which wrote it.
 ALGORITHMS: dict[str, type[BaseAlgorithm]] = {"ppo": PPO, "td3": TD3, "sac": SAC}
@@ -117,9 +134,16 @@ class SafeUnpickler(pickle.Unpickler):
         return super().find_class(module, name)
 
 
-def safe_loads(data: bytes) -> Any:
-    """Unpickle ``data`` resolving only allowed names (:class:`ForbiddenName` otherwise)."""
-    return SafeUnpickler(io.BytesIO(data)).load()
+def safe_loads(data: bytes, where: str = "the pickle") -> Any:
+    """Unpickle ``data`` resolving only allowed names (:class:`ForbiddenName` otherwise);
+    :class:`~grasp_env_agents.safe_files.NestedTooDeep` (naming ``where``) if what it holds
+    nests deeper than :data:`~grasp_env_agents.safe_files.MAX_NESTING` levels."""
+    try:
+        item = SafeUnpickler(io.BytesIO(data)).load()
+    except RecursionError:  # objects rebuilt inside objects, past Python's limit
+        raise nested_too_deep(where, "a pickle") from None
+    check_object_depth(item, where)
+    return item
 
 
 def _refusal(path: Path, what: str, name: str) -> ValueError:
@@ -142,14 +166,24 @@ def read_archive(path: Path) -> tuple[bytes, zipfile.ZipFile]:
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"{path}: no such model file")
+    size = path.stat().st_size
+    if size > MODEL_ZIP.total:  # SB3 stores its members: the file is as large as they are
+        raise ValueError(
+            f"{path}: {size_text(size)}, more than the {size_text(MODEL_ZIP.total)} a model file"
+            " may hold; refused unread"
+        )
     raw = path.read_bytes()
+    unreadable = f"{path}: not a readable zip archive (truncated, or not a model file)"
     try:
         archive = zipfile.ZipFile(io.BytesIO(raw))
+    except (zipfile.BadZipFile, EOFError, OSError, ValueError, NotImplementedError) as error:
+        raise ValueError(f"{unreadable}: {error}") from None
+    # the sizes its directory declares, before testzip inflates every member
+    check_zip_directory(archive, str(path), MODEL_ZIP)
+    try:
         bad = archive.testzip()
-    except (zipfile.BadZipFile, EOFError, OSError, ValueError) as error:
-        raise ValueError(
-            f"{path}: not a readable zip archive (truncated, or not a model file): {error}"
-        ) from None
+    except (zipfile.BadZipFile, EOFError, OSError, ValueError, NotImplementedError) as error:
+        raise ValueError(f"{unreadable}: {error}") from None
     if bad is not None:
         raise ValueError(f"{path}: member {bad!r} of the zip is damaged (CRC mismatch)")
     missing = {"data", "policy.pth"} - set(archive.namelist())
@@ -161,21 +195,59 @@ def read_archive(path: Path) -> tuple[bytes, zipfile.ZipFile]:
     return raw, archive
 
 
+def load_tensors(path: Path, archive: zipfile.ZipFile, name: str) -> Any:
+    """Member ``name`` (a ``.pth``) of a model file as plain tensors (torch's
+    ``weights_only``), read within :data:`~grasp_env_agents.safe_files.MODEL_ZIP`'s bounds:
+    the zip torch wrote is checked from its own directory before torch inflates anything."""
+    content = read_member(archive, name, str(path), MODEL_ZIP)
+    if zipfile.is_zipfile(io.BytesIO(content)):  # torch's format (older ones are plain pickles)
+        try:
+            inner = zipfile.ZipFile(io.BytesIO(content))
+        except (zipfile.BadZipFile, OSError, ValueError, NotImplementedError) as error:
+            raise _damaged(path, name, error) from None
+        check_zip_directory(inner, f"{path}: {name}", MODEL_ZIP)
+    try:
+        return torch.load(io.BytesIO(content), map_location="cpu", weights_only=True)
+    except Exception as error:  # torch raises RuntimeError, UnpicklingError, EOFError...
+        raise _damaged(path, name, error) from None
+
+
 def check_tensors(path: Path, archive: zipfile.ZipFile) -> None:
-    """Every ``.pth`` member loads as plain tensors (torch's ``weights_only``)."""
+    """Every ``.pth`` member loads as plain tensors (torch's ``weights_only``), all finite:
+    a NaN or an infinity in the weights (or the optimiser's state) is refused, naming it."""
     for name in archive.namelist():
         if name.endswith(".pth"):
-            try:
-                torch.load(io.BytesIO(archive.read(name)), map_location="cpu", weights_only=True)
-            except Exception as error:  # torch raises RuntimeError, UnpicklingError, EOFError...
-                raise _damaged(path, name, error) from None
+            check_finite(path, name, load_tensors(path, archive, name))
+
+
+def check_finite(path: Path, member: str, saved: Any) -> None:
+    """ValueError naming the first floating tensor in ``saved`` (a state dict, an optimiser's
+    state, nested dicts and lists of tensors) that holds a NaN or an infinity."""
+    todo: list[tuple[str, Any]] = [("", saved)]
+    while todo:
+        name, item = todo.pop(0)
+        if isinstance(item, torch.Tensor):
+            if item.is_floating_point() or item.is_complex():
+                if not bool(torch.isfinite(item).all()):
+                    raise ValueError(
+                        f"{path}: model weights contain NaN or inf in {name or 'the tensor'}"
+                        f" ({member}); refused"
+                    )
+        elif isinstance(item, dict):
+            todo.extend((f"{name}.{key}".lstrip("."), value) for key, value in item.items())
+        elif isinstance(item, list | tuple):
+            todo.extend((f"{name}.{i}".lstrip("."), value) for i, value in enumerate(item))
 
 
 def decode_entries(path: Path, archive: zipfile.ZipFile) -> dict[str, Any]:
     """The pickled entries of the model's ``data``, decoded safely (module docstring)."""
+    text = read_member(archive, "data", str(path), MODEL_ZIP)
+    check_json_depth(text, f"{path}: its 'data' member")
     try:
-        data = json.loads(archive.read("data"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as error:
+        data = json.loads(text)
+    except RecursionError:  # not past the scan's depth: never, but json recurses
+        raise nested_too_deep(f"{path}: its 'data' member", "JSON") from None
+    except ValueError as error:  # JSONDecodeError, UnicodeDecodeError, a 5,000-digit number
         raise _damaged(path, "its 'data' member", error) from None
     if not isinstance(data, dict):
         raise ValueError(f"{path}: its 'data' member is not a mapping: not an SB3 model file")
@@ -188,7 +260,10 @@ def decode_entries(path: Path, archive: zipfile.ZipFile) -> dict[str, Any]:
         if not (isinstance(item, dict) and ":serialized:" in item):
             continue
         try:
-            decoded[key] = safe_loads(base64.b64decode(str(item[":serialized:"]), validate=True))
+            serialized = base64.b64decode(str(item[":serialized:"]), validate=True)
+            decoded[key] = safe_loads(serialized, f"{path}: entry {key!r}")
+        except NestedTooDeep:
+            raise
         except ForbiddenName as error:
             if key not in SCHEDULES:
                 raise _refusal(path, f"entry {key!r}", str(error)) from None
@@ -208,18 +283,21 @@ def decode_entries(path: Path, archive: zipfile.ZipFile) -> dict[str, Any]:
 
 
 def _check_needed(path: Path, entries: dict[str, Any]) -> None:
+    shown = reprlib.repr  # what a file holds may be long: a line, not the file
     policy = entries["policy_class"]
     if not (isinstance(policy, type) and issubclass(policy, BasePolicy)):
-        raise ValueError(f"{path}: its policy_class is {policy!r}, not an SB3 policy class")
+        raise ValueError(f"{path}: its policy_class is {shown(policy)}, not an SB3 policy class")
     if not isinstance(entries["policy_kwargs"], dict):
         raise ValueError(f"{path}: its policy_kwargs are not a mapping")
     if not isinstance(entries["observation_space"], gym.spaces.Box):
         raise ValueError(
-            f"{path}: its observation_space is {entries['observation_space']!r}, not a Box space"
+            f"{path}: its observation_space is {shown(entries['observation_space'])}, not a Box"
+            " space"
         )
     if not isinstance(entries["action_space"], gym.spaces.Box | gym.spaces.Discrete):
         raise ValueError(
-            f"{path}: its action_space is {entries['action_space']!r}, not a Box or Discrete space"
+            f"{path}: its action_space is {shown(entries['action_space'])}, not a Box or"
+            " Discrete space"
         )
 
 
@@ -275,7 +353,9 @@ def load_vecnormalize(path: str | Path, venv: VecEnv | None = None) -> VecNormal
     """
     path = Path(path)
     try:
-        normalizer = safe_loads(path.read_bytes())
+        normalizer = safe_loads(path.read_bytes(), str(path))
+    except NestedTooDeep:
+        raise
     except ForbiddenName as error:
         raise _refusal(path, "the pickle", str(error)) from None
     except Exception as error:  # damaged data fails in many ways, none of them runs code
@@ -302,7 +382,9 @@ def load_replay_buffer(path: str | Path) -> ReplayBuffer:
     """SB3's ``model.load_replay_buffer(path)``'s buffer, without running code from the file."""
     path = Path(path)
     try:
-        buffer = safe_loads(path.read_bytes())
+        buffer = safe_loads(path.read_bytes(), str(path))
+    except NestedTooDeep:
+        raise
     except ForbiddenName as error:
         raise _refusal(path, "the pickle", str(error)) from None
     except Exception as error:  # damaged data fails in many ways, none of them runs code
