@@ -54,6 +54,21 @@ def folder_argument(text: str) -> Path:
     return path
 
 
+#: The largest seed: numpy's legacy generators and SB3's ``set_random_seed`` take an unsigned
+#: 32-bit integer (a config's ``seed``, a sweep's ``seeds``, ``--seed``).
+MAX_SEED = 2**32 - 1
+#: Characters of a refused argument shown in its message (a 5,000-digit number is not).
+SHOWN = 40
+
+
+def shown_text(text: str) -> str:
+    """``text`` quoted for a message, cut to :data:`SHOWN` characters with its length if
+    longer."""
+    if len(text) <= SHOWN:
+        return repr(text)
+    return f"{text[: SHOWN // 2]!r}... ({len(text):,} characters)"
+
+
 def integer_argument(low: int, high: int | None = None) -> Callable[[str], int]:
     """An argparse type for counts and seeds: an integer >= ``low`` (and <= ``high`` if
     given), written as configs take them (``1000``, ``1_000`` or ``1e3``)."""
@@ -62,17 +77,24 @@ def integer_argument(low: int, high: int | None = None) -> Callable[[str], int]:
     def integer(text: str) -> int:
         try:
             number = float(text) if "e" in text.lower() else int(text)
-        except ValueError:
+        except ValueError:  # not a number, or past the 4,300 digits Python converts
             number = math.nan
         if not (
             math.isfinite(number)
             and number == int(number)
             and low <= number <= (math.inf if high is None else high)
         ):
-            raise argparse.ArgumentTypeError(f"must be an integer {accepted}, got {text!r}")
+            raise argparse.ArgumentTypeError(
+                f"must be an integer {accepted}, got {shown_text(text)}"
+            )
         return int(number)
 
     return integer
+
+
+def seed_argument() -> Callable[[str], int]:
+    """An argparse type for seeds: an integer in [0, :data:`MAX_SEED`] (2^32 - 1)."""
+    return integer_argument(0, MAX_SEED)
 
 
 def main(argv: list[str] | None = None) -> int:

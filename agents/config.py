@@ -9,6 +9,11 @@ Every key is checked: an unknown or duplicate key, a missing ``env_id`` or ``tot
 a wrong type, a value out of range, an environment that is not one of grasp_env's, or a config
 that trains nothing raises a :class:`ValueError` naming the key and what it accepts (one line
 per problem). The models are the documentation of every key (docs/agents.md).
+
+The YAML reader (:func:`read_yaml`, for configs, sweep files and results specs) refuses a key
+given twice, data nested deeper than :data:`~grasp_env_agents.safe_files.MAX_NESTING` levels
+(while composing it, before Python's recursion fails) and reads an integer past the 4,300
+digits Python converts as :class:`LongInteger`, which every key refuses by its own range.
 """
 
 from __future__ import annotations
@@ -34,6 +39,9 @@ from pydantic import (
 
 from grasp_env import ENV_IDS
 from grasp_env.envs.validation import DEFAULT_K_MAX_RATIO
+
+from .cli import MAX_SEED
+from .safe_files import MAX_NESTING
 
 #: The finger-gait environments: sequential, scored by their own programme, not the held-out
 #: grasp scenes this module's runs are evaluated on.
@@ -68,6 +76,17 @@ def config_path(name_or_path: str | Path) -> Path:
 # --- the value types YAML gives --------------------------------------------------------------
 
 
+class LongInteger:
+    """An integer of more digits than Python converts from text (4,300): no key of a config
+    takes one, and its message names its size, not the digits."""
+
+    def __init__(self, digits: int, line: int) -> None:
+        self.digits, self.line = digits, line
+
+    def __repr__(self) -> str:
+        return f"an integer of {self.digits:,} digits (line {self.line})"
+
+
 def _integer(value: Any) -> Any:
     """Integers as YAML writes them: 100000, or 1e6 and 1.0e+6 (floats)."""
     return int(value) if isinstance(value, float) and value.is_integer() else value
@@ -82,11 +101,17 @@ def _range(kind: type, low: float, high: float, *, low_open: bool = False) -> An
     interval = f"{'(' if low_open else '['}{low}, {high}]"
 
     def check(value: Any) -> Any:
-        if not (low < value if low_open else low <= value) or not value <= high:
+        if isinstance(value, LongInteger) or (
+            not (low < value if low_open else low <= value) or not value <= high
+        ):
             raise ValueError(f"must be in {interval}, got {value!r}")
         return value
 
-    return Annotated[kind, AfterValidator(check)]
+    def long_integer(value: Any) -> Any:
+        # refused with the range, before the type check (which would not say it)
+        return check(value) if isinstance(value, LongInteger) else value
+
+    return Annotated[kind, BeforeValidator(long_integer), AfterValidator(check)]
 
 
 class _Section(BaseModel):
@@ -290,7 +315,7 @@ class TrainConfig(_Section):
     env_id: StrictStr
     env_kwargs: dict[StrictStr, Any] = {}
     n_envs: _range(Int, 1, 1 << 20) = 8
-    seed: _range(Int, 0, 2**32 - 1) = 0
+    seed: _range(Int, 0, MAX_SEED) = 0
     total_timesteps: _range(Int, 0, 1 << 40)
     normalize: StrictBool = False
     eval_freq: _range(Int, 0, 1 << 40) = 20_000
@@ -409,9 +434,31 @@ class TrainConfig(_Section):
 
 
 class _Loader(yaml.SafeLoader):
-    """PyYAML's safe loader, with two fixes: a key given twice in one mapping is an error (not
-    the last one silently), and 1e6 and 3e-4 are numbers, as in YAML 1.2 (PyYAML follows YAML
-    1.1, which reads them as strings)."""
+    """PyYAML's safe loader, with fixes: a key given twice in one mapping is an error (not the
+    last one silently), 1e6 and 3e-4 are numbers, as in YAML 1.2 (PyYAML follows YAML 1.1,
+    which reads them as strings), data nested deeper than
+    :data:`~grasp_env_agents.safe_files.MAX_NESTING` levels is refused as it is composed
+    (PyYAML composes recursively: past about 300 levels, a RecursionError), and an integer too
+    long for Python's int() is a :class:`LongInteger`."""
+
+    _nesting = 0
+
+    def compose_node(self, parent: yaml.Node | None, index: Any) -> yaml.Node:
+        self._nesting += 1
+        try:
+            if self._nesting > MAX_NESTING:
+                line = self.peek_event().start_mark.line + 1
+                raise ValueError(f"line {line}: nested deeper than {MAX_NESTING} levels; refused")
+            return super().compose_node(parent, index)
+        finally:
+            self._nesting -= 1
+
+    def construct_yaml_int(self, node: yaml.ScalarNode) -> int | LongInteger:
+        try:
+            return super().construct_yaml_int(node)
+        except ValueError:  # past the 4,300 digits Python converts
+            digits = sum(c.isdigit() for c in str(node.value))
+            return LongInteger(digits, node.start_mark.line + 1)
 
     def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict:
         seen: dict[Any, int] = {}
@@ -427,6 +474,7 @@ class _Loader(yaml.SafeLoader):
         return super().construct_mapping(node, deep=deep)
 
 
+_Loader.add_constructor("tag:yaml.org,2002:int", _Loader.construct_yaml_int)
 _Loader.add_implicit_resolver(
     "tag:yaml.org,2002:float",
     re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$"),
@@ -447,8 +495,12 @@ def read_yaml(path: Path, what: str, keys: Sequence[str] | None = None) -> Any:
         data = yaml.load(path.read_text(), Loader=_Loader)
     except yaml.YAMLError as error:
         raise ValueError(f"{what} {str(path)!r} is not valid YAML: {error}") from None
-    except ValueError as error:  # a duplicate key
+    except ValueError as error:  # a duplicate key, or nested too deep
         raise ValueError(f"{what} {str(path)!r}, {error}") from None
+    except RecursionError:  # not past MAX_NESTING: never, but PyYAML recurses
+        raise ValueError(
+            f"{what} {str(path)!r} is nested deeper than {MAX_NESTING} levels; refused"
+        ) from None
     if keys is None:
         return data
     data = {} if data is None else data
