@@ -21,8 +21,11 @@ A sweep that would train one config with one seed twice (a seed or a grid value 
 ``num_samples`` above 1 over a space with nothing to sample) is refused before any trial: the
 report refuses such runs as one group's seeds (:func:`grasp_env_agents.results.check_seeds`);
 a point a random search happens to draw twice is reported once. Every value the space can
-draw (each grid and choice value, each range's ends) is checked against the config before any
-trial.
+draw (each grid and choice value, each range's ends) is checked before any trial, as a single
+run checks its config (every key and value) and its environment (``env_kwargs``, by making
+it); so are the seeds (the config's range, [0, 2^32 - 1]), ``episodes`` (``grasp-env evaluate
+--episodes``'s range) and the extras the sweep imports (Ray Tune, Optuna for ``search:
+optuna``, rliable for the report), before Ray starts.
 Every trial is one training run (:func:`grasp_env_agents.train.train`) with its own run
 directory under ``OUT/runs/`` (config, checkpoints, learning curve, model, held-out report);
 Ray Tune schedules the trials, ``cpus_per_trial`` cores each, on a local Ray with the
@@ -39,6 +42,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import importlib
 import itertools
 import os
 import signal
@@ -46,7 +50,9 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from .cli import folder_argument, integer_argument, path_argument
+from grasp_env.envs.validation import MAX_ENVS
+
+from .cli import MAX_SEED, folder_argument, integer_argument, path_argument
 from .curve import last_steps
 
 HELP = "a hyperparameter sweep on Ray Tune (grid, random or Optuna) over config keys and seeds"
@@ -68,6 +74,16 @@ REPORTED = ("mean_gap_deg", "p90_gap_deg", "success_rate", "wall_minutes", "cpu_
 MAXIMISED = ("success_rate",)
 #: The Tune experiment's name under OUT (its state, for resuming).
 EXPERIMENT = "tune"
+#: What a sweep imports (module, what for, the package's extra that installs it).
+EXTRAS = (
+    ("ray.tune", "Ray Tune runs the trials", "sweep"),
+    ("optuna", "search: optuna", "sweep"),
+    ("rliable.library", "the report's IQM and bootstrap intervals", "results"),
+)
+
+
+class MissingExtra(ValueError, ImportError):
+    """A module the sweep needs is not installed (a ValueError: the CLI's one-line error)."""
 
 
 # --- the sweep file --------------------------------------------------------------------------
@@ -94,20 +110,33 @@ def load_sweep(path: Path) -> dict[str, Any]:
         raise ValueError(f"search must be one of {list(SEARCHES)}, got {sweep['search']!r}")
     if sweep["metric"] not in REPORTED:
         raise ValueError(f"metric must be one of {list(REPORTED)}, got {sweep['metric']!r}")
+    if not isinstance(sweep["config"], str) or not sweep["config"].strip():
+        raise ValueError(
+            f"config must be a shipped config's name or a path, got {sweep['config']!r}"
+        )
     for key in ("num_samples", "cpus_per_trial", "episodes"):
-        if not isinstance(sweep[key], int) or isinstance(sweep[key], bool) or sweep[key] < 1:
+        if not _is_integer(sweep[key]) or sweep[key] < 1:
             raise ValueError(f"{key} must be a positive integer, got {sweep[key]!r}")
+    if sweep["episodes"] > MAX_ENVS:  # as grasp-env evaluate --episodes: one env a scene
+        raise ValueError(
+            f"episodes must be in [1, {MAX_ENVS}] (held-out scenes, one environment each, as"
+            f" grasp-env evaluate --episodes), got {sweep['episodes']}"
+        )
     seeds = sweep["seeds"]
     if seeds is not None and (
         not isinstance(seeds, list)
         or not seeds
-        or not all(isinstance(s, int) and not isinstance(s, bool) and s >= 0 for s in seeds)
+        or not all(_is_integer(s) and 0 <= s <= MAX_SEED for s in seeds)
     ):
-        raise ValueError(f"seeds must be a non-empty list of integers >= 0, got {seeds!r}")
+        raise ValueError(
+            f"seeds must be a non-empty list of integers in [0, {MAX_SEED}] (a config's seed),"
+            f" got {seeds!r}"
+        )
     if not isinstance(sweep["space"], Mapping):
         raise ValueError("space must map dotted config keys to values or distributions")
     for key, value in sweep["space"].items():
-        check_distribution(str(key), value)
+        check_key(key)
+        check_distribution(key, value)
         if sweep["search"] == "optuna" and _is_grid(value):
             raise ValueError(f"space.{key}: optuna takes choice, not grid")
     check_repeats(sweep)
@@ -152,11 +181,29 @@ def check_repeats(sweep: Mapping[str, Any]) -> None:
         )
 
 
+def _is_integer(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def check_key(key: Any) -> None:
+    """Raise ValueError unless ``key`` is a dotted config key (``ppo.learning_rate``)."""
+    if not isinstance(key, str) or not all(part.strip() for part in key.split(".")):
+        raise ValueError(
+            f"space: the key {key!r} is not a config key; space keys are config keys as text,"
+            " dotted for nested ones (ppo.learning_rate, env_kwargs.k_max_ratio)"
+        )
+
+
 def yaml_key(value: Any) -> str:
-    """A value as comparable text (a grid's values may be lists or mappings)."""
+    """A value as comparable text (a grid's values may be lists or mappings; anything YAML
+    cannot write, such as a :class:`~grasp_env_agents.config.LongInteger`, by its repr)."""
     import yaml
 
-    return yaml.safe_dump(value, sort_keys=True)
+    class Dumper(yaml.SafeDumper):
+        pass
+
+    Dumper.add_representer(None, lambda dumper, item: dumper.represent_str(repr(item)))
+    return yaml.dump(value, Dumper=Dumper, sort_keys=True)
 
 
 def _is_grid(value: Any) -> bool:
@@ -224,18 +271,39 @@ def trial_config(sweep: Mapping[str, Any], params: Mapping[str, Any]) -> Any:
 
 
 def check_space(sweep: Mapping[str, Any]) -> None:
-    """Every config the space can produce must load (a bad key or value fails here, not in a
-    trial an hour later): each grid point with every other key at its first value, then every
-    value of each choice and both ends of each range in turn."""
+    """Every config the space can produce must load, and make its environment, as a single run
+    does (a bad key or value fails here, not in a trial an hour later): each grid point with
+    every other key at its first value, then every value of each choice and both ends of each
+    range in turn. The error names the value of the space that gives the refused config."""
     space = dict(sweep["space"])
     grids = {k: v["grid"] for k, v in space.items() if _is_grid(v)}
     plain = {k: _values(v)[0] for k, v in space.items() if not _is_grid(v)}
+    environments: set[str] = set()
     for values in itertools.product(*grids.values()):
-        trial_config(sweep, {**plain, **dict(zip(grids, values, strict=True))})
+        point = dict(zip(grids, values, strict=True))
+        shown = ", ".join(f"space.{k} = {v!r}" for k, v in point.items()) or "the base config"
+        _check_trial(sweep, {**plain, **point}, shown, environments)
     first = {**plain, **{k: v[0] for k, v in grids.items()}}
     for key in plain:
         for value in _values(space[key])[1:]:
-            trial_config(sweep, {**first, key: value})
+            _check_trial(sweep, {**first, key: value}, f"space.{key} = {value!r}", environments)
+
+
+def _check_trial(
+    sweep: Mapping[str, Any], params: Mapping[str, Any], shown: str, environments: set[str]
+) -> None:
+    """The trial config of ``params`` loads, and its environment can be made (once for each
+    distinct environment: ``environments`` holds those made)."""
+    try:
+        config = trial_config(sweep, params)
+        environment = yaml_key({"env_id": config.env_id, "env_kwargs": config.env_kwargs})
+        if environment not in environments:
+            from .envs import make_vec_env
+
+            make_vec_env(config.env_id, config.env_kwargs, 1, config.seed).close()
+            environments.add(environment)
+    except ValueError as error:
+        raise ValueError(f"{shown} gives a config a run refuses: {error}") from None
 
 
 def _values(value: Any) -> list[Any]:
@@ -356,6 +424,7 @@ def sweep(path: Path, out: Path, address: str | None = None, num_cpus: int | Non
     check_space(spec)
     if address is None:
         num_cpus = local_cpus(spec, num_cpus)
+    check_extras(spec)
 
     import ray
 
@@ -405,6 +474,22 @@ def sweep(path: Path, out: Path, address: str | None = None, num_cpus: int | Non
     plot_curves(ordered, out / "learning_curves.png")
     print(markdown)
     return ordered
+
+
+def check_extras(sweep: Mapping[str, Any]) -> None:
+    """Raise :class:`MissingExtra` (naming the package's extra to install) unless every module
+    the sweep imports, for its trials, its search and its report, imports: a missing one would
+    otherwise fail after Ray started, or after all the training."""
+    for module, why, extra in EXTRAS:
+        if module == "optuna" and sweep["search"] != "optuna":
+            continue
+        try:
+            importlib.import_module(module)
+        except ImportError as error:
+            raise MissingExtra(
+                f"the sweep needs {module.split('.')[0]} ({why}), which does not import"
+                f' ({error}): pip install "grasp-env[{extra}]"'
+            ) from None
 
 
 def check_same_sweep(spec: Mapping[str, Any], out: Path) -> None:
