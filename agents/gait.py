@@ -35,13 +35,21 @@ from grasp_env.mechanics import (
     Trajectory,
     solve_gait,
 )
-from grasp_env.mechanics.gait import GAIT_CG_OFFSET, site_sets
+from grasp_env.mechanics.gait import _MAX_FINGERS, GAIT_CG_OFFSET, site_sets
 
 from .cli import folder_argument, path_argument
 from .progress import console, status
 from .scene_args import floats, friction, weight
 
 HELP = "when to phase fingers out and in: the certified optimal gait along a long rotation"
+#: Fingers a gait may have, the thumb included (grasp_env.mechanics.gait's state tables).
+FINGERS = (3, _MAX_FINGERS)
+#: The hand's fields, by the options that set them (their errors name the option).
+HAND_OPTIONS = {
+    "finger_azimuths_deg": "--finger-azimuths",
+    "finger_elevation_deg": "--finger-elevation",
+    "cone_deg": "--cone",
+}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -114,7 +122,7 @@ def problem(args: argparse.Namespace) -> tuple[GaitScene, Hand, Trajectory]:
     scene = GaitScene.on_faces(
         SITE_FACES, offsets, weight=args.weight, mu=args.mu, cg_offset=args.cg_offset
     )
-    hand = Hand(args.finger_azimuths, args.finger_elevation, not args.no_thumb, args.cone)
+    hand = make_hand(args)
     trajectory = Trajectory(args.axis, args.alpha_start, args.alpha_end, args.alpha_step)
     if args.k_max is not None:
         # the environments' k_max_ratio range: beyond it the certificate means little, and the
@@ -128,6 +136,41 @@ def problem(args: argparse.Namespace) -> tuple[GaitScene, Hand, Trajectory]:
                 f" ({low:g} to {high:g} x the weight, {args.weight:g} N here), got {args.k_max:g}"
             )
     return scene, hand, trajectory
+
+
+def make_hand(args: argparse.Namespace) -> Hand:
+    """The hand of ``--finger-azimuths``, ``--finger-elevation``, ``--no-thumb`` and
+    ``--cone``; a ValueError names the option (3 to 6 fingers, the thumb included)."""
+    low, high = FINGERS
+    thumb = int(not args.no_thumb)
+    azimuths = tuple(args.finger_azimuths)
+    if not low <= len(azimuths) + thumb <= high:
+        with_thumb = "besides the thumb" if thumb else "without the thumb (--no-thumb)"
+        raise ValueError(
+            f"--finger-azimuths must give {low - thumb} to {high - thumb} azimuths {with_thumb},"
+            f" comma-separated in degrees (A1,...,An: a gait needs {low} to {high} fingers),"
+            f" got {len(azimuths)}: {','.join(f'{a:g}' for a in azimuths)}"
+        )
+    try:
+        return Hand(azimuths, args.finger_elevation, bool(thumb), args.cone)
+    except ValueError as error:
+        message = str(error)
+        for field, option in HAND_OPTIONS.items():
+            message = message.replace(field, option)
+        raise ValueError(message) from None
+
+
+def check_rliable(args: argparse.Namespace) -> None:
+    """ValueError naming the extra if ``--models`` gives several agents (their IQM and its
+    interval are rliable's) and rliable does not import: before any work, not after it."""
+    if len(args.models) > 1:
+        try:
+            import rliable.library  # noqa: F401
+        except ImportError as error:
+            raise ValueError(
+                f"--models with {len(args.models)} models reports their IQM with rliable, which"
+                f' does not import ({error}): pip install "grasp-env[results]"'
+            ) from None
 
 
 # ------------------------------------------------------------------------------ report
@@ -498,6 +541,7 @@ def plot(solution: GaitSolution, path: Path) -> None:
 
 def run(args: argparse.Namespace) -> int:
     scene, hand, trajectory = problem(args)
+    check_rliable(args)
     loaded = []
     if args.models:  # before solving: refuse options the environment cannot take, and models
         with status(f"loading and checking {len(args.models)} model(s)"):
