@@ -103,10 +103,10 @@ ROUND_DATA = ZipBounds(
 
 
 def size_text(n: int) -> str:
-    """A byte count as people read it: 6.7 GiB, 256.0 MiB, 12 bytes."""
+    """A byte count as people read it: 256.0 MiB, 12 bytes, 1.0 GiB (1,073,741,825 bytes)."""
     for unit, scale in (("GiB", 1 << 30), ("MiB", MiB), ("KiB", 1 << 10)):
-        if n >= scale:
-            return f"{n / scale:.1f} {unit}"
+        if n >= scale:  # with the bytes if the rounding hides them (16.0 MiB past 16 MiB)
+            return f"{n / scale:.1f} {unit}" + (f" ({n:,} bytes)" if n % scale else "")
     return f"{n} bytes"
 
 

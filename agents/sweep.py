@@ -280,9 +280,9 @@ def check_space(sweep: Mapping[str, Any]) -> None:
     plain = {k: _values(v)[0] for k, v in space.items() if not _is_grid(v)}
     environments: set[str] = set()
     for values in itertools.product(*grids.values()):
-        point = dict(zip(grids, values, strict=True))
-        shown = ", ".join(f"space.{k} = {v!r}" for k, v in point.items()) or "the base config"
-        _check_trial(sweep, {**plain, **point}, shown, environments)
+        params = {**plain, **dict(zip(grids, values, strict=True))}
+        shown = ", ".join(f"space.{k} = {v!r}" for k, v in params.items()) or "the base config"
+        _check_trial(sweep, params, shown, environments)
     first = {**plain, **{k: v[0] for k, v in grids.items()}}
     for key in plain:
         for value in _values(space[key])[1:]:
