@@ -155,8 +155,8 @@ def make_hand(args: argparse.Namespace) -> Hand:
         return Hand(azimuths, args.finger_elevation, bool(thumb), args.cone)
     except ValueError as error:
         message = str(error)
-        for field, option in HAND_OPTIONS.items():
-            message = message.replace(field, option)
+        for field, option in HAND_OPTIONS.items():  # the option, and the hand's field it sets
+            message = message.replace(field, f"{option} ({field})")
         raise ValueError(message) from None
 
 

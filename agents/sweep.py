@@ -502,7 +502,15 @@ def check_same_sweep(spec: Mapping[str, Any], out: Path) -> None:
     record["base_config"] = base_config(spec)
     path = out / "sweep.yaml"
     if path.is_file():
-        held = yaml.safe_load(path.read_text()) or {}
+        try:
+            held = yaml.safe_load(path.read_text()) or {}
+        except (yaml.YAMLError, RecursionError) as error:  # not the record this package wrote
+            reason = "nested too deep" if isinstance(error, RecursionError) else "not valid YAML"
+            raise ValueError(
+                f"{path} is {reason}: not the record of a sweep; give a new --out"
+            ) from None
+        if not isinstance(held, dict):
+            raise ValueError(f"{path} is not the record of a sweep (a mapping); give a new --out")
         differ = sorted(k for k in record.keys() | held.keys() if record.get(k) != held.get(k))
         if differ:
             raise ValueError(

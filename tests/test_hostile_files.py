@@ -499,6 +499,22 @@ def test_every_value_a_sweep_would_run_is_checked_before_ray(tmp_path, no_ray, s
 
 
 @pytest.mark.parametrize(
+    ("record", "message"),
+    [
+        ("[" * DEEP + "]" * DEEP, "is nested too deep: not the record of a sweep"),
+        ("- 1\n", r"is not the record of a sweep \(a mapping\)"),
+        ("a: [\n", "is not valid YAML: not the record of a sweep"),
+    ],
+)
+def test_a_sweep_folder_holding_a_damaged_record_is_refused(tmp_path, record, message):
+    spec = sweep.load_sweep(sweep_file(tmp_path, {}))
+    (tmp_path / "out").mkdir()
+    (tmp_path / "out" / "sweep.yaml").write_text(record)
+    with pytest.raises(ValueError, match=f"out/sweep.yaml {message}; give a new --out"):
+        sweep.check_same_sweep(spec, tmp_path / "out")
+
+
+@pytest.mark.parametrize(
     ("search", "missing", "extra"),
     [
         ("grid", ["ray", "ray.tune"], "sweep"),
@@ -542,7 +558,7 @@ def test_a_missing_extra_is_named_before_ray_starts(
         ),
         (
             ["--finger-azimuths", "0,nan,90"],
-            "--finger-azimuths must be a sequence of at least"
+            "--finger-azimuths (finger_azimuths_deg) must be a sequence of at least"
             " one finite real number (degrees), got NaN or inf in [0.0, nan, 90.0]",
         ),
     ],
