@@ -21,12 +21,20 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 from gymnasium.vector import AutoresetMode
-from stable_baselines3.common.vec_env.base_vec_env import (
-    VecEnv,
-    VecEnvIndices,
-    VecEnvObs,
-    VecEnvStepReturn,
-)
+
+try:
+    from stable_baselines3.common.vec_env.base_vec_env import (
+        VecEnv,
+        VecEnvIndices,
+        VecEnvObs,
+        VecEnvStepReturn,
+    )
+except ModuleNotFoundError as missing:  # the library installs without the learning stack
+    module = (missing.name or "").split(".")[0]
+    raise ImportError(
+        f"grasp_env.envs.sb3 needs Stable-Baselines3 and torch ({module} is not installed): "
+        'they come with the agents extra, pip install "torch==2.13.0" "grasp-env[agents]"'
+    ) from missing
 
 from .gait import CubeGaitVectorEnv
 from .validation import check_seed
