@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import importlib.util
 import math
 import sys
 from collections.abc import Callable
@@ -97,7 +98,29 @@ def seed_argument() -> Callable[[str], int]:
     return integer_argument(0, MAX_SEED)
 
 
+#: The import names of pyproject.toml's ``agents`` extra (tests/test_package.py checks them):
+#: ``pip install grasp-env`` is the library alone, and the command line needs the extra.
+AGENTS_EXTRA = (
+    "torch",
+    "stable_baselines3",
+    "matplotlib",
+    "yaml",
+    "pydantic",
+    "tqdm",
+    "rich",
+    "tensorboard",
+)
+
+
 def main(argv: list[str] | None = None) -> int:
+    missing = [name for name in AGENTS_EXTRA if importlib.util.find_spec(name) is None]
+    if missing:  # one line, not an ImportError from deep inside a command
+        print(
+            f"grasp-env needs the agents extra ({', '.join(missing)} not installed): "
+            'pip install "torch==2.13.0" "grasp-env[agents]"',
+            file=sys.stderr,
+        )
+        return 1
     argv = sys.argv[1:] if argv is None else list(argv)
     parser = argparse.ArgumentParser(
         prog="grasp-env", description="Grip-force optimisation for multi-fingered grasps."
