@@ -4,6 +4,7 @@ order, and pyproject.toml ships every package of the source tree."""
 from __future__ import annotations
 
 import ast
+import re
 import subprocess
 import sys
 import tomllib
@@ -87,19 +88,150 @@ def test_environments_register_in_any_import_order(statement):
     assert done.stdout.strip() == "grasp_env/CubeGrasp-v0"
 
 
+#: The folders whose packages ship (pyproject.toml's packages and package-dir): only these are
+#: walked, so a virtual environment, a build tree or docs inside the clone are not packages.
+SOURCE_FOLDERS = ("grasp_env", "agents", "benchmarks", "configs")
+
+
+def source_packages(root: Path, package_dir: dict[str, str]) -> set[str]:
+    """The packages (folders holding an ``__init__.py``) under ``root``'s SOURCE_FOLDERS, under
+    their installed names (``package_dir``: installed name -> folder, as in pyproject.toml)."""
+    installed = {folder: name for name, folder in package_dir.items()}
+    found = set()
+    for folder in SOURCE_FOLDERS:
+        for init in (root / folder).glob("**/__init__.py"):
+            top, *rest = init.parent.relative_to(root).parts
+            found.add(".".join([installed.get(top, top), *rest]))
+    return found
+
+
 def test_pyproject_ships_every_package():
     """find cannot see the mapped packages, so pyproject.toml lists them: the list must be the
     source tree's packages, under their installed names."""
     setuptools = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
-    folders = {folder: name for name, folder in setuptools["package-dir"].items()}
-    found = set()
-    for init in ROOT.glob("**/__init__.py"):
-        parts = init.parent.relative_to(ROOT).parts
-        if parts[0] in ("tests", "build", ".git"):
-            continue
-        top = parts[0] if parts[0] in folders else None  # a mapped folder: its installed name
-        found.add(".".join([folders[top], *parts[1:]] if top else parts))
+    assert set(setuptools["package-dir"].values()) <= set(SOURCE_FOLDERS)
+    found = source_packages(ROOT, setuptools["package-dir"])
     assert sorted(found) == sorted(setuptools["packages"])
+
+
+def test_source_packages_skip_a_venv_and_build_trees_in_the_clone(tmp_path):
+    """``python -m venv .venv`` inside the clone put 2,406 packages of site-packages in the list."""
+    for folder in (
+        "grasp_env/envs",
+        "agents",
+        "configs",
+        ".venv/lib/python3.11/site-packages/foo",
+        "build/lib/grasp_env",
+        "tests",
+        "docs/examples",
+    ):
+        (tmp_path / folder).mkdir(parents=True)
+        (tmp_path / folder / "__init__.py").write_text("")
+    (tmp_path / "grasp_env/envs/kernels.py").write_text("")
+    package_dir = {"grasp_env_agents": "agents", "grasp_env_agents.configs": "configs"}
+    assert source_packages(tmp_path, package_dir) == {
+        "grasp_env.envs",
+        "grasp_env_agents",
+        "grasp_env_agents.configs",
+    }
+
+
+def pyproject_names(requirements: list[str]) -> set[str]:
+    """The distribution names of pyproject requirement strings, normalised (lower case, -)."""
+    return {
+        re.split(r"[\[<>=!~;\s]", r, maxsplit=1)[0].lower().replace("_", "-") for r in requirements
+    }
+
+
+#: distribution -> import name, where they differ (the agents extra's)
+IMPORT_NAMES = {"stable-baselines3": "stable_baselines3", "pyyaml": "yaml"}
+
+
+def test_the_library_installs_without_the_learning_stack():
+    """``pip install grasp-env`` is the solver, the environments and the physics check; the
+    ``agents`` extra (which ``test`` includes) brings torch, SB3 and what the CLI needs, and the
+    CLI names exactly those modules when one is missing."""
+    from grasp_env_agents import cli
+
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    extras = project["optional-dependencies"]
+    agents = pyproject_names(extras["agents"])
+    assert {"torch", "stable-baselines3", "tensorboard"} <= agents
+    assert not agents & pyproject_names(project["dependencies"])
+    assert {IMPORT_NAMES.get(name, name) for name in agents} == set(cli.AGENTS_EXTRA)
+    assert any(r.startswith("grasp-env[") and "agents" in r for r in extras["test"])
+
+
+#: Third-party imports of the library outside its dependencies, by file: each is optional there.
+OPTIONAL_IMPORTS = {
+    "grasp_env/_build.py": {"setuptools"},  # the wheel build's step (build-system.requires)
+    "grasp_env/envs/sb3.py": {"stable_baselines3"},  # the SB3 adapter: the agents extra
+    "grasp_env/physics/render.py": {"glfw", "PIL"},  # glfw: mujoco's; PIL: text overlays only
+}
+
+
+def test_the_library_imports_only_its_dependencies():
+    """Statically, every third-party module a file of grasp_env/ imports (lazy ones included) is
+    one of its dependencies (numpy, numba, scipy, gymnasium, mujoco) or listed as optional."""
+    dependencies = pyproject_names(
+        tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["dependencies"]
+    )
+    for path in sorted((ROOT / "grasp_env").rglob("*.py")):
+        name = path.relative_to(ROOT).as_posix()
+        tops = {module.split(".")[0] for module in imported_modules(path)}
+        third_party = tops - set(sys.stdlib_module_names) - {"grasp_env", "__future__"}
+        assert third_party <= dependencies | OPTIONAL_IMPORTS.get(name, set()), name
+
+
+def test_the_library_works_without_torch_and_sb3():
+    """In an interpreter where torch, SB3 and the agents extra's other modules cannot be
+    imported: grasp_env, its mechanics, environments and physics import, a single and a vector
+    environment step, and the SB3 adapter says which extra it needs."""
+    from grasp_env_agents import cli
+
+    probe = f"""
+import sys
+for name in {cli.AGENTS_EXTRA!r}:
+    sys.modules[name] = None  # import name -> ModuleNotFoundError
+import gymnasium as gym
+import numpy as np
+import grasp_env, grasp_env.envs, grasp_env.mechanics, grasp_env.physics
+env = gym.make("grasp_env/CubeGrasp-v0")
+env.reset(seed=0)
+_, reward, *_ = env.step(env.action_space.sample())
+envs = gym.make_vec("grasp_env/CubeGraspRandom-v0", num_envs=2,
+                    vectorization_mode="vector_entry_point")
+envs.reset(seed=0)
+_, rewards, *_ = envs.step(envs.action_space.sample())
+assert np.isfinite(reward) and np.all(np.isfinite(rewards)), (reward, rewards)
+try:
+    import grasp_env.envs.sb3
+except ImportError as error:
+    print(error)
+print(sorted(m for m in {cli.AGENTS_EXTRA!r} if sys.modules.get(m) is not None))
+"""
+    # (minutes where the solver is not compiled yet: the environments solve at reset)
+    done = subprocess.run(
+        [sys.executable, "-c", probe], capture_output=True, text=True, timeout=900
+    )
+    assert done.returncode == 0, done.stderr[-3000:]
+    adapter, loaded = done.stdout.strip().splitlines()[-2:]
+    assert loaded == "[]"
+    assert "stable_baselines3 is not installed" in adapter
+    assert 'pip install "torch==2.13.0" "grasp-env[agents]"' in adapter
+
+
+def test_the_cli_without_torch_names_the_agents_extra(monkeypatch, capsys):
+    """``pip install grasp-env`` and then ``grasp-env``: one line saying what to install."""
+    from grasp_env_agents import cli
+
+    monkeypatch.setitem(sys.modules, "torch", None)
+    assert cli.main(["reproduce"]) == 1
+    lines = capsys.readouterr().err.splitlines()
+    assert lines == [
+        "grasp-env needs the agents extra (torch not installed): "
+        'pip install "torch==2.13.0" "grasp-env[agents]"'
+    ]
 
 
 def test_every_command_has_help():
