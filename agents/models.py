@@ -45,6 +45,7 @@ import pickle
 import reprlib
 import warnings
 import zipfile
+from collections import deque
 from pathlib import Path
 from typing import Any
 
@@ -223,9 +224,9 @@ def check_tensors(path: Path, archive: zipfile.ZipFile) -> None:
 def check_finite(path: Path, member: str, saved: Any) -> None:
     """ValueError naming the first floating tensor in ``saved`` (a state dict, an optimiser's
     state, nested dicts and lists of tensors) that holds a NaN or an infinity."""
-    todo: list[tuple[str, Any]] = [("", saved)]
+    todo: deque[tuple[str, Any]] = deque([("", saved)])
     while todo:
-        name, item = todo.pop(0)
+        name, item = todo.popleft()
         if isinstance(item, torch.Tensor):
             if item.is_floating_point() or item.is_complex():
                 if not bool(torch.isfinite(item).all()):
