@@ -505,6 +505,7 @@ def test_every_value_a_sweep_would_run_is_checked_before_ray(tmp_path, no_ray, s
         ("- 1\n", r"is not the record of a sweep \(a mapping\)"),
         ("a: [\n", "is not valid YAML: not the record of a sweep"),
     ],
+    ids=["deep", "list", "invalid"],
 )
 def test_a_sweep_folder_holding_a_damaged_record_is_refused(tmp_path, record, message):
     spec = sweep.load_sweep(sweep_file(tmp_path, {}))
