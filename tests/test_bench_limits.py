@@ -133,6 +133,7 @@ def test_limit_refuses_an_unknown_mode():
 
 
 @pytest.mark.parametrize("value", ["0", "-1", "nan", "inf"])
+@pytest.mark.fast
 def test_bench_refuses_seconds_that_are_not_a_finite_positive_time(value, capsys):
     from grasp_env_agents.cli import main
 

@@ -87,6 +87,7 @@ def test_k_reads_at_the_ends_of_the_weight_range(tmp_path, capsys, weight):
 
 @pytest.mark.parametrize("command", ["reproduce", "verify", "gait"])
 @pytest.mark.parametrize("weight", ["1e300", "1e-300"])
+@pytest.mark.fast
 def test_weights_outside_the_range_are_refused(tmp_path, capsys, command, weight):
     out = tmp_path / "out"
     with pytest.raises(SystemExit, match="2"):

@@ -65,6 +65,7 @@ def assert_same(a, b):
 # ------------------------------------------------------------------------- every environment
 
 
+@pytest.mark.fast
 def test_registration():
     gaits = {"grasp_env/CubeGait-v0", "grasp_env/CubeGaitMoves-v0"}
     assert set(FAST_IDS) | set(MUJOCO_IDS) | gaits == set(grasp_env.ENV_IDS)
@@ -76,6 +77,7 @@ def test_registration():
 
 
 @pytest.mark.parametrize("env_id", ALL_IDS)
+@pytest.mark.fast
 def test_gymnasium_check_env(env_id):
     env = gym.make(env_id)
     with warnings.catch_warnings():
@@ -95,6 +97,7 @@ def test_sb3_check_env(env_id):
 
 
 @pytest.mark.parametrize("env_id", ALL_IDS)
+@pytest.mark.fast
 def test_spaces(env_id):
     env = make(env_id)
     n = 4 if "4" in env_id else 3
@@ -105,6 +108,7 @@ def test_spaces(env_id):
 
 
 @pytest.mark.parametrize("env_id", ALL_IDS)
+@pytest.mark.fast
 def test_same_seed_same_rollout(env_id):
     steps = 12 if "Mujoco" in env_id else 80
     first = rollout(make(env_id), seed=7, steps=steps)
@@ -133,6 +137,7 @@ def test_pickle(env_id):
 
 
 @pytest.mark.parametrize("env_id", FAST_IDS)
+@pytest.mark.fast
 def test_observations_in_bounds_and_finite(env_id):
     """Long random rollouts, random scenes included: never out of bounds, never NaN."""
     env = make(env_id)
@@ -273,6 +278,7 @@ def test_expert_never_below_random_actions(env_id):
     assert len(gaps) > 100 and min(gaps) >= -1e-12
 
 
+@pytest.mark.fast
 def test_expert_matches_the_mechanics_optimum():
     """The expert acting on float32 observations reaches the optimum of the exact scene."""
     env = make("grasp_env/CubeGraspRandom-v0")
@@ -348,6 +354,7 @@ def test_random_env_expert_holds_every_episode():
         ([True, 0.5, 0.5], "booleans"),
     ],
 )
+@pytest.mark.fast
 def test_bad_action_raises(action, message):
     env = gym.make("grasp_env/CubeGrasp-v0").unwrapped
     env.reset(seed=0)
@@ -364,6 +371,7 @@ def test_out_of_range_action_is_clipped():
     np.testing.assert_allclose(result[4]["k"], [10.0, -10.0, 5.0])
 
 
+@pytest.mark.fast
 def test_step_before_reset_and_after_the_end_raises():
     env = gym.make("grasp_env/CubeGrasp-v0").unwrapped
     with pytest.raises(RuntimeError, match="reset"):
@@ -399,6 +407,7 @@ def test_step_before_reset_and_after_the_end_raises():
     ],
 )
 @pytest.mark.parametrize("env_id", ["grasp_env/CubeGrasp-v0", "grasp_env/CubeGraspRandom-v0"])
+@pytest.mark.fast
 def test_bad_option_raises(env_id, options, message):
     env = gym.make(env_id).unwrapped
     with pytest.raises(ValueError, match=message):
@@ -470,6 +479,7 @@ def test_refused_vector_reset_changes_nothing(env_id, options):
         ({"extra_force": 2.0}, "extra_force"),
     ],
 )
+@pytest.mark.fast
 def test_bad_kwargs_raise(kwargs, message):
     with warnings.catch_warnings(), pytest.raises(ValueError, match=message):
         warnings.simplefilter("ignore")  # gym.make's own warning about an unknown render_mode
@@ -549,6 +559,7 @@ def step_singles(envs, actions, autoreset):
 
 
 @pytest.mark.parametrize("env_id", FAST_IDS)
+@pytest.mark.fast
 def test_vector_env_equals_single_envs(env_id):
     """NEXT_STEP autoreset, step for step against N single environments seeded seed + i."""
     count = 5
@@ -725,6 +736,7 @@ def test_vector_env_same_step_autoreset():
     assert ended > 0
 
 
+@pytest.mark.fast
 def test_vector_env_bad_input():
     venv = gym.make_vec(
         "grasp_env/CubeGrasp-v0", num_envs=3, vectorization_mode="vector_entry_point"
@@ -874,6 +886,7 @@ def test_sampled_episodes_equal_fresh_builds():
     assert np.all(sampled.worst_expert_reward() >= np.deg2rad(1.0))
 
 
+@pytest.mark.fast
 def test_expert_bad_input_raises():
     expert = MinimaxExpert()
     with pytest.raises(ValueError, match=r"32 \(3 fingers\) or 38"):
@@ -923,6 +936,7 @@ def test_step_kernel_matches_the_mechanics():
 
 
 @pytest.mark.parametrize("faces", [("-x", "-y", "-z"), FOUR_FINGER_FACES])
+@pytest.mark.fast
 def test_pose_kernels_match_the_mechanics(faces):
     """The compiled episode geometry (and the expert's grasp from an observation) against the
     numpy mechanics: rotation (eq. 5), grasp, equilibrating forces and the observation layout."""

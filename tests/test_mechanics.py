@@ -57,6 +57,7 @@ alphas = st.floats(-math.radians(15), math.radians(15))
 
 
 @given(arrays(float, 3, elements=finite).filter(lambda a: np.linalg.norm(a) > 1e-3), finite)
+@pytest.mark.fast
 def test_axis_angle_is_a_rotation_about_its_axis(axis, angle):
     rotation = axis_angle_matrix(axis, angle)
     np.testing.assert_allclose(rotation @ rotation.T, np.eye(3), atol=1e-12)
@@ -66,6 +67,7 @@ def test_axis_angle_is_a_rotation_about_its_axis(axis, angle):
     assert cos == pytest.approx(math.cos(angle), abs=1e-9)
 
 
+@pytest.mark.fast
 def test_eq5_entries_match_the_paper():
     """Eq. 5's first row, written out: r_x^2 V + C, r_x r_y V - r_z S, r_x r_z V + r_y S."""
     r, phi = np.array([0.6, -0.8, 0.0]), 0.7
@@ -75,6 +77,7 @@ def test_eq5_entries_match_the_paper():
 
 
 @given(arrays(float, 4, elements=finite).filter(lambda q: np.linalg.norm(q) > 1e-3))
+@pytest.mark.fast
 def test_quaternion_round_trip(q):
     rotation = quaternion_matrix(q)
     np.testing.assert_allclose(rotation @ rotation.T, np.eye(3), atol=1e-12)
@@ -88,6 +91,7 @@ def test_quaternion_round_trip(q):
         np.testing.assert_allclose(back, expected, atol=1e-9)
 
 
+@pytest.mark.fast
 def test_rotations_are_batched():
     axes = np.random.default_rng(0).normal(size=(4, 5, 3))
     angles = np.linspace(-3, 3, 20).reshape(4, 5)
@@ -99,6 +103,7 @@ def test_rotations_are_batched():
 
 
 @pytest.mark.parametrize("bad", [[0, 0, 0], [np.nan, 1, 0], [np.inf, 0, 0]])
+@pytest.mark.fast
 def test_bad_rotation_inputs(bad):
     with pytest.raises(ValueError, match="axis"):
         axis_angle_matrix(bad, 0.1)
@@ -153,6 +158,7 @@ def test_matrix_quaternion_refuses_what_is_not_a_rotation(bad, what):
 # --- trajectory ----------------------------------------------------------------------------
 
 
+@pytest.mark.fast
 def test_paper_trajectory():
     trajectory = Trajectory()
     np.testing.assert_allclose(trajectory.alphas_deg, np.arange(-15, 16))
@@ -194,6 +200,7 @@ def test_trajectory_about_another_axis_starts_at_r0():
         ({"axis": (np.inf, 0, 0)}, "trajectory axis must be a finite"),
     ],
 )
+@pytest.mark.fast
 def test_bad_trajectory(kwargs, match):
     with pytest.raises(ValueError, match=match):
         Trajectory(**kwargs)
@@ -232,6 +239,7 @@ def test_the_longest_trajectory_has_max_poses():
 
 @settings(max_examples=60, deadline=None)
 @given(scenes(), alphas, st.data())
+@pytest.mark.fast
 def test_equilibrium_for_any_k(scene, alpha, data):
     grasp = scene_grasp(scene, pose_rotation(PAPER_AXIS, alpha))
     m = grasp.basis.shape[0]
@@ -246,6 +254,7 @@ def test_equilibrium_for_any_k(scene, alpha, data):
 
 @settings(max_examples=60, deadline=None)
 @given(scenes(), alphas)
+@pytest.mark.fast
 def test_interaction_forces_are_internal_and_equilibrating_forces_have_none(scene, alpha):
     grasp = scene_grasp(scene, pose_rotation(PAPER_AXIS, alpha))
     n = scene.n_contacts
@@ -262,12 +271,14 @@ def test_interaction_forces_are_internal_and_equilibrating_forces_have_none(scen
     assert np.abs(basis @ F.ravel()).max() <= 1e-9
 
 
+@pytest.mark.fast
 def test_paper_equilibrating_forces_at_alpha_zero():
     """With no torque each contact carries a third of the weight (the paper's 'escape')."""
     grasp = scene_grasp(Scene(weight=5), pose_rotation(PAPER_AXIS, 0.0))
     np.testing.assert_allclose(grasp.equilibrating, [[0, 0, 5 / 3]] * 3, atol=1e-12)
 
 
+@pytest.mark.fast
 def test_eq8_grip_gives_zero_friction_angles():
     """k = w tan(phi) / (3 sqrt 3) (eq. 8) turns every contact force onto its normal."""
     for weight in (1.0, 5.0, 17.0):
@@ -277,6 +288,7 @@ def test_eq8_grip_gives_zero_friction_angles():
     assert 5 * math.tan(PHI) / (3 * math.sqrt(3)) == pytest.approx(1.3608, abs=5e-5)
 
 
+@pytest.mark.fast
 def test_friction_angles_range_and_accuracy():
     normal = np.array([0.0, 0.0, 1.0])
     for angle in (0.0, 1e-9, 0.3, math.pi / 2, 2.5, math.pi):
@@ -284,6 +296,7 @@ def test_friction_angles_range_and_accuracy():
         assert friction_angles(force, normal) == pytest.approx(angle, abs=1e-15)
 
 
+@pytest.mark.fast
 def test_grasp_is_batched():
     scene = Scene.on_faces(FOUR_FINGER_FACES, offsets=np.full((4, 2), 0.2), weight=3)
     rotations = Trajectory().rotations()
@@ -340,6 +353,7 @@ def test_scene_grasp_takes_rotations_of_any_batch_shape_and_a_scene_only():
         scene_grasp(None, np.eye(3))  # type: ignore[arg-type]
 
 
+@pytest.mark.fast
 def test_grasp_checks_its_inputs_and_a_grasp_its_unchecked_fields():
     scene = Scene()
     args = (scene.relative_contacts(), scene.normals, ROTATION, load_wrench(5.0), 0.4)
@@ -508,6 +522,7 @@ def with_contact(i, point, contacts=None):
         ({"contacts": "abc"}, "contacts must be an"),
     ],
 )
+@pytest.mark.fast
 def test_bad_scenes(kwargs, match):
     if match is None:
         Scene(**kwargs)  # layouts that look odd but are valid must construct
@@ -545,6 +560,7 @@ def test_gait_scenes_check_their_numbers_as_scenes_do():
         set_values(GaitScene(), 2 * rotations)
 
 
+@pytest.mark.fast
 def test_collinear_contacts_rejected():
     # a line meets a convex box's surface in two points unless it runs along a face
     with pytest.raises(ValueError, match="collinear"):
@@ -570,6 +586,7 @@ def test_bad_face_points():
         Scene.on_faces(PAPER_FACES, offsets=np.zeros((2, 2)))
 
 
+@pytest.mark.fast
 def test_scene_defaults_are_the_papers():
     scene = Scene()
     np.testing.assert_allclose(scene.contacts, [[-0.5, 0, 0], [0, -0.5, 0], [0, 0, -0.5]])

@@ -95,6 +95,7 @@ def test_scan_against_conic_reference(references, kind: str) -> None:
 
 
 @pytest.mark.parametrize(("n", "count", "seed"), [(3, 16, 1), (4, 8, 2)])
+@pytest.mark.fast
 def test_matches_conic_reference(references, n: int, count: int, seed: int) -> None:
     """The paper's neighbourhood: optimal max angle within 1e-6 deg of the cone bisection."""
     rng = np.random.default_rng(seed)
@@ -128,6 +129,7 @@ def test_force_limit_never_helps() -> None:
     assert np.all(limited.max_angle[pushing] >= free.max_angle[pushing] - 1e-12)
 
 
+@pytest.mark.fast
 def test_not_pushing_is_certified(references) -> None:
     """A load lifting the cube cannot be held by pushing fingers with small interaction."""
     scene = Scene(extra_force=(0.0, 0.0, 3 * 5.0))
@@ -142,6 +144,7 @@ def test_not_pushing_is_certified(references) -> None:
     assert result.status == Status.BOUNDARY and abs(result.max_angle - ref.upper) <= TOLERANCE
 
 
+@pytest.mark.fast
 def test_force_limit_below_the_load(references) -> None:
     """No k can hold 5 N with three fingers of 0.5 N each: certified, reported as not pushing."""
     g = scene_grasp(Scene(), START_ROTATION)
@@ -151,6 +154,7 @@ def test_force_limit_below_the_load(references) -> None:
     assert references[3, True].solve(g.equilibrating, g.basis, g.normals, 10.0, 0.5).not_pushing
 
 
+@pytest.mark.fast
 def test_paper_scene_zero_angle_and_eq8() -> None:
     """The paper's scene: 0 along the trajectory, and eq. 8's k = w tan(phi) / (3 sqrt 3)."""
     g = scene_grasp(Scene(), Trajectory().rotations())
@@ -161,12 +165,14 @@ def test_paper_scene_zero_angle_and_eq8() -> None:
 
 @settings(max_examples=25, deadline=None)
 @given(weight=st.floats(0.1, 100.0))
+@pytest.mark.fast
 def test_eq8_for_any_weight(weight: float) -> None:
     result = solve_minimax(scene_grasp(Scene(weight=weight), START_ROTATION), 2 * weight)
     np.testing.assert_allclose(result.k, weight * np.tan(PHI) / (3 * np.sqrt(3)), rtol=1e-9)
     assert result.max_angle <= 1e-9
 
 
+@pytest.mark.fast
 def test_box_limits_the_paper_scene() -> None:
     """Below eq. 8's k the box binds: the optimum sits on it with a positive angle."""
     result = solve_minimax(scene_grasp(Scene(), START_ROTATION), 0.5)
@@ -194,6 +200,7 @@ def hypothesis_scene(n, offsets, cg, weight, alpha):
 
 @settings(max_examples=40, deadline=None)
 @given(**scene_parameters, seed=st.integers(0, 2**32 - 1))
+@pytest.mark.fast
 def test_no_sampled_k_beats_the_certificate(n, offsets, cg, weight, alpha, seed) -> None:
     _, g = hypothesis_scene(n, offsets, cg, weight, alpha)
     k_max = 2 * weight
@@ -287,6 +294,7 @@ def test_where_the_certificate_fails_the_grip_is_still_the_references(references
     assert most.status == cp.OPTIMAL and most.value < 1e-6  # (3.4 just above the grip)
 
 
+@pytest.mark.fast
 def test_batched_equals_single() -> None:
     rng = np.random.default_rng(5)
     scene, _ = random_scene(rng, 3)
@@ -331,6 +339,7 @@ def test_a_forked_child_solves_batches() -> None:
 
 
 @pytest.mark.parametrize(("n", "f_max"), [(3, None), (3, 12.0), (4, None)])
+@pytest.mark.fast
 def test_following_poses_reach_the_same_certified_optima(n: int, f_max: float | None) -> None:
     """Warm starts along trajectories change where the solver starts, not what it certifies;
     and the results do not depend on how the batch is split between threads."""
@@ -352,6 +361,7 @@ def test_following_poses_reach_the_same_certified_optima(n: int, f_max: float | 
 
 
 @pytest.mark.parametrize(("n", "f_max"), [(3, None), (3, 1.0), (4, None), (4, 1.0)])
+@pytest.mark.fast
 def test_zero_load(n: int, f_max: float | None) -> None:
     """No load at all: k = 0 holds it with no force, every angle 0, certified; nothing NaN."""
     scene = Scene.on_faces(PAPER_FACES if n == 3 else FOUR_FINGER_FACES)
@@ -432,6 +442,7 @@ def test_a_load_out_of_range_is_stated_at_its_scale(weight: float) -> None:
             solve_minimax(value, weight)
 
 
+@pytest.mark.fast
 def test_refused_scales() -> None:
     """Values float64 cannot hold beside the load are refused, naming the argument and range."""
     g = scene_grasp(Scene(), START_ROTATION)  # the load's scale: w / 3 = 1.667 N
@@ -449,6 +460,7 @@ def test_refused_scales() -> None:
 
 
 @pytest.mark.parametrize("normal", [(0.0, 0.0, 0.0), (0.0, 0.0, 2.0), (0.0, 0.0, np.nan)])
+@pytest.mark.fast
 def test_bad_normals(normal: tuple[float, float, float]) -> None:
     g = scene_grasp(Scene(), START_ROTATION)
     normals = g.normals.copy()
@@ -463,6 +475,7 @@ def test_bad_normals(normal: tuple[float, float, float]) -> None:
 @pytest.mark.parametrize(
     "k_max", [0.0, -1.0, np.nan, np.inf, None, "ten", [1.0, None], "10", True, np.True_, [1.0, "2"]]
 )
+@pytest.mark.fast
 def test_bad_k_max(k_max: float) -> None:
     for rotation in (START_ROTATION, np.stack([START_ROTATION] * 2)):  # one grasp, a batch
         g = scene_grasp(Scene(), rotation)
@@ -471,12 +484,14 @@ def test_bad_k_max(k_max: float) -> None:
 
 
 @pytest.mark.parametrize("f_max", [0.0, -2.0, np.nan, np.inf, "2", True])
+@pytest.mark.fast
 def test_bad_f_max(f_max: float) -> None:
     g = scene_grasp(Scene(), START_ROTATION)
     with pytest.raises(ValueError, match="f_max must be finite and > 0"):
         solve_minimax(g, 10.0, f_max)
 
 
+@pytest.mark.fast
 def test_bad_shapes_and_values() -> None:
     g = scene_grasp(Scene(), Trajectory().rotations())
     for not_a_grasp in (None, Scene(), {"equilibrating": g.equilibrating}):
@@ -569,6 +584,7 @@ def test_every_kernel_is_keyed_on_its_package() -> None:
     assert count >= 30
 
 
+@pytest.mark.fast
 def test_every_way_in_reaches_the_one_compiled_signature() -> None:
     """The wheel ships numba's cache of the solver's entries as warm.py compiles them; any other
     array type (a read-only view, another dtype) would compile the whole solver again, minutes

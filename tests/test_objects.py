@@ -72,6 +72,7 @@ def five_can_contacts(shape=CAN):
 # --- box ------------------------------------------------------------------------------------
 
 
+@pytest.mark.fast
 def test_box_face_points_and_normals_are_the_scenes_old_ones():
     rng = np.random.default_rng(0)
     for size in (1.0, (0.1, 0.2, 0.3), (1e-6, 2e-6, 3e-6), (1e6, 5e5, 2e5)):
@@ -124,6 +125,7 @@ def test_box_contains_strictly():
 # --- cylinder -------------------------------------------------------------------------------
 
 
+@pytest.mark.fast
 def test_cylinder_side_and_cap_points_lie_on_it_with_the_analytic_normals():
     rng = np.random.default_rng(1)
     angles = rng.uniform(-10, 10, size=20)
@@ -175,6 +177,7 @@ def test_cylinder_refuses_points_off_its_surface_or_on_its_rim():
 # --- sphere ---------------------------------------------------------------------------------
 
 
+@pytest.mark.fast
 def test_sphere_points_and_normals():
     sphere = Sphere(radius=0.05)
     directions = np.random.default_rng(2).normal(size=(12, 3)) * 10.0 ** np.arange(-6, 6)[:, None]
@@ -198,6 +201,7 @@ def test_sphere_points_and_normals():
 # --- convex mesh ----------------------------------------------------------------------------
 
 
+@pytest.mark.fast
 def test_the_mesh_of_a_cubes_corners_is_the_box():
     for size in (1.0, (0.1, 0.2, 0.3)):
         box, mesh = Box(size=size), ConvexMesh(vertices=cube_corners(size))
@@ -351,6 +355,7 @@ def test_meshes_compare_pickle_and_hash_by_vertices():
         ("sphere:r=5e-2", Sphere(radius=0.05)),
     ],
 )
+@pytest.mark.fast
 def test_parse_object(spec, shape):
     parsed = parse_object(spec)
     assert parsed == shape and type(parsed) is type(shape)
@@ -389,6 +394,7 @@ def test_specs_round_trip_exactly():
         (None, "object spec must be a string"),
     ],
 )
+@pytest.mark.fast
 def test_parse_object_refuses_bad_specs(spec, match):
     with pytest.raises(ValueError, match=match):
         parse_object(spec)
@@ -432,6 +438,7 @@ def test_mujoco_compiles_every_shapes_geom_where_the_shape_says():
 # --- scenes on any shape --------------------------------------------------------------------
 
 
+@pytest.mark.fast
 def test_default_and_box_scenes_are_unchanged():
     scene = Scene()
     corner = np.array([[-0.5, 0, 0], [0, -0.5, 0], [0, 0, -0.5]])
@@ -531,6 +538,7 @@ def test_scenes_refuse_bad_layouts_on_any_shape():
     ],
     ids=["can, 5 contacts", "can, 3 contacts", "sphere, 5 contacts", "icosahedron, 8 contacts"],
 )
+@pytest.mark.fast
 def test_equilibrating_forces_balance_the_load_on_any_shape(scene):
     rotations = [np.eye(3), np.linalg.qr(np.random.default_rng(9).normal(size=(3, 3)))[0]]
     for rotation in rotations:

@@ -34,6 +34,7 @@ def loaded_after(statement: str) -> set[str]:
         ("grasp_env.envs", {"gymnasium"}),
     ],
 )
+@pytest.mark.fast
 def test_layers_import_one_way(module, allowed):
     """mechanics loads no gymnasium, mujoco or torch; physics only MuJoCo; envs only gymnasium."""
     assert loaded_after(f"import {module}") <= allowed
@@ -60,6 +61,7 @@ def imported_modules(path: Path) -> set[str]:
         ("grasp_env", ("grasp_env_agents", "torch")),
     ],
 )
+@pytest.mark.fast
 def test_no_import_points_back(layer, forbidden):
     """Statically, anywhere in the layer (lazy imports inside functions included)."""
     for path in sorted((ROOT / layer).rglob("*.py")):
@@ -105,6 +107,7 @@ def source_packages(root: Path, package_dir: dict[str, str]) -> set[str]:
     return found
 
 
+@pytest.mark.fast
 def test_pyproject_ships_every_package():
     """find cannot see the mapped packages, so pyproject.toml lists them: the list must be the
     source tree's packages, under their installed names."""
@@ -114,6 +117,7 @@ def test_pyproject_ships_every_package():
     assert sorted(found) == sorted(setuptools["packages"])
 
 
+@pytest.mark.fast
 def test_source_packages_skip_a_venv_and_build_trees_in_the_clone(tmp_path):
     """``python -m venv .venv`` inside the clone put 2,406 packages of site-packages in the list."""
     for folder in (
@@ -147,6 +151,7 @@ def pyproject_names(requirements: list[str]) -> set[str]:
 IMPORT_NAMES = {"stable-baselines3": "stable_baselines3", "pyyaml": "yaml"}
 
 
+@pytest.mark.fast
 def test_the_library_installs_without_the_learning_stack():
     """``pip install grasp-env`` is the solver, the environments and the physics check; the
     ``agents`` extra (which ``test`` includes) brings torch, SB3 and what the CLI needs, and the
@@ -170,6 +175,7 @@ OPTIONAL_IMPORTS = {
 }
 
 
+@pytest.mark.fast
 def test_the_library_imports_only_its_dependencies():
     """Statically, every third-party module a file of grasp_env/ imports (lazy ones included) is
     one of its dependencies (numpy, numba, scipy, gymnasium, mujoco) or listed as optional."""
@@ -183,6 +189,7 @@ def test_the_library_imports_only_its_dependencies():
         assert third_party <= dependencies | OPTIONAL_IMPORTS.get(name, set()), name
 
 
+@pytest.mark.fast
 def test_the_library_works_without_torch_and_sb3():
     """In an interpreter where torch, SB3 and the agents extra's other modules cannot be
     imported: grasp_env, its mechanics, environments and physics import, a single and a vector
@@ -221,6 +228,7 @@ print(sorted(m for m in {cli.AGENTS_EXTRA!r} if sys.modules.get(m) is not None))
     assert 'pip install "torch==2.13.0" "grasp-env[agents]"' in adapter
 
 
+@pytest.mark.fast
 def test_the_cli_without_torch_names_the_agents_extra(monkeypatch, capsys):
     """``pip install grasp-env`` and then ``grasp-env``: one line saying what to install."""
     from grasp_env_agents import cli
@@ -234,6 +242,7 @@ def test_the_cli_without_torch_names_the_agents_extra(monkeypatch, capsys):
     ]
 
 
+@pytest.mark.fast
 def test_every_command_has_help():
     """``grasp-env --help`` and each command's ``--help`` print and exit 0 (argparse formats
     help strings with %, so a stray % crashes them)."""

@@ -111,6 +111,7 @@ def forces_at_angle(scene: Scene, alpha_deg: float, angle_deg: float, seed: int 
 
 
 @pytest.mark.parametrize("name", EDGE_SCENES)
+@pytest.mark.fast
 def test_verdict_flips_at_the_cone_edge(name):
     scene, alpha = EDGE_SCENES[name]
     limit = np.degrees(scene.friction_limit)
@@ -125,6 +126,7 @@ def test_verdict_flips_at_the_cone_edge(name):
     assert not inside.contact_lost.any()
 
 
+@pytest.mark.fast
 def test_paper_optimal_forces_hold_along_the_trajectory():
     # With mu = 0.05 (2.9 deg) the paper's optimum (zero friction angle at every pose,
     # docs/design.md §1) still holds everywhere, while its equal-k grip (eq. 8) slips at the
@@ -173,6 +175,7 @@ def test_report_is_plain_data(paper_checker):
     assert len(as_dict["slip"]) == len(as_dict["contact_lost"]) == 3
 
 
+@pytest.mark.fast
 def test_pulling_finger_loses_contact(paper_checker):
     scene = paper_checker.scene
     grasp = scene_grasp(scene, START_ROTATION)
@@ -184,6 +187,7 @@ def test_pulling_finger_loses_contact(paper_checker):
     assert report.contact_lost.all()
 
 
+@pytest.mark.fast
 def test_unbalanced_forces_do_not_hold(paper_checker):
     # 1.5 x a holding set: the same friction angles, but 50% more lift than the weight.
     rotation, forces = forces_at_angle(paper_checker.scene, 2.0, 5.0)
@@ -296,11 +300,13 @@ def test_tiny_and_huge_scales_and_friction_build_well_conditioned_models():
         (np.diag([1.0, 1.0, -1.0]), np.zeros((3, 3)), "det = \\+1"),
     ],
 )
+@pytest.mark.fast
 def test_bad_inputs_raise_clear_errors(paper_checker, rotation, forces, message):
     with pytest.raises(ValueError, match=message):
         paper_checker.check(rotation, forces)
 
 
+@pytest.mark.fast
 def test_bad_settings_raise_clear_errors():
     with pytest.raises(ValueError, match="unknown physics settings"):
         StabilityChecker(Scene(), hold=1.0)
@@ -588,6 +594,7 @@ def test_rollouts_are_the_same_alone_in_a_batch_and_on_any_number_of_threads():
         assert [r.as_dict() for r in checker.check_batch(grips, threads=threads)] == alone
 
 
+@pytest.mark.fast
 def test_rollout_refuses_bad_input():
     scene, rotations, optimum, _ = paper_grips(0.3)
     checker = TrajectoryChecker(scene)

@@ -45,6 +45,7 @@ def paper():
     return scene, rotations, grasp.forces(solve_minimax(grasp, 2 * scene.weight).k)
 
 
+@pytest.mark.fast
 def test_batched_pose_plans_are_the_one_pose_plans(paper):
     scene, rotations, forces = paper
     forces = forces.copy()
@@ -304,6 +305,7 @@ def test_threads_are_refused_when_a_checker_is_made_and_per_call(paper, threads)
     assert StabilityChecker(scene, threads=np.int64(1)).threads == 1
 
 
+@pytest.mark.fast
 def test_empty_and_malformed_batches_say_what_is_wrong(paper):
     scene, rotations, forces = paper
     at_least_one = r"rotations must hold at least one pose: .* got shape \(0, 3, 3\)"
@@ -339,6 +341,7 @@ def test_empty_and_malformed_batches_say_what_is_wrong(paper):
 
 
 @pytest.mark.parametrize("value", ["0.2", True, None, [0.2]])
+@pytest.mark.fast
 def test_settings_are_real_numbers(value):
     with pytest.raises(ValueError, match="hold_time must be a finite number > 0, got"):
         StabilityChecker(Scene(), hold_time=value)
