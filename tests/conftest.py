@@ -121,6 +121,16 @@ def pytest_report_header(config: pytest.Config) -> list[str]:
     return lines + [f"  numba warm-up failed: {line}" for line in failed]
 
 
+def pytest_ignore_collect(collection_path: Path, config: pytest.Config) -> bool | None:
+    """``pytest -m fast`` does not import the test files that mark no test ``fast`` (collecting
+    them, which imports torch, SB3 and Ray, took each worker about 6 s of CPU)."""
+    if config.option.markexpr != "fast" or not collection_path.name.startswith("test_"):
+        return None
+    if collection_path.suffix != ".py" or "mark.fast" in collection_path.read_text():
+        return None
+    return True
+
+
 @pytest.fixture(autouse=True, scope="session")
 def _sb3_logs_in_a_test_folder(tmp_path_factory):
     """SB3 models made without a log folder would each leave an empty folder in /tmp."""
