@@ -45,16 +45,19 @@ for faces in (PAPER_FACES, FOUR_FINGER_FACES):  # three and four fingers: one si
 """
 _STEP = """
 import gymnasium as gym
+import numpy as np
 import grasp_env
-for env_id in {ids!r}:
+for env_id in {ids!r}:  # float32 actions (the action space's) and float64 ones (the expert's)
     env = gym.make(env_id)
-    env.reset(seed=0)
-    env.step(env.action_space.sample())
-    env.close()
     envs = gym.make_vec(env_id, num_envs=2, vectorization_mode="vector_entry_point")
-    envs.reset(seed=0)
-    envs.step(envs.action_space.sample())
+    for dtype in (np.float32, np.float64):
+        env.reset(seed=0)
+        env.step(env.action_space.sample().astype(dtype))
+        envs.reset(seed=0)
+        envs.step(envs.action_space.sample().astype(dtype))
+    env.close()
     envs.close()
+grasp_env.MinimaxExpert().predict(env.reset(seed=0)[0])  # the expert reads observations
 """
 _ROUNDS = (
     {"solve_batch": _SOLVE.format(index=""), "solve_grasp": _SOLVE.format(index="[0]")},
