@@ -9,6 +9,11 @@ so the optimum is the smallest t whose cone constraints admit a k in the box. At
 
 and t is feasible iff s* <= 0. The problem is built once per finger count with cvxpy Parameters
 (cos t and sin t folded into the data), so each bisection step only re-solves.
+
+With five or more contacts the pair scalars are redundant (m = n(n-1)/2 > 3n - 6), and the box
+bounds the minimum-norm k of each interaction force (docs/solver.md, "Any number of
+contacts"): here k is constrained to the row space of the map k -> P (N' k = 0 for a basis N of
+its null space, from scipy), where it is its own minimum-norm representative.
 """
 
 from __future__ import annotations
@@ -17,6 +22,7 @@ import warnings
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.linalg
 
 try:
     import cvxpy as cp
@@ -48,6 +54,9 @@ class ReferenceResult:
     upper: float
     k: np.ndarray
     not_pushing: bool
+    #: the bisection's last feasible level: upper may exceed it where a finger is released
+    #: (its force ~1e-12 of the load, whose direction is then rounding)
+    feasible: float = np.pi / 2
 
 
 class ConeBisection:
@@ -64,6 +73,10 @@ class ConeBisection:
         self.normal0 = [cp.Parameter() for _ in range(n)]  # sin t n_i . F_i
         self.k_max = cp.Parameter(nonneg=True)
         constraints = [cp.abs(self.k) <= self.k_max]
+        self.redundant = None
+        if m > 3 * n - 6:  # the null space of k -> P: (m, m - rank), 3 columns or more
+            self.redundant = cp.Parameter((m, m - (3 * n - 6)))
+            constraints.append(self.redundant.T @ self.k == 0)
         for i in range(n):
             tangential = self.tangential[i] @ self.k + self.tangential0[i]
             normal = self.normal[i] @ self.k + self.normal0[i]
@@ -118,6 +131,15 @@ class ConeBisection:
         self._normals = normals
         self._proj = [np.eye(3) - np.outer(v, v) for v in normals]
         self.k_max.value = k_max / scale
+        if self.redundant is not None:
+            force_map = np.concatenate(self._maps)  # (3n, m)
+            null = scipy.linalg.null_space(force_map, rcond=1e-10)
+            if null.shape[1] != self.redundant.shape[1]:
+                raise ValueError(
+                    f"the contacts' pair directions span {force_map.shape[1] - null.shape[1]}"
+                    f" dimensions, not 3n - 6 = {3 * self.n - 6} (coplanar contacts?)"
+                )
+            self.redundant.value = null
         if self.f_max is not None:
             if f_max is None:
                 raise ValueError("this reference was built with a force limit: pass f_max")
@@ -141,4 +163,4 @@ class ConeBisection:
         forces = equilibrating + np.einsum("m,mnc->nc", k, basis)
         tangential = np.linalg.norm(np.cross(forces, normals), axis=-1)
         attained = float(np.max(np.arctan2(tangential, np.sum(forces * normals, axis=-1))))
-        return ReferenceResult(lower, max(upper, attained), k, False)
+        return ReferenceResult(lower, max(upper, attained), k, False, upper)

@@ -1,5 +1,7 @@
 """The minimax grip: k* = argmin over the box |k_ij| <= k_max of max_i theta_i(k)
-(docs/design.md §1).
+(docs/design.md §1). Three and four contacts are solved by the kernels of this package, as
+below; five to eight by the conic solver (:mod:`.conic`, docs/solver.md, "Any number of
+contacts").
 
 The problem is quasi-convex: theta_i <= t < 90 deg exactly when P_i(k) = F_i + A_i k (eq. 4)
 lies in the cone |P_i - (n_i . P_i) n_i| <= tan(t) (n_i . P_i), convex in k. The solver
@@ -55,7 +57,7 @@ from numpy.typing import ArrayLike
 
 from ..forces import Grasp, n_pairs, vector_norms
 from ..threads import available_cores, thread_pool
-from . import codes
+from . import codes, conic
 from .codes import Path, Status
 
 __all__ = ["MinimaxResult", "Path", "Status", "solve_minimax"]
@@ -64,6 +66,7 @@ from .driver import solve_batch, solve_grasp
 _THREADS = available_cores()
 _PARALLEL_FROM = 64  # smaller batches are not worth the hand-off to threads
 _CHUNKS_PER_THREAD = 4
+_CONIC_CHUNK = 16  # grasps a chunk of the conic solver's (1 to 30 ms each)
 _FLOAT = np.dtype(float)
 #: the shapes of one grasp's basis and normals, by the shape of its equilibrating forces
 _ONE_GRASP = {(3, 3): ((3, 3, 3), (3, 3)), (4, 3): ((6, 4, 3), (4, 3))}
@@ -75,16 +78,19 @@ class MinimaxResult(NamedTuple):
     per solve, and a solve of one grasp takes microseconds).
 
     Attributes:
-        k: (..., m) optimal interaction scalars.
+        k: (..., m) optimal interaction scalars, m = n (n - 1) / 2. With five or more
+            contacts they are redundant, and k is the minimum-norm k of the optimal
+            interaction force (the one the box bounds; docs/solver.md, "Any number of
+            contacts").
         angles: (..., n) friction angles at k, radians.
         max_angle: (...) max_i angles, the optimum (attained by k).
         lower_bound: (...) certified lower bound: no k in the box has a smaller max angle.
-            Within 1e-9 rad of ``max_angle``, except with status NOT_PUSHING, where pi/2
-            certifies that no k keeps every finger below 90 deg (within f_max, if given),
-            and in rare degenerate four-finger scenes (docs/solver.md, "Known failure"),
-            where ``gap`` says how far it is.
+            Within 1e-9 rad of ``max_angle`` but where ``status`` is UNCERTIFIED (then
+            ``gap`` says how far it is) or NOT_PUSHING, where pi/2 certifies that no k keeps
+            every finger below 90 deg (within f_max, if given).
         status: (...) :class:`Status` codes (int8). NOT_PUSHING also covers an f_max that no
-            k in the box can meet; k then exceeds it least, and its angles may be < 90 deg.
+            k in the box can meet (no grip: then k exceeds the limits least, and its angles
+            may be < 90 deg); UNCERTIFIED marks a gap above 1e-9 rad.
     """
 
     k: np.ndarray
@@ -200,6 +206,19 @@ def _refused(
     return ValueError("the grasp's equilibrating forces, basis or normals contain NaN or inf")
 
 
+def _run_batch(kernel, arrays: tuple[np.ndarray, ...], bounds: np.ndarray) -> None:  # type: ignore[no-untyped-def]
+    """kernel(*arrays, lo, hi) over the chunks between consecutive bounds: on this thread for
+    a small batch, else on the solver's threads (the kernels release the GIL; a core that
+    finishes its chunk early takes the next, since hard grasps cluster)."""
+    if bounds[-1] < _PARALLEL_FROM or _THREADS == 1:
+        kernel(*arrays, 0, int(bounds[-1]))
+        return
+    pool = thread_pool("minimax", _THREADS)
+    chunks = [pool.submit(kernel, *arrays, lo, hi) for lo, hi in itertools.pairwise(bounds)]
+    for chunk in chunks:
+        chunk.result()
+
+
 def _solve_one(
     F: np.ndarray, E: np.ndarray, N: np.ndarray, k_max: ArrayLike, f_max: ArrayLike | None
 ) -> MinimaxResult:
@@ -214,6 +233,8 @@ def _solve_one(
     largest, lower, status, path = solve_grasp(F, E, N, k_lim, f_lim, k, angles)
     if path < 0:
         raise _refused(np.array([path]), F[None], N[None], np.array([k_lim]), np.array([f_lim]))
+    if largest - lower > codes.GAP_TOL and status != codes.NOT_PUSHING:
+        status = codes.UNCERTIFIED_STATUS
     # (_make: a third of the keyword constructor's cost)
     result = (k, angles, np.float64(largest), np.float64(lower), _STATUSES[status])
     return MinimaxResult._make(result)
@@ -229,15 +250,17 @@ def solve_minimax(
     """Globally minimise the largest friction angle over |k_ij| <= k_max (and |P_i| <= f_max).
 
     Args:
-        grasp: one grasp or a batch of them (any leading axes), from :func:`scene_grasp`.
-        k_max: the box half-width, newtons, > 0; broadcasts against the batch.
+        grasp: one grasp or a batch of them (any leading axes), from :func:`scene_grasp`,
+            with 3 to 8 contacts (5 to 8 by the conic solver, :mod:`.conic`).
+        k_max: the box half-width, newtons, > 0; broadcasts against the batch. With five or
+            more contacts it bounds the minimum-norm pair scalars of the interaction force.
         f_max: optional limit on each finger's force |P_i|, newtons, > 0; broadcasts.
         follows: optional bool, broadcasts against the batch: grasp b (in C order) is the
             next pose, along a trajectory, after grasp b - 1, whose optimum is then its first
             start (along 1-degree steps 1.8x to 2x faster with three fingers, about 4x
-            with four). Every optimum is certified as without it; where the optimum is not unique
-            (the box binds), k may be another optimal point than a solve on its own would
-            return.
+            with four; not read with five or more). Every optimum is certified as without
+            it; where the optimum is not unique (the box binds), k may be another optimal
+            point than a solve on its own would return.
 
     Returns:
         The optimum with its certificate; see :class:`MinimaxResult`. Never NaN.
@@ -267,8 +290,12 @@ def solve_minimax(
     F = np.asarray(F, dtype=float)
     E = np.asarray(E, dtype=float)
     N = np.asarray(N, dtype=float)
-    if F.ndim < 2 or F.shape[-1] != 3 or F.shape[-2] not in (3, 4):
-        raise ValueError(f"grasp forces must have shape (..., 3 or 4, 3), got {F.shape}")
+    low, high = codes.CONTACTS_RANGE
+    if F.ndim < 2 or F.shape[-1] != 3 or not low <= F.shape[-2] <= high:
+        raise ValueError(
+            f"grasp forces must have shape (..., n, 3) with {low} <= n <= {high} contacts,"
+            f" got {F.shape}"
+        )
     n = F.shape[-2]
     m = n_pairs(n)
     if E.shape[-3:] != (m, n, 3) or N.shape[-2:] != (n, 3):
@@ -276,7 +303,7 @@ def solve_minimax(
             f"grasp basis must be (..., {m}, {n}, 3) and normals (..., {n}, 3), "
             f"got {E.shape} and {N.shape}"
         )
-    if F.ndim == 2 and E.ndim == 3 and N.ndim == 2 and _scalar(k_max) and _scalar(f_max):
+    if n <= 4 and F.ndim == 2 and E.ndim == 3 and N.ndim == 2 and _scalar(k_max) and _scalar(f_max):
         return _solve_one(F, E, N, k_max, f_max)
     try:
         batch = np.broadcast_shapes(F.shape[:-2], N.shape[:-2], E.shape[:-3])
@@ -296,9 +323,13 @@ def solve_minimax(
     lower = np.empty(size)
     status = np.empty(size, dtype=np.int8)
     path = np.empty(size, dtype=np.int8)
-    arrays = (F, E, N, k_lim, f_lim, k, angles, lower, status, path, follows)
-    if size < _PARALLEL_FROM or _THREADS == 1:
-        solve_batch(*arrays, 0, size)
+    if n > 4:
+        arrays = (F, E, N, k_lim, f_lim, k, angles, lower, status)
+        _run_batch(conic.solve_batch, arrays, np.append(np.arange(0, size, _CONIC_CHUNK), size))
+        path = np.where(status < 0, status, 0)  # (the conic kernels put refusals in status)
+        status[status < 0] = 0
+    elif size < _PARALLEL_FROM or _THREADS == 1:
+        solve_batch(F, E, N, k_lim, f_lim, k, angles, lower, status, path, follows, 0, size)
     else:
         # the kernel releases the GIL: the cores share a few contiguous chunks each, so that
         # one that finishes early takes the next (hard grasps cluster along trajectories);
@@ -308,15 +339,14 @@ def solve_minimax(
         even = np.linspace(0, size, _CHUNKS_PER_THREAD * _THREADS + 1).astype(int)
         bounds = np.unique(heads[np.searchsorted(heads, even)])
         bounds = np.unique(np.append(0, bounds))
-        chunks = [
-            thread_pool("minimax", _THREADS).submit(solve_batch, *arrays, lo, hi)
-            for lo, hi in itertools.pairwise(bounds)
-        ]
-        for chunk in chunks:
-            chunk.result()
+        arrays = (F, E, N, k_lim, f_lim, k, angles, lower, status, path, follows)
+        _run_batch(solve_batch, arrays, bounds)
     if np.any(path < 0):
         raise _refused(path, F, N, k_lim, f_lim)
     angles = angles.reshape(*batch, n)
+    if n <= 4:  # (the conic kernels set UNCERTIFIED themselves)
+        gap = angles.max(axis=-1).reshape(-1) - lower
+        status[(gap > codes.GAP_TOL) & (status != codes.NOT_PUSHING)] = Status.UNCERTIFIED
     return MinimaxResult(
         k=k.reshape(*batch, m),
         angles=angles,

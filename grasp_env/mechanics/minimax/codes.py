@@ -15,6 +15,7 @@ GAP_TOL = 1e-9
 INTERIOR = 0
 BOUNDARY = 1
 NOT_PUSHING = 2
+UNCERTIFIED_STATUS = 3  #: the gap exceeds GAP_TOL (Status.UNCERTIFIED; set in Python)
 
 # Which attempt certified the optimum (diagnostic; solve_one's path).
 APEX = 0  #: every finger along its normal: 0 is attained and is the bound
@@ -40,6 +41,9 @@ LOAD_RANGE = (1e-305, 1e305)
 RATIO_RANGE = (1e-12, 1e12)
 #: Accepted deviation of a normal's length from 1.
 UNIT_TOL = 1e-6
+#: The contacts a grasp may have for the solver: three and four by the kernels of this
+#: package, five to eight by the conic solver (:mod:`.conic`).
+CONTACTS_RANGE = (3, 8)
 
 
 class Status(IntEnum):
@@ -48,6 +52,9 @@ class Status(IntEnum):
     INTERIOR = INTERIOR  #: the box does not limit the optimum
     BOUNDARY = BOUNDARY  #: the optimum is on the box: the interaction forces would grow
     NOT_PUSHING = NOT_PUSHING  #: no k in the box keeps every finger pushing (>= 90 deg)
+    #: no attempt closed the certificate's gap to GAP_TOL: ``lower_bound`` is still certified,
+    #: ``gap`` says how far it is
+    UNCERTIFIED = UNCERTIFIED_STATUS
 
 
 class Path(IntEnum):
