@@ -21,7 +21,8 @@ from grasp_env import __version__
 from .progress import status, watch_numba
 
 SUMMARIES = {
-    "reproduce": "the paper's quasi-static sweep: optimal k_ij and friction angles, plots",
+    "reproduce": "the paper's quasi-static sweep (or any object's, with --object): optimal k_ij"
+    " and friction angles, plots",
     "train": "train an agent (PPO, TD3 or SAC) from a YAML config",
     "evaluate": "compare a trained agent with the minimax expert and baselines",
     "verify": "check grip forces in MuJoCo physics along a trajectory",

@@ -1,15 +1,21 @@
-"""``grasp-env reproduce``: the paper's experiment (§II and §IV).
+"""``grasp-env reproduce``: the paper's experiment (§II and §IV), on its cube or any object.
 
 The cube turns quasi-statically about an axis; at every pose the minimax problem is solved
 anew. Writes the table (``sweep.csv``), the paper's trend plot (``trend.png``: the minimised
 maximum friction angle and the k_ij against alpha) and its Fig. 2 (``theta1_grid.png``:
 theta_1 over a 100 x 100 grid of (k12, k13) at alpha = 0, the optimum marked).
+
+With ``--object`` and ``--contacts`` (or ``--fingers``) the same trajectory and the same
+table and trend plot are made for any object held by 3 to 8 contacts
+(:mod:`.reproduce_object`); the printed tables then give the optimum per pose with its status
+and certificate gap, and each contact's friction angle, force and margin.
 """
 
 from __future__ import annotations
 
 import argparse
 import csv
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -28,12 +34,35 @@ from grasp_env.mechanics import (
 )
 from grasp_env.mechanics.forces import Grasp
 
-from .cli import folder_argument
+from .cli import folder_argument, integer_argument, shown_text
 from .plotting import plot_series
 from .progress import console, status
+from .reproduce_object import (
+    CONTACTS_HELP,
+    finger_contacts,
+    object_argument,
+    object_scene,
+    print_object_tables,
+)
 from .scene_args import add_scene_arguments, floats, scene_from_arguments
 
-HELP = "the paper's quasi-static sweep: optimal k_ij and friction angles, table and plots"
+HELP = (
+    "the paper's quasi-static sweep (or any object's, with --object): optimal k_ij and"
+    " friction angles, table and plots"
+)
+
+
+def newtons_argument(text: str) -> float:
+    """An argparse type for a force limit: a finite number of newtons > 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not 0 < value < math.inf:  # (NaN is not)
+        raise argparse.ArgumentTypeError(
+            f"must be a finite number of newtons > 0, got {shown_text(text)}"
+        )
+    return value
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -51,7 +80,31 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--k-max", type=float, default=None, help="bound on |k_ij|, N (default 2 x weight)"
     )
+    parser.add_argument(
+        "--f-max", type=newtons_argument, default=None,
+        help="limit on each finger's force |P_i|, N (default none)",
+    )  # fmt: skip
     parser.add_argument("--no-plots", action="store_true", help="write the CSV only")
+    parser.add_argument(
+        "--object", type=object_argument, default=None, metavar="SPEC",
+        help="the grasped object instead of the paper's cube: cube, can, box:x=X,y=Y,z=Z,"
+        " cylinder:r=R,h=H, sphere:r=R or mesh:FILE (metres); needs --contacts or --fingers",
+    )  # fmt: skip
+    place = parser.add_mutually_exclusive_group()
+    place.add_argument(
+        "--contacts", default=None, metavar="SPEC",
+        help="the object's 3 to 8 contacts, ';'-separated, in its surface coordinates (below)",
+    )  # fmt: skip
+    place.add_argument(
+        "--fingers", type=integer_argument(3, 8), default=None, metavar="N",
+        help="N (3 to 8) contacts placed evenly around the object (below)",
+    )  # fmt: skip
+    cg = parser._option_string_actions["--cg-offset"]  # (scene_args says the cube's)
+    cg.help = "centre of gravity relative to the object's centre, m (default 0)"
+    offsets = parser._option_string_actions["--offsets"]
+    offsets.help = f"{offsets.help}; the paper's cube only (--object: see --contacts)"
+    parser.epilog = CONTACTS_HELP
+    parser.formatter_class = argparse.RawDescriptionHelpFormatter
 
 
 @dataclass(frozen=True)
@@ -63,13 +116,19 @@ class Sweep:
     k_max: float
     grasp: Grasp  # batched over the poses
     optimum: MinimaxResult
+    f_max: float | None = None
 
 
-def run_sweep(scene: Scene, trajectory: Trajectory, k_max: float | None = None) -> Sweep:
-    """Solve the minimax problem at every pose of ``trajectory`` (one batched call)."""
+def run_sweep(
+    scene: Scene, trajectory: Trajectory, k_max: float | None = None, f_max: float | None = None
+) -> Sweep:
+    """Solve the minimax problem at every pose of ``trajectory`` (one batched call): the box
+    |k_ij| <= ``k_max`` (default 2 x weight, the environments' k_max_ratio) and, if given,
+    |P_i| <= ``f_max``."""
     k_max = 2.0 * scene.weight if k_max is None else float(k_max)
     grasp = scene_grasp(scene, trajectory.rotations())
-    return Sweep(scene, trajectory, k_max, grasp, solve_minimax(grasp, k_max))
+    optimum = solve_minimax(grasp, k_max, f_max)
+    return Sweep(scene, trajectory, k_max, grasp, optimum, f_max)
 
 
 def newtons(value: float) -> str:
@@ -173,7 +232,7 @@ def theta1_grid(sweep: Sweep, points: int = 100) -> tuple[np.ndarray, ...]:
     """
     scene, trajectory = sweep.scene, sweep.trajectory
     grasp = scene_grasp(scene, pose_rotation(trajectory.axis, 0.0))
-    k_opt = solve_minimax(grasp, sweep.k_max).k
+    k_opt = solve_minimax(grasp, sweep.k_max, sweep.f_max).k
     top = 2.5 * max(abs(k_opt[0]), abs(k_opt[1]), 0.1 * scene.weight)
     k12, k13 = np.meshgrid(np.linspace(0, top, points), np.linspace(0, top, points))
     k = np.broadcast_to(k_opt, (points, points, len(k_opt))).copy()
@@ -228,26 +287,75 @@ def theta1_figure(sweep: Sweep) -> Any:
 
 
 def run(args: argparse.Namespace) -> int:
-    scene = scene_from_arguments(args)
     trajectory = Trajectory(args.axis, args.alpha_start, args.alpha_end, args.alpha_step)
     if args.k_max is not None and not (np.isfinite(args.k_max) and args.k_max > 0):
         raise ValueError(f"--k-max must be a finite number > 0, got {args.k_max}")
+    items: tuple[str, ...] = ()
+    if args.object is None:
+        if args.contacts is not None or args.fingers is not None:
+            option = "--contacts" if args.contacts is not None else "--fingers"
+            raise ValueError(
+                f"{option} places contacts on --object's surface: give --object too"
+                " (e.g. --object cube; without both, the paper's cube and contacts)"
+            )
+        scene = scene_from_arguments(args)
+    else:
+        scene, items = scene_of_object(args)
     with status(f"solving the minimax problem at {len(trajectory)} poses"):
-        sweep = run_sweep(scene, trajectory, args.k_max)
+        sweep = run_sweep(scene, trajectory, args.k_max, args.f_max)
     args.out.mkdir(parents=True, exist_ok=True)
-    print_table(sweep)
+    if items:
+        print_object_tables(sweep, items)
+    else:
+        print_table(sweep)
     write_csv(sweep, args.out / "sweep.csv")
     written = ["sweep.csv"]
     if not args.no_plots:
-        with status("drawing trend.png and theta1_grid.png"):
+        # the paper's Fig. 2 (theta1_grid.png) is its cube's three-finger grip
+        plots = ["trend.png"] if items else ["trend.png", "theta1_grid.png"]
+        with status(f"drawing {' and '.join(plots)}"):
             plot_trend(sweep, args.out / "trend.png")
-            plot_theta1_grid(sweep, args.out / "theta1_grid.png")
-        written += ["trend.png", "theta1_grid.png"]
-    worst = np.rad2deg(sweep.optimum.max_angle.max())
+            if not items:
+                plot_theta1_grid(sweep, args.out / "theta1_grid.png")
+        written += plots
+    opt = sweep.optimum
+    worst = np.rad2deg(opt.max_angle.max())
     print(
         f"worst optimal max friction angle {worst:.4f} deg "
         f"(limit {np.rad2deg(scene.friction_limit):.2f} deg); "
-        f"largest certificate gap {np.rad2deg(sweep.optimum.gap.max()):.2e} deg"
+        f"largest certificate gap {np.rad2deg(opt.gap.max()):.2e} deg"
     )
+    if items:
+        counts = np.bincount(opt.status.ravel(), minlength=len(Status))
+        print(
+            "statuses: "
+            + ", ".join(f"{s.name.lower()} {counts[s]}" for s in Status if counts[s])
+            + (
+                "; uncertified: the certificate's gap exceeds 1e-9 rad (the gap column says by"
+                " how much; its lower bound holds)"
+                if counts[Status.UNCERTIFIED]
+                else ""
+            )
+        )
     print(f"wrote {', '.join(str(args.out / name) for name in written)}")
     return 0
+
+
+def scene_of_object(args: argparse.Namespace) -> tuple[Scene, tuple[str, ...]]:
+    """The scene of ``--object`` held at ``--contacts`` (or ``--fingers``), and the contacts'
+    specs; ValueErrors name the option at fault."""
+    if args.offsets is not None:
+        raise ValueError(
+            "--offsets moves the paper cube's face-centre contacts: with --object, give the"
+            " contacts' places in --contacts (e.g. --contacts='-x:0.3,0.1;-y;-z' on a box)"
+        )
+    if args.contacts is None and args.fingers is None:
+        raise ValueError("--object needs its contacts: give --contacts or --fingers")
+    if args.contacts is not None:
+        text, option = args.contacts, "--contacts"
+    else:
+        text, option = finger_contacts(args.object, args.fingers), "--fingers"
+        print(f"--fingers {args.fingers}: --contacts={text!r}")
+    return object_scene(
+        args.object, text, weight=args.weight, mu=args.mu, cg_offset=args.cg_offset, option=option
+    )
