@@ -25,7 +25,7 @@ from .scenes import (
 )
 from .validation import (
     DEFAULT_K_MAX_RATIO,
-    check_array,
+    action_array,
     check_bool,
     check_k_max_ratio,
     check_margin,
@@ -55,23 +55,6 @@ def check_physics(physics: str | None, render_mode: str | None, modes: Sequence[
         raise ValueError(f"physics must be one of {PHYSICS_ENGINES}, got {physics!r}")
     if not (render_mode is None or (isinstance(render_mode, str) and render_mode in modes)):
         raise ValueError(f"render_mode must be None or one of {list(modes)}, got {render_mode!r}")
-
-
-_KERNEL_DTYPES = (np.dtype(np.float64), np.dtype(np.float32))  # the step kernel's compiled types
-
-
-def action_array(action: Any, shape: tuple[int, ...]) -> np.ndarray:
-    """``action`` as a float array of ``shape``, or a ValueError saying what an action must be
-    (real numbers: booleans, complex numbers and strings are refused; finiteness is checked
-    by the step kernel)."""
-    if (
-        type(action) is np.ndarray
-        and action.dtype in _KERNEL_DTYPES
-        and action.shape == shape
-        and action.flags.c_contiguous
-    ):
-        return action  # the common case, kept cheap
-    return check_array("action", action, shape)
 
 
 def physics_info(report: dict[str, Any]) -> dict[str, Any]:

@@ -39,13 +39,13 @@ from ..mechanics import (
 from ..mechanics.checks import is_integer
 from ..mechanics.gait import MIN_LOADED, GaitStates, gait_states
 from ..mechanics.threads import available_cores, in_parts
-from .cube_grasp import action_array
-from .kernels import evaluate_grips
-from .scenes import TRAJECTORY_KEYS, check_trajectory
+from .kernels import PARALLEL_FROM, evaluate_grips
 from .validation import (
     DEFAULT_K_MAX_RATIO,
     MAX_ENVS,
     MU_RANGE,
+    TRAJECTORY_KEYS,
+    action_array,
     check_autoreset_mode,
     check_bool,
     check_integer,
@@ -53,11 +53,11 @@ from .validation import (
     check_max_episode_steps,
     check_number,
     check_seed,
+    check_trajectory,
     end_step,
     refuse_ended,
     split_reset_mask,
 )
-from .vector import PARALLEL_FROM
 
 #: The paper's axis over [-90, 90] deg in 1 deg steps, as the ``trajectory`` keyword's mapping.
 PAPER_TURN_SPEC = {key: getattr(PAPER_TURN, key) for key in TRAJECTORY_KEYS}

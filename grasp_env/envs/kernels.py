@@ -33,6 +33,11 @@ _kernel = numba.njit(cache=True, nogil=True, error_model="numpy")
 #: the optimum does use, are far above it.
 RELEASE = 1e-6
 
+#: From this many sub-environments a vector step's kernel is split across the cores this
+#: process may use (the grasp and the gait envs': their kernels release the GIL and each row
+#: depends on its own inputs alone); fewer are not worth the hand-off to a thread.
+PARALLEL_FROM = 512
+
 
 @_kernel
 def _equilibrating(p, force, torque, out):

@@ -25,13 +25,15 @@ from .kernels import evaluate_grips, pose_geometry
 from .observation import ObservationLayout
 from .validation import (
     ALPHA_RANGE_DEG,
-    MAX_POSES,
     MU_RANGE,
+    TRAJECTORY_KEYS,
     WEIGHT_RANGE,
     check_array,
     check_fraction,
     check_number,
+    check_pose_count,
     check_range,
+    check_trajectory,
 )
 
 #: Edge length L of the grasped cube, metres (the paper's unit cube; the observation's units).
@@ -39,7 +41,6 @@ EDGE = 1.0
 SCENE_KEYS = (
     "contacts", "cg_offset", "weight", "mu", "extra_force", "extra_torque", "trajectory",
 )  # fmt: skip
-TRAJECTORY_KEYS = ("axis", "alpha_start_deg", "alpha_end_deg", "alpha_step_deg")
 
 SCENE_ARRAYS = (
     "contacts", "cg_offset", "weight", "mu", "extra_force", "extra_torque",
@@ -142,46 +143,6 @@ def check_faces(faces: Any) -> tuple[str, ...]:
     if len(faces) not in (3, 4) or len(set(faces)) != len(faces):
         raise ValueError(f"faces must name 3 or 4 distinct faces, got {faces}")
     return faces
-
-
-def check_trajectory(spec: Mapping[str, Any]) -> Trajectory:
-    """A :class:`Trajectory` from a mapping with :data:`TRAJECTORY_KEYS`: ``axis`` a finite
-    non-zero 3-vector (any length), the alphas in [-180, 180] deg, start <= end, a step in
-    (0, 360] deg, and at most :data:`~grasp_env.envs.validation.MAX_POSES` poses."""
-    if not isinstance(spec, Mapping):
-        raise ValueError(f"scene 'trajectory' must be a mapping with keys {TRAJECTORY_KEYS}")
-    for key in spec:
-        if key not in TRAJECTORY_KEYS:
-            raise ValueError(
-                f"unknown trajectory key {key!r}; the trajectory keys are {TRAJECTORY_KEYS}"
-            )
-    axis = check_array("trajectory 'axis'", spec["axis"], (3,))  # Trajectory refuses zero
-    start, end = (
-        check_number(f"trajectory {key!r}", spec[key], *ALPHA_RANGE_DEG)
-        for key in ("alpha_start_deg", "alpha_end_deg")
-    )
-    if end < start:
-        raise ValueError(
-            f"trajectory 'alpha_end_deg' ({end}) must be >= 'alpha_start_deg' ({start})"
-        )
-    step = check_number(
-        "trajectory 'alpha_step_deg'", spec["alpha_step_deg"], 0.0, 360.0, open_low=True
-    )
-    check_pose_count("trajectory 'alpha_step_deg'", end - start, step)
-    return Trajectory(tuple(axis), start, end, step)
-
-
-def check_pose_count(name: str, span: float, step: float) -> int:
-    """The pose count of a trajectory spanning ``span`` degrees in steps of ``step`` (as
-    :attr:`Trajectory.alphas_deg`), at most :data:`~grasp_env.envs.validation.MAX_POSES`."""
-    ratio = span / step
-    count = int(np.floor(ratio + 1e-9)) + 1 if ratio < MAX_POSES else MAX_POSES + 1
-    if count > MAX_POSES:
-        raise ValueError(
-            f"{name}: a trajectory may have at most {MAX_POSES} poses, but {span:g} deg in"
-            f" steps of {step:g} deg makes {np.floor(ratio + 1e-9) + 1:g}"
-        )
-    return count
 
 
 def parse_scene(spec: Mapping[str, Any] | None, defaults: Mapping[str, Any]) -> SceneBatch:

@@ -20,6 +20,7 @@ from ..mechanics.checks import real_number as check_number
 
 # re-exported: the environments' pose cap is the trajectories' (each pose a solve at a reset)
 from ..mechanics.trajectory import MAX_POSES as MAX_POSES
+from ..mechanics.trajectory import Trajectory
 
 #: Default action scale of the environments: k_max = 2 w.
 DEFAULT_K_MAX_RATIO = 2.0
@@ -105,6 +106,23 @@ def check_array(name: str, value: Any, shape: tuple[int, ...]) -> np.ndarray:
     if array.shape != shape:
         raise ValueError(f"{name} must be {must}, got shape {array.shape}")
     return np.ascontiguousarray(array)
+
+
+_KERNEL_DTYPES = (np.dtype(np.float64), np.dtype(np.float32))  # the step kernel's compiled types
+
+
+def action_array(action: Any, shape: tuple[int, ...]) -> np.ndarray:
+    """``action`` as a float array of ``shape``, or a ValueError saying what an action must be
+    (real numbers: booleans, complex numbers and strings are refused; finiteness is checked
+    by the step kernel)."""
+    if (
+        type(action) is np.ndarray
+        and action.dtype in _KERNEL_DTYPES
+        and action.shape == shape
+        and action.flags.c_contiguous
+    ):
+        return action  # the common case, kept cheap
+    return check_array("action", action, shape)
 
 
 def check_seed(name: str, value: Any) -> int | None:
@@ -223,3 +241,47 @@ def end_step(
     else:
         info.update({f"_{key}": mask for key in list(info)})
     return np.zeros_like(done)
+
+
+#: The keys of a trajectory mapping (a scene's ``trajectory``, the gait's ``trajectory``).
+TRAJECTORY_KEYS = ("axis", "alpha_start_deg", "alpha_end_deg", "alpha_step_deg")
+
+
+def check_trajectory(spec: Mapping[str, Any]) -> Trajectory:
+    """A :class:`Trajectory` from a mapping with :data:`TRAJECTORY_KEYS`: ``axis`` a finite
+    non-zero 3-vector (any length), the alphas in [-180, 180] deg, start <= end, a step in
+    (0, 360] deg, and at most :data:`MAX_POSES` poses."""
+    if not isinstance(spec, Mapping):
+        raise ValueError(f"scene 'trajectory' must be a mapping with keys {TRAJECTORY_KEYS}")
+    for key in spec:
+        if key not in TRAJECTORY_KEYS:
+            raise ValueError(
+                f"unknown trajectory key {key!r}; the trajectory keys are {TRAJECTORY_KEYS}"
+            )
+    axis = check_array("trajectory 'axis'", spec["axis"], (3,))  # Trajectory refuses zero
+    start, end = (
+        check_number(f"trajectory {key!r}", spec[key], *ALPHA_RANGE_DEG)
+        for key in ("alpha_start_deg", "alpha_end_deg")
+    )
+    if end < start:
+        raise ValueError(
+            f"trajectory 'alpha_end_deg' ({end}) must be >= 'alpha_start_deg' ({start})"
+        )
+    step = check_number(
+        "trajectory 'alpha_step_deg'", spec["alpha_step_deg"], 0.0, 360.0, open_low=True
+    )
+    check_pose_count("trajectory 'alpha_step_deg'", end - start, step)
+    return Trajectory(tuple(axis), start, end, step)
+
+
+def check_pose_count(name: str, span: float, step: float) -> int:
+    """The pose count of a trajectory spanning ``span`` degrees in steps of ``step`` (as
+    :attr:`Trajectory.alphas_deg`), at most :data:`MAX_POSES`."""
+    ratio = span / step
+    count = int(np.floor(ratio + 1e-9)) + 1 if ratio < MAX_POSES else MAX_POSES + 1
+    if count > MAX_POSES:
+        raise ValueError(
+            f"{name}: a trajectory may have at most {MAX_POSES} poses, but {span:g} deg in"
+            f" steps of {step:g} deg makes {np.floor(ratio + 1e-9) + 1:g}"
+        )
+    return count

@@ -19,12 +19,13 @@ from gymnasium.vector.utils import batch_space
 
 from ..mechanics import Scene, contact_pairs
 from ..mechanics.threads import available_cores, in_parts
-from .cube_grasp import CubeGraspEnv, CubeGraspRandomEnv, _CubeGraspEnv, action_array
+from .cube_grasp import CubeGraspEnv, CubeGraspRandomEnv, _CubeGraspEnv
 from .episodes import Episode, EpisodeBatch, build_episodes, sample_episodes
-from .kernels import step_batch
+from .kernels import PARALLEL_FROM, step_batch
 from .scenes import SceneBatch
 from .validation import (
     MAX_ENVS,
+    action_array,
     check_autoreset_mode,
     check_integer,
     check_max_episode_steps,
@@ -51,10 +52,6 @@ _AHEAD_ENVS = 8192
 # _PoseStore.shared: the default episode, the latest scene option's, then earlier options' still
 # run by sub-environments a masked reset left alone) or its own slot.
 _DEFAULT, _OPTION, _SLOT = 0, 1, -1
-#: From this many sub-environments a vector step's kernel is split across the cores this
-#: process may use (the grasp and the gait envs': their kernels release the GIL and each row
-#: depends on its own inputs alone); fewer are not worth the hand-off to a thread.
-PARALLEL_FROM = 512
 _NO_CUT = np.iinfo(np.int64).max  # no max_episode_steps
 
 
