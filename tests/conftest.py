@@ -9,7 +9,7 @@ for each of its two entry points, ``driver.solve_batch`` and ``driver.solve_gras
 one signature, for any number of fingers). :func:`pytest_configure` runs on the controller
 only, in two rounds of two processes (the machine's two cores): the entry points, then the
 environments' and the MuJoCo check's kernels through one reset and step of each environment
-that ``pytest -m fast`` makes. The workers then load it all from numba's cache (next to the
+that ``pytest -m fast`` makes, and the conic solver of five or more contacts. The workers then load it all from numba's cache (next to the
 sources, or ``NUMBA_CACHE_DIR``); a warm cache costs the rounds about 2 s each. A run in one
 process (``-p no:xdist`` or ``-n 0``) compiles as it goes, what its tests need only.
 """
@@ -43,6 +43,15 @@ for faces in (PAPER_FACES, FOUR_FINGER_FACES):  # three and four fingers: one si
     scene = Scene.on_faces(faces)
     solve_minimax(scene_grasp(scene, rotations{index}), 2.0 * scene.weight)
 """
+_CONIC = """
+from grasp_env.mechanics import Scene, scene_grasp, solve_minimax
+from grasp_env.mechanics.objects import Cylinder
+can = Cylinder(radius=0.033, height=0.115)
+fingers = [can.side_point(a, h) for a, h in ((0, 0.3), (1.3, -0.2), (2.5, 0.1), (3.8, -0.3))]
+fingers.append(can.cap_point("+z", (0.2, 0.1)))
+scene = Scene(shape=can, contacts=fingers, weight=3.4)
+solve_minimax(scene_grasp(scene, [[1.0, 0, 0], [0, 1.0, 0], [0, 0, 1.0]]), 6.8)  # five: conic
+"""
 _STEP = """
 import gymnasium as gym
 import numpy as np
@@ -70,6 +79,7 @@ _ROUNDS = (
             ]
         ),
         "MuJoCo environment": _STEP.format(ids=["grasp_env/CubeGraspMujoco-v0"]),
+        "conic solver": _CONIC,
     },
 )
 
