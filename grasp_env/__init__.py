@@ -49,9 +49,13 @@ _ENVS = {
         {**_FOUR_FINGERS, "physics": "mujoco"},
     ),
     # issue 16: a hand with reach phases fingers out and in along a long rotation
-    "CubeGait-v0": ("gait:CubeGaitEnv", "gait:CubeGaitVectorEnv", {}),
+    "CubeGait-v0": ("gait.env:CubeGaitEnv", "gait.vector:CubeGaitVectorEnv", {}),
     # the same with the certified grip: the agent chooses only the moves (when to phase out)
-    "CubeGaitMoves-v0": ("gait:CubeGaitEnv", "gait:CubeGaitVectorEnv", {"optimal_grip": True}),
+    "CubeGaitMoves-v0": (
+        "gait.env:CubeGaitEnv",
+        "gait.vector:CubeGaitVectorEnv",
+        {"optimal_grip": True},
+    ),
 }
 ENV_IDS = tuple(f"grasp_env/{name}" for name in _ENVS)
 _REGISTRATION = "gymnasium.envs.registration"

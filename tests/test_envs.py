@@ -593,7 +593,7 @@ def test_vector_env_equals_single_envs(env_id):
     ("env_id", "module"),
     [
         ("grasp_env/CubeGraspRandom-v0", "grasp_env.envs.vector"),
-        ("grasp_env/CubeGait-v0", "grasp_env.envs.gait"),
+        ("grasp_env/CubeGait-v0", "grasp_env.envs.gait.kernels"),
     ],
 )
 def test_vector_step_split_across_cores_equals_one_call(env_id, module, monkeypatch):
