@@ -9,9 +9,10 @@ for each of its two entry points, ``driver.solve_batch`` and ``driver.solve_gras
 one signature, for any number of fingers). :func:`pytest_configure` runs on the controller
 only, in two rounds of two processes (the machine's two cores): the entry points, then the
 environments' and the MuJoCo check's kernels through one reset and step of each environment
-that ``pytest -m fast`` makes, and the conic solver of five or more contacts. The workers then load it all from numba's cache (next to the
-sources, or ``NUMBA_CACHE_DIR``); a warm cache costs the rounds about 2 s each. A run in one
-process (``-p no:xdist`` or ``-n 0``) compiles as it goes, what its tests need only.
+that ``pytest -m fast`` makes, and the conic solver of five or more contacts. The workers then
+load it all from numba's cache (next to the sources, or ``NUMBA_CACHE_DIR``); a warm cache
+costs the rounds about 2 s each. A run in one process (``-p no:xdist`` or ``-n 0``) compiles
+as it goes, what its tests need only.
 """
 
 from __future__ import annotations
