@@ -355,7 +355,9 @@ def scene_of_object(args: argparse.Namespace) -> tuple[Scene, tuple[str, ...]]:
         text, option = args.contacts, "--contacts"
     else:
         text, option = finger_contacts(args.object, args.fingers), "--fingers"
-        print(f"--fingers {args.fingers}: --contacts={text!r}")
-    return object_scene(
+    scene, items = object_scene(
         args.object, text, weight=args.weight, mu=args.mu, cg_offset=args.cg_offset, option=option
     )
+    if args.contacts is None:
+        print(f"--fingers {args.fingers}: --contacts={text!r}")
+    return scene, items

@@ -269,7 +269,7 @@ def finger_contacts(shape: Shape, count: int) -> str:
     a cylinder's side at azimuths 360 i / count deg and heights +-0.5 alternately, a sphere at
     those azimuths on the circles of elevation -20 and -45 deg alternately (all on one circle
     would be coplanar), a box's faces in :data:`BOX_FINGERS`'s order, a convex mesh's face
-    centroids chosen greedily farthest apart by their normals (from face 0)."""
+    centroids, each the farthest from those chosen (from face 0) off their line or plane."""
     if not 3 <= count <= 8:
         raise ValueError(f"--fingers must be 3 to 8, got {count}")
     azimuths = [f"{360 * i / count:g}" for i in range(count)]
@@ -280,14 +280,20 @@ def finger_contacts(shape: Shape, count: int) -> str:
     elif isinstance(shape, Box):
         items = list(BOX_FINGERS[:count])
     elif isinstance(shape, ConvexMesh):
-        normals = shape.face_normals
-        if count > len(normals):
-            raise ValueError(f"--fingers {count}: the mesh has only {len(normals)} faces")
+        centroids = np.array([shape.face_point(f) for f in range(len(shape.faces))])
+        if count > len(centroids):
+            raise ValueError(f"--fingers {count}: the mesh has only {len(centroids)} faces")
         chosen = [0]
-        while len(chosen) < count:
-            closest = (normals @ normals[chosen].T).max(axis=1)  # cosine to the nearest chosen
-            closest[chosen] = np.inf
-            chosen.append(int(np.argmin(closest)))
+        while len(chosen) < count:  # the centroid farthest from those chosen, off their plane
+            gaps = np.linalg.norm(centroids[:, None] - centroids[chosen], axis=-1).min(axis=1)
+            for face in np.argsort(-gaps, kind="stable").tolist():
+                spread = centroids[[*chosen, face]] - centroids[chosen[0]]
+                rank = np.linalg.matrix_rank(spread, tol=1e-6 * shape.extent)
+                if face not in chosen and rank == min(len(chosen), 3):
+                    chosen.append(face)
+                    break
+            else:
+                raise ValueError(f"--fingers {count}: the mesh's faces lie too close together")
         items = [str(face) for face in chosen]
     else:
         raise ValueError(f"--fingers: no placement for a {type(shape).__name__}")
