@@ -1,4 +1,7 @@
-"""``grasp-env gait``: when to phase a finger out or in along a long rotation (issue 16).
+"""``grasp-env gait``: when to phase a finger out or in along a long rotation.
+
+The paper calls for "an algorithm ... when to phase out a finger" and gives none; this command
+computes the certified optimal gait.
 
 A hand with reach (``grasp_env.mechanics.Hand``: four fingers below pushing up and inwards, a
 thumb above pushing down, each within a 60 deg cone of face normals) holds the cube by sites,

@@ -32,23 +32,24 @@ _ENVS = {
     "CubeGraspRandom-v0": ("CubeGraspRandomEnv", "CubeGraspRandomVectorEnv", {}),
     "CubeGrasp4-v0": ("CubeGraspEnv", "CubeGraspVectorEnv", _FOUR_FINGERS),
     # MuJoCo checks every step and rolls out each ended episode; the vector envs check all
-    # sub-environments' poses of a step in one parallel MuJoCo batch (envs/mujoco_vector.py).
+    # sub-environments' poses of a step in one parallel MuJoCo batch
+    # (envs/cube_grasp/mujoco_vector.py).
     "CubeGraspMujoco-v0": (
         "CubeGraspEnv",
-        "mujoco_vector:CubeGraspMujocoVectorEnv",
+        "cube_grasp.mujoco_vector:CubeGraspMujocoVectorEnv",
         {"physics": "mujoco"},
     ),
     "CubeGraspRandomMujoco-v0": (
         "CubeGraspRandomEnv",
-        "mujoco_vector:CubeGraspRandomMujocoVectorEnv",
+        "cube_grasp.mujoco_vector:CubeGraspRandomMujocoVectorEnv",
         {"physics": "mujoco"},
     ),
     "CubeGrasp4Mujoco-v0": (
         "CubeGraspEnv",
-        "mujoco_vector:CubeGraspMujocoVectorEnv",
+        "cube_grasp.mujoco_vector:CubeGraspMujocoVectorEnv",
         {**_FOUR_FINGERS, "physics": "mujoco"},
     ),
-    # issue 16: a hand with reach phases fingers out and in along a long rotation
+    # finger gaits (docs/gait.md): a hand with reach phases fingers out and in as it turns
     "CubeGait-v0": ("gait.env:CubeGaitEnv", "gait.vector:CubeGaitVectorEnv", {}),
     # the same with the certified grip: the agent chooses only the moves (when to phase out)
     "CubeGaitMoves-v0": (
@@ -62,7 +63,8 @@ _REGISTRATION = "gymnasium.envs.registration"
 
 
 def _module(entry: str, default: str) -> str:
-    """The entry point ``module:Class`` in grasp_env.envs (a bare class name: in ``default``)."""
+    """The entry point ``module:Class`` in grasp_env.envs (a bare class name: in ``default``, the
+    cube grasp family's)."""
     return entry if ":" in entry else f"{default}:{entry}"
 
 
@@ -71,8 +73,8 @@ def _register(registration: ModuleType) -> None:
         if f"grasp_env/{name}" not in registration.registry:
             registration.register(
                 id=f"grasp_env/{name}",
-                entry_point=f"grasp_env.envs.{_module(single, 'cube_grasp')}",
-                vector_entry_point=vector and f"grasp_env.envs.{_module(vector, 'vector')}",
+                entry_point=f"grasp_env.envs.{_module(single, 'cube_grasp.env')}",
+                vector_entry_point=vector and f"grasp_env.envs.{_module(vector, 'cube_grasp.vector')}",
                 kwargs=kwargs,
             )
 

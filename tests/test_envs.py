@@ -2,7 +2,8 @@
 
 One parameterised suite over every environment id (as dm_control's suite_test and
 Gymnasium-Robotics' test_envs): API checks, determinism, bounds, kwargs, pickling; then the
-promises of issue 3 one by one.
+environments' documented behaviour (docs/environments.md) one part at a time: the expert, bad
+input, scene options, vector envs, physics and rendering.
 """
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
-"""Fuzzing the environments' inputs (issue 14): reset options, constructor keywords, seeds and
-actions of the single and the vector environments, valid and not.
+"""Fuzzing the environments' inputs: reset options, constructor keywords, seeds and actions of
+the single and the vector environments, valid and not.
 
 Every outcome must be correct or a ValueError: never another exception, never NaN. "Correct"
 is checked against the mechanics (``grasp_env.mechanics``, numpy), in units of the weight w:

@@ -1,5 +1,5 @@
 """Finger gaits: the hand's reach, the dynamic programme against brute force over all gaits,
-the certificate, and the long trajectories that need phasing (issue 16)."""
+the certificate, and the long trajectories that need phasing (docs/gait.md)."""
 
 from __future__ import annotations
 
