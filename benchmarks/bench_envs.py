@@ -27,8 +27,8 @@ env step: its floating-point operations are counted below from the kernel, and t
 machine sustains on that code is measured by running it, compiled, over poses that stay in
 the cache (no Python, no memory traffic); that rate over the count is the most env-steps per
 second one core can compute. The vector env splits its step's kernel across the cores it may
-use (:mod:`grasp_env.envs.vector`), so both limits are printed: one core's and that many
-cores'. **The hand-off.** The vector step's split
+use (:mod:`grasp_env.envs.cube_grasp.vector`), so both limits are printed: one core's and
+that many cores'. **The hand-off.** The vector step's split
 (:func:`~grasp_env.mechanics.threads.in_parts`) measures how long after the calling thread
 the others start their parts; that lag, and the rows the caller steps to fill it, are
 printed. **The random scenes' bound.** Every pose of a new episode needs the expert's
@@ -53,9 +53,9 @@ import numba
 import numpy as np
 
 import grasp_env  # noqa: F401  (registers the environments)
-from grasp_env.envs import episodes
+from grasp_env.envs.cube_grasp import episodes
+from grasp_env.envs.cube_grasp.scenes import SceneSampler
 from grasp_env.envs.kernels import grip_row
-from grasp_env.envs.scenes import SceneSampler
 from grasp_env.mechanics import Grasp, contact_pairs
 from grasp_env.mechanics.threads import LEAD_SECONDS, available_cores, caller_items, hand_off
 from grasp_env_agents.bench import Targets

@@ -59,12 +59,13 @@ _ENVS = {
     ),
 }
 ENV_IDS = tuple(f"grasp_env/{name}" for name in _ENVS)
+#: The modules in grasp_env.envs of the bare class names above: the cube grasp family's.
+_SINGLE, _VECTOR = "cube_grasp.env", "cube_grasp.vector"
 _REGISTRATION = "gymnasium.envs.registration"
 
 
 def _module(entry: str, default: str) -> str:
-    """The entry point ``module:Class`` in grasp_env.envs (a bare class name: in ``default``, the
-    cube grasp family's)."""
+    """The entry point ``module:Class`` in grasp_env.envs (a bare class name: in ``default``)."""
     return entry if ":" in entry else f"{default}:{entry}"
 
 
@@ -73,8 +74,8 @@ def _register(registration: ModuleType) -> None:
         if f"grasp_env/{name}" not in registration.registry:
             registration.register(
                 id=f"grasp_env/{name}",
-                entry_point=f"grasp_env.envs.{_module(single, 'cube_grasp.env')}",
-                vector_entry_point=vector and f"grasp_env.envs.{_module(vector, 'cube_grasp.vector')}",
+                entry_point=f"grasp_env.envs.{_module(single, _SINGLE)}",
+                vector_entry_point=vector and f"grasp_env.envs.{_module(vector, _VECTOR)}",
                 kwargs=kwargs,
             )
 

@@ -593,7 +593,7 @@ def test_vector_env_equals_single_envs(env_id):
 @pytest.mark.parametrize(
     ("env_id", "module"),
     [
-        ("grasp_env/CubeGraspRandom-v0", "grasp_env.envs.vector"),
+        ("grasp_env/CubeGraspRandom-v0", "grasp_env.envs.cube_grasp.vector"),
         ("grasp_env/CubeGait-v0", "grasp_env.envs.gait.kernels"),
     ],
 )
@@ -624,7 +624,7 @@ def test_vector_env_resets_in_chunks_the_same_episodes(monkeypatch):
     """Random episodes are drawn for a chunk of sub-environments at a time, and ahead for at
     most _AHEAD_ENVS (bounding a large reset's memory): the episodes, observations and
     rewards are those of one chunk, whatever is drawn ahead (none, a few, all)."""
-    import grasp_env.envs.vector as vector
+    import grasp_env.envs.cube_grasp.vector as vector
 
     runs = []
     for chunk, ahead in ((vector._RESET_CHUNK, vector._AHEAD_ENVS), (3, 0), (3, 2)):
@@ -650,8 +650,8 @@ def test_vector_env_draws_episodes_ahead_as_single_envs_draw_them(monkeypatch):
     episode drawn already, and a new seed or a scene option does what it does to a single
     environment (a new seed drops the episode drawn ahead; a scene option leaves the
     generator alone, so the next random episode is the one drawn ahead)."""
-    import grasp_env.envs.vector as vector
-    from grasp_env.envs import episodes
+    import grasp_env.envs.cube_grasp.vector as vector
+    from grasp_env.envs.cube_grasp import episodes
 
     calls = []
     sample = episodes.sample_episodes
@@ -871,8 +871,8 @@ def test_record_video(tmp_path):
 
 def test_sampled_episodes_equal_fresh_builds():
     """The sampler reuses its screening solves: the episodes must equal ones built afresh."""
-    from grasp_env.envs.episodes import build_episodes, sample_episodes
-    from grasp_env.envs.scenes import SceneSampler
+    from grasp_env.envs.cube_grasp.episodes import build_episodes, sample_episodes
+    from grasp_env.envs.cube_grasp.scenes import SceneSampler
 
     sampler = SceneSampler()
     rngs = [np.random.default_rng(seed) for seed in range(20)]
@@ -941,8 +941,8 @@ def test_step_kernel_matches_the_mechanics():
 def test_pose_kernels_match_the_mechanics(faces):
     """The compiled episode geometry (and the expert's grasp from an observation) against the
     numpy mechanics: rotation (eq. 5), grasp, equilibrating forces and the observation layout."""
-    from grasp_env.envs.episodes import build_episodes
-    from grasp_env.envs.scenes import SceneSampler
+    from grasp_env.envs.cube_grasp.episodes import build_episodes
+    from grasp_env.envs.cube_grasp.scenes import SceneSampler
     from grasp_env.mechanics import (
         contact_pairs,
         equilibrating_forces,
@@ -1005,7 +1005,7 @@ def test_pose_kernels_match_the_mechanics(faces):
 def test_sampled_scenes_within_their_ranges():
     """Every drawn quantity stays in its documented range (the extra torque's z component once
     reused a normal draw of the axis)."""
-    from grasp_env.envs.scenes import SceneSampler
+    from grasp_env.envs.cube_grasp.scenes import SceneSampler
 
     sampler = SceneSampler(extra_force=0.3, extra_torque=0.4, cg_offset=0.2, contact_offset=0.5)
     scenes = sampler.scenes(sampler.raw(np.random.default_rng(0), 5000))

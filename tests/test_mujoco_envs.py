@@ -15,9 +15,9 @@ from gymnasium.vector import AutoresetMode
 import grasp_env
 import grasp_env.physics.model
 from grasp_env import MinimaxExpert
-from grasp_env.envs.episodes import sample_episodes
-from grasp_env.envs.mujoco_vector import CubeGraspMujocoVectorEnv
-from grasp_env.envs.scenes import SceneSampler, grip_forces
+from grasp_env.envs.cube_grasp.episodes import sample_episodes
+from grasp_env.envs.cube_grasp.mujoco_vector import CubeGraspMujocoVectorEnv
+from grasp_env.envs.cube_grasp.scenes import SceneSampler, grip_forces
 from grasp_env.mechanics import FOUR_FINGER_FACES
 from grasp_env.physics import check_trajectories
 

@@ -1,16 +1,23 @@
-"""Gymnasium environments of the grasp: single and batched vector environments, an SB3 adapter
-(:mod:`grasp_env.envs.sb3`) and the minimax expert as a policy.
+"""Gymnasium environments of the grasp, one folder per family, single and batched vector
+environments, an SB3 adapter (:mod:`grasp_env.envs.sb3`) and the minimax expert as a policy.
 
-Modules by role: ``observation`` (the observation vector), ``scenes`` (scenes and their
-trajectories as arrays, explicit or sampled), ``episodes`` (everything precomputed at reset),
-``kernels`` (the compiled step and pose geometry), ``expert`` (the optimiser as a policy),
-``validation`` (keyword checks), ``cube_grasp`` (the single environments) and ``vector``.
+The families: ``cube_grasp`` (the paper's cube held along a trajectory: `CubeGrasp-v0`,
+`CubeGraspRandom-v0`, `CubeGrasp4-v0` and their MuJoCo forms) and ``gait`` (a hand with reach
+phasing fingers out and in: `CubeGait-v0`, `CubeGaitMoves-v0`). What the families share lives
+here: ``observation`` (the observation vector), ``kernels`` (the compiled step and pose
+geometry), ``expert`` (the optimiser as a policy), ``validation`` (keyword checks) and ``sb3``.
+``vector`` and ``mujoco_vector`` are the public paths of the cube grasp family's vector
+environments.
 """
 
-from .cube_grasp import CubeGraspEnv, CubeGraspRandomEnv
+from .cube_grasp import (
+    CubeGraspEnv,
+    CubeGraspRandomEnv,
+    CubeGraspRandomVectorEnv,
+    CubeGraspVectorEnv,
+)
 from .expert import MinimaxExpert
 from .observation import ObservationLayout
-from .vector import CubeGraspRandomVectorEnv, CubeGraspVectorEnv
 
 __all__ = [
     "CubeGraspEnv",

@@ -36,9 +36,9 @@ except ModuleNotFoundError as missing:  # the library installs without the learn
         'they come with the agents extra, pip install "torch==2.13.0" "grasp-env[agents]"'
     ) from missing
 
-from .gait import CubeGaitVectorEnv
+from .cube_grasp.vector import _CubeGraspVectorEnv
+from .gait.vector import CubeGaitVectorEnv
 from .validation import check_seed
-from .vector import _CubeGraspVectorEnv
 
 
 class SB3VecEnv(VecEnv):

@@ -15,9 +15,9 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from ..mechanics import START_ROTATION, Grasp, Scene, Status, contact_pairs, solve_minimax
-from .kernels import pose_geometry
-from .observation import ObservationLayout
+from ...mechanics import START_ROTATION, Grasp, Scene, Status, contact_pairs, solve_minimax
+from ..kernels import pose_geometry
+from ..observation import ObservationLayout
 from .scenes import EDGE, SCENE_ARRAYS, SceneBatch, SceneSampler, layout_ok, load_ok
 
 _BOUNDS = {n: ObservationLayout(n).bounds() for n in (3, 4)}
@@ -307,12 +307,12 @@ def sample_episodes(
     Each generator draws :data:`DRAWS_PER_ROUND` candidates per round; candidates whose
     contacts are (nearly) collinear or coplanar (the rule of
     :class:`~grasp_env.mechanics.Scene`) or whose load nearly cancels the weight
-    (:func:`~grasp_env.envs.scenes.load_ok`) are dropped, a cheap screen solves the expert at the
-    trajectory's two ends and middle, then candidates that pass are solved along the whole
-    trajectory in order, the first that holds being the episode. Which scene a generator yields
-    depends on that generator alone, so a vector of environments gets the same episodes as
-    single environments with the same seeds; all solves are batched. Raises ValueError once
-    fewer than one candidate in :data:`MAX_DRAWS` has held.
+    (:func:`~grasp_env.envs.cube_grasp.scenes.load_ok`) are dropped, a cheap screen solves the
+    expert at the trajectory's two ends and middle, then candidates that pass are solved along
+    the whole trajectory in order, the first that holds being the episode. Which scene a
+    generator yields depends on that generator alone, so a vector of environments gets the same
+    episodes as single environments with the same seeds; all solves are batched. Raises
+    ValueError once fewer than one candidate in :data:`MAX_DRAWS` has held.
     """
     chosen: list[EpisodeBatch] = []
     owners: list[np.ndarray] = []

@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from ..mechanics import (
+from ...mechanics import (
     DEFAULT_MU,
     DEFAULT_WEIGHT,
     FACES,
@@ -21,9 +21,9 @@ from ..mechanics import (
     contact_pairs,
     face_point,
 )
-from .kernels import evaluate_grips, pose_geometry
-from .observation import ObservationLayout
-from .validation import (
+from ..kernels import evaluate_grips, pose_geometry
+from ..observation import ObservationLayout
+from ..validation import (
     ALPHA_RANGE_DEG,
     MU_RANGE,
     TRAJECTORY_KEYS,
@@ -296,7 +296,7 @@ def grip_forces(scenes: SceneBatch, k_max_ratio: float) -> tuple[np.ndarray, np.
 
 
 def _mujoco_max_force() -> float:
-    from ..physics.model import MAX_FORCE  # imported only by the MuJoCo environments
+    from ...physics.model import MAX_FORCE  # imported only by the MuJoCo environments
 
     return MAX_FORCE
 

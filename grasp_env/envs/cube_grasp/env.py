@@ -9,10 +9,19 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from ..mechanics import FOUR_FINGER_FACES, PAPER_FACES, Scene, contact_pairs, n_pairs
+from ...mechanics import FOUR_FINGER_FACES, PAPER_FACES, Scene, contact_pairs, n_pairs
+from ..kernels import step_grip
+from ..observation import ObservationLayout
+from ..validation import (
+    DEFAULT_K_MAX_RATIO,
+    action_array,
+    check_bool,
+    check_k_max_ratio,
+    check_margin,
+    check_mujoco_k_max_ratio,
+    check_seed,
+)
 from .episodes import Episode, build_episodes, cached_episode, sample_episodes
-from .kernels import step_grip
-from .observation import ObservationLayout
 from .scenes import (
     SceneBatch,
     SceneSampler,
@@ -22,15 +31,6 @@ from .scenes import (
     mujoco_fits,
     parse_options,
     parse_scene,
-)
-from .validation import (
-    DEFAULT_K_MAX_RATIO,
-    action_array,
-    check_bool,
-    check_k_max_ratio,
-    check_margin,
-    check_mujoco_k_max_ratio,
-    check_seed,
 )
 
 PHYSICS_ENGINES = (None, "mujoco")
@@ -207,7 +207,7 @@ class _CubeGraspEnv(gym.Env[np.ndarray, np.ndarray]):
         """The episode's grips carried through its poses in one continuous MuJoCo rollout
         (:class:`grasp_env.physics.TrajectoryChecker`), as plain values: a grip that holds at
         every pose checked on its own may still slip on the way between poses."""
-        from ..physics import check_trajectories
+        from ...physics import check_trajectories
 
         episode = self.episode
         grips = np.stack(self._grips)
@@ -222,7 +222,7 @@ class _CubeGraspEnv(gym.Env[np.ndarray, np.ndarray]):
             if self._checker is not None:
                 self._checker.close()
             if self.physics == "mujoco":
-                from ..physics import StabilityChecker
+                from ...physics import StabilityChecker
 
                 self._checker = StabilityChecker(episode.scene)
             if self._view is not None:  # the next render() draws the new scene
@@ -239,7 +239,7 @@ class _CubeGraspEnv(gym.Env[np.ndarray, np.ndarray]):
             return None
         episode = self.episode
         if self._view is None:  # built on the first render() of a scene, not at its reset
-            from ..physics import GraspView
+            from ...physics import GraspView
 
             self._view = GraspView(episode.scene, render_mode=self.render_mode)
         pose = min(self._step, len(episode)) - 1 if self._last_forces is not None else 0
