@@ -138,14 +138,17 @@ def read_mesh(path: Path) -> ConvexMesh:
 
 
 def _numbers(text: str, low: int, high: int, what: str) -> list[float]:
-    """``low`` to ``high`` comma-separated numbers, or a ValueError saying ``what`` they are."""
+    """``low`` to ``high`` comma-separated finite numbers, or a ValueError saying ``what``
+    they are."""
     try:
         values = [float(v) for v in text.split(",")]
     except ValueError:
         values = []
-    if not low <= len(values) <= high:
+    if not low <= len(values) <= high or not np.all(np.isfinite(values)):
         count = str(low) if low == high else f"{low} to {high}"
-        raise ValueError(f"expected {what} ({count} comma-separated numbers), got {text!r}")
+        raise ValueError(
+            f"expected {what} ({count} finite comma-separated numbers), got {shown_text(text)}"
+        )
     return values
 
 
@@ -154,15 +157,15 @@ def contact_point(shape: Shape, item: str) -> np.ndarray:
     :data:`CONTACT_FORMS`, or :data:`POINT_FORM` for any shape), checked on the surface and
     off its edges; a ValueError says what is wrong with it."""
     if item.startswith("@"):
-        point = np.array(_numbers(item[1:], 3, 3, "X,Y,Z, metres"))
+        point = np.array(_numbers(item[1:], 3, 3, "X,Y,Z in metres"))
     elif isinstance(shape, Box):
-        face, colon, rest = item.partition(":")
+        face, colon, rest = (part.strip() for part in item.partition(":"))
         if face not in FACES:
             raise ValueError(f"unknown face {face!r}, expected one of {' '.join(FACES)}")
         offset = _numbers(rest, 2, 2, "U,V") if colon else (0.0, 0.0)
         point = shape.face_point(face, offset)
     elif isinstance(shape, Cylinder):
-        where, colon, rest = item.partition(":")
+        where, colon, rest = (part.strip() for part in item.partition(":"))
         if where == "side":
             if not colon:
                 raise ValueError("side needs its angle: side:ANGLE_DEG[,HEIGHT]")
@@ -176,14 +179,12 @@ def contact_point(shape: Shape, item: str) -> np.ndarray:
     elif isinstance(shape, Sphere):
         azimuth, elevation = np.deg2rad(_numbers(item, 2, 2, "AZIMUTH_DEG,ELEVATION_DEG"))
         if not abs(elevation) <= np.pi / 2:
-            raise ValueError(f"the elevation must be in [-90, 90] deg, got {item!r}")
-        if not np.isfinite(azimuth):
-            raise ValueError(f"the azimuth must be a finite number of degrees, got {item!r}")
+            raise ValueError("the elevation must be in [-90, 90] deg")
         c = np.cos(elevation)
         point = shape.point([c * np.cos(azimuth), c * np.sin(azimuth), np.sin(elevation)])
     elif isinstance(shape, ConvexMesh):
-        face, colon, rest = item.partition(":")
-        if not re.fullmatch(r"\d{1,6}", face.strip()):
+        face, colon, rest = (part.strip() for part in item.partition(":"))
+        if not re.fullmatch(r"\d{1,6}", face):
             raise ValueError(f"a face index must be an integer, got {face!r}")
         weights = _numbers(rest, 1, 1_000, "W1,W2,...") if colon else None
         point = shape.face_point(int(face), weights)
