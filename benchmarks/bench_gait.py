@@ -1,4 +1,4 @@
-"""The finger-gait programme's time and the gait environment's speed (issue 16).
+"""The finger-gait programme's time and the gait environment's speed (docs/gait.md).
 
     grasp-env bench gait [--seconds 2]
 

@@ -1,4 +1,4 @@
-"""Speed of the MuJoCo checks, against a bare MuJoCo step loop measured in the same run (issue 17).
+"""Speed of the MuJoCo checks, against a bare MuJoCo step loop measured in the same run.
 
     grasp-env bench physics [--seconds 1]
 

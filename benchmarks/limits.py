@@ -1,4 +1,5 @@
-"""The arithmetic limit of one certified minimax solve on this machine (issue 19).
+"""The arithmetic limit of one certified minimax solve on this machine, against which the
+solver's speed targets (:data:`TARGETS`) are judged: a target above it cannot be reached.
 
 **Counted from the kernel.** The solver's kernels are numba functions whose Python source
 (``py_func``) is the code numba compiles. :class:`Interpreter` runs that source, unedited, in
@@ -564,7 +565,7 @@ def count_along(
 
 # ----------------------------------------------------------------------------- the report
 
-#: Issue 19's targets, solves per second: {fingers: {mode: target}}.
+#: The speeds the solver was asked to reach, solves per second: {fingers: {mode: target}}.
 TARGETS = {3: {"single": 60_000, "batched": 300_000}, 4: {"batched": 80_000}}
 PATH_NAMES = {0: "apex", 1: "direct", 2: "SQP", 3: "released", 4: "restarted", 5: "fallback",
               6: "uncertified", 7: "nearby", 8: "bisection"}  # fmt: skip
@@ -658,7 +659,7 @@ class Limit:
             share = target / self.idle(mode)
             verdict = "below the limit" if share < 1 else "ABOVE the limit: unreachable"
             lines.append(
-                f"    issue 19's target {mode} >= {target:,}: {share:.2f} x the limit of an "
+                f"    the target {mode} >= {target:,} solves/s: {share:.2f} x the limit of an "
                 f"idle machine ({self.idle(mode):,.0f}: the best one-core burst"
                 f"{f' x {self.threads} cores' if mode == 'batched' else ''}), {verdict}; "
                 f"{target / speeds[mode]:.1f} x the solver's rate"

@@ -57,7 +57,8 @@ ALPHAS_DEG = (-15.0, -7.0, 0.0, 8.0, 15.0)
 #: Maximum friction angles swept, degrees, and the offsets from the limit near its edge.
 SWEEP_DEG = tuple(np.linspace(0.0, 40.0, 17))
 EDGE_OFFSETS_DEG = (0.01, 0.02, 0.05, 0.1, 0.3, 1.0)
-#: Sets at least this far from the edge must agree exactly (the issue's target).
+#: Sets at least this far from the edge must all agree: MuJoCo's verdict the analytic one
+#: (``grasp-env verify --agreement`` exits with 1 otherwise).
 FAR_FROM_EDGE_DEG = 0.05
 
 
