@@ -2,14 +2,15 @@
 
     python -m grasp_env_agents.benchmarks.study_solver [--scenes 20000] [--reference 600]
 
-Scenes of issue 14's force-limit distribution, for three and four fingers (half each):
-contact offsets up to 0.7 of the face half-width, centre-of-gravity offsets up to 0.2,
-weights 0.5 to 30 N, a random unit rotation axis, alpha in [-30, 30] deg, k_max 0.5 to 3 w
-and f_max 0.3 to 1 x the largest finger force |P_i| of the optimum without a limit. Beside
-them, smaller rows of tiny boxes (k_max = 1e-9 w, with and without f_max). Every result is
-checked (:func:`certificate_failures`): a certified gap 0 <= max_angle - lower_bound <= 1e-9
-rad unless NOT_PUSHING, which must carry lower_bound = pi/2; k in the box, the force limits
-met, the angles those of k. A subsample is compared with the cvxpy + Clarabel bisection of
+Scenes drawn from ranges far wider than the paper's neighbourhood, with force limits (the
+solver must certify every result there), for three and four fingers (half each): contact
+offsets up to 0.7 of the face half-width, centre-of-gravity offsets up to 0.2, weights 0.5 to
+30 N, a random unit rotation axis, alpha in [-30, 30] deg, k_max 0.5 to 3 w and f_max 0.3 to 1
+x the largest finger force |P_i| of the optimum without a limit. Beside them, smaller rows of
+tiny boxes (k_max = 1e-9 w, with and without f_max). Every result is checked
+(:func:`certificate_failures`): a certified gap 0 <= max_angle - lower_bound <= 1e-9 rad unless
+NOT_PUSHING, which must carry lower_bound = pi/2; k in the box, the force limits met, the
+angles those of k. A subsample is compared with the cvxpy + Clarabel bisection of
 ``reference_solver`` (:func:`reference_failures`): the same status, the optimum inside the
 reference's bracket and each solver's bound consistent with the other's. Prints a table and
 exits with status 1 on any failure. (Not named bench_*: ``grasp-env bench`` does not run it.)
@@ -68,7 +69,7 @@ def issue_scenes(
     force_limit: bool = True,
     k_ratio: tuple[float, float] = (0.5, 3.0),
 ) -> Scenes:
-    """``count`` scenes of issue 14's distribution with ``n`` fingers (see the module doc).
+    """``count`` scenes of the module doc's wide distribution with ``n`` fingers.
 
     k_max = U(k_ratio) x w; with ``force_limit``, f_max = U(0.3, 1) x the largest |P_i| of
     the optimum without a force limit (solved here).
