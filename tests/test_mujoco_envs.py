@@ -1,6 +1,6 @@
 """The ``...Mujoco-v0`` environments: the end-of-episode continuous rollout in the single env
-(``info["physics_trajectory"]``) and the vector entry point (envs/mujoco_vector.py), step for
-step against single environments."""
+(``info["physics_trajectory"]``) and the vector entry point (envs/cube_grasp/mujoco_vector.py),
+step for step against single environments."""
 
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """Masked resets (Gymnasium's ``reset(options={"reset_mask": mask})``) and
-``AutoresetMode.DISABLED`` in the batched vector envs (envs/vector.py, envs/gait.py,
-envs/mujoco_vector.py).
+``AutoresetMode.DISABLED`` in the batched vector envs (envs/cube_grasp/vector.py,
+envs/gait/vector.py, envs/cube_grasp/mujoco_vector.py).
 
 The reference is Gymnasium's ``SyncVectorEnv`` over the single environments
 (``vectorization_mode="sync"``): the batched env and it are driven side by side with the same

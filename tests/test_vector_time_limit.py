@@ -1,7 +1,8 @@
-"""``max_episode_steps`` in the batched vector envs (envs/vector.py, envs/gait.py,
-envs/mujoco_vector.py): ``gym.make_vec(id, ..., max_episode_steps=k)`` passes it to a vector
-entry point, which must cut every sub-environment's episode after k steps as Gymnasium's
-``TimeLimit`` cuts each single env under ``vectorization_mode="sync"``.
+"""``max_episode_steps`` in the batched vector envs (envs/cube_grasp/vector.py,
+envs/gait/vector.py, envs/cube_grasp/mujoco_vector.py): ``gym.make_vec(id, ...,
+max_episode_steps=k)`` passes it to a vector entry point, which must cut every
+sub-environment's episode after k steps as Gymnasium's ``TimeLimit`` cuts each single env
+under ``vectorization_mode="sync"``.
 
 Ours and SyncVectorEnv over the TimeLimit-wrapped single envs are driven side by side with
 the same seeds, masked resets and actions, through episodes that end by themselves (slips,
