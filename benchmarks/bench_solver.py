@@ -2,29 +2,41 @@
 
     grasp-env bench solver [--seconds 2]
 
-Scenes as in the solver's accuracy test: contact offsets up to 0.35 of the face half-width,
-centre-of-gravity offsets up to 0.12, weights 1 to 20 N, alpha across the paper's
-trajectory, k_max = 2 w. "single" calls ``solve_minimax`` on one pose's Grasp at a time;
-"batched" makes one call on a Grasp of 4,096 poses (one scene each); "trajectories" one call
-on 128 scenes x 32 poses 1 degree apart with ``follows`` (each pose's solve starts from the
-previous one's optimum, as the environments build their episodes), beside the same batch
-solved without it (the two timed in turn, five rounds: the median ratio), and the flops of
-a solve along them counted both ways (what the arithmetic allows the warm start: issue
-19's target is 2 x). The reference is ``benchmarks/reference_solver.py``, bisection over
-second-order-cone feasibility solved by Clarabel, run on a few of the same scenes; the
-largest difference between the two optima is printed too. The solver is warmed up first
-(numba compiles once, then loads its cache).
-Issue 2's targets are for the paper's three fingers: single >= 5,000 solves/s and batched
+Three and four fingers, scenes as in the solver's accuracy test: contact offsets up to 0.35
+of the face half-width, centre-of-gravity offsets up to 0.12, weights 1 to 20 N, alpha
+across the paper's trajectory, k_max = 2 w. "single" calls ``solve_minimax`` on one pose's
+Grasp at a time; "batched" makes one call on a Grasp of 4,096 poses (one scene each);
+"trajectories" one call on 128 scenes x 32 poses 1 degree apart with ``follows`` (each
+pose's solve starts from the previous one's optimum, as the environments build their
+episodes), beside the same batch solved without it (the two timed in turn, five rounds: the
+median ratio), and the flops of a solve along them counted both ways (what the arithmetic
+allows the warm start: the target is 2 x). The reference is ``benchmarks/reference_solver.py``,
+bisection over second-order-cone feasibility solved by Clarabel, run on a few of the same
+scenes; the largest difference between the two optima is printed too. The solver is warmed
+up first (numba compiles once, then loads its cache).
+The speed targets are for the paper's three fingers: single >= 5,000 solves/s and batched
 >= 50,000 solves/s; four fingers are reported alongside. Exits with status 1 if a target is
 missed.
 
-**The limit** (issue 19, ``benchmarks/limits.py``): the floating-point operations of a solve,
-counted by running the kernels' own source with counted arithmetic on grasps of each path
-the batch takes (weighted by the paths' shares), against the rate this machine sustains on
-the solver's Newton step (its own kernels, compiled, cached data) measured in the same run,
-on one core for "single" and on the batch's threads for "batched"; the solver's rate as a
-share of that limit, and issue 19's targets (three fingers batched >= 300,000 and single
->= 60,000 solves/s, four fingers batched >= 80,000) against it (reported, not enforced).
+**Five to eight contacts** (the conic solver): random scenes of
+``benchmarks/general_scenes.py`` (boxes, cylinders, spheres and convex meshes, k_max 0.3 to
+30 w, no force limit), "single" one grasp a call and "batched" 256 a call, each beside the
+reference run on GENERAL_REFERENCE of the same scenes in the same run; the target is >= 1,000 x
+the reference at n = 6 and n = 8, in both modes. ``benchmarks/limits.py`` does not count the
+conic kernels' flops (they factorise with numpy's SVD and multiply matrices, which its
+counted arithmetic does not cover); instead the kernels' own Python source is run on
+GENERAL_COUNTED scenes with every kernel call counted (:func:`conic_steps`): the Newton
+steps a solve takes (barrier steps, each a Cholesky solve, and KKT steps, each an LU solve),
+the levels t it tries, and the time a step takes at the measured single rate.
+
+**The limit** (``benchmarks/limits.py``, three and four fingers): the floating-point
+operations of a solve, counted by running the kernels' own source with counted arithmetic on
+grasps of each path the batch takes (weighted by the paths' shares), against the rate this
+machine sustains on the solver's Newton step (its own kernels, compiled, cached data)
+measured in the same run, on one core for "single" and on the batch's threads for
+"batched"; the solver's rate as a share of that limit, and the limit's targets (three
+fingers batched >= 300,000 and single >= 60,000 solves/s, four fingers batched >= 80,000)
+against it (reported, not enforced).
 """
 
 from __future__ import annotations
@@ -32,9 +44,12 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+import types
+from collections import Counter
 from collections.abc import Callable
 
 import numpy as np
+from numba.core.dispatcher import Dispatcher
 
 from grasp_env.mechanics import (
     FOUR_FINGER_FACES,
@@ -42,11 +57,14 @@ from grasp_env.mechanics import (
     PAPER_FACES,
     Grasp,
     Scene,
+    Status,
     pose_rotation,
     scene_grasp,
     solve_minimax,
 )
+from grasp_env.mechanics.minimax.conic import kernels as conic_kernels
 from grasp_env_agents.bench import Targets
+from grasp_env_agents.benchmarks.general_scenes import general_scenes
 from grasp_env_agents.benchmarks.limits import Limit, count_along
 from grasp_env_agents.benchmarks.reference_solver import ConeBisection
 
@@ -56,6 +74,13 @@ TRAJECTORIES = 128  # x 32 poses = BATCH
 COUNTED_EVERY = {3: 8, 4: 16}
 REFERENCE_SCENES = 6
 TARGETS = {"single": 5_000, "batched": 50_000}  # solves per second, three fingers
+#: The conic solver's rows: contacts, grasps a batched call, scenes for the reference and for
+#: the counted Newton steps, and the targets (x the reference's rate, both modes) by contacts.
+GENERAL = (5, 6, 7, 8)
+GENERAL_BATCH = 256
+GENERAL_REFERENCE = 3
+GENERAL_COUNTED = 2
+RATIO_TARGETS = {6: 1_000, 8: 1_000}
 
 
 def random_scene(rng: np.random.Generator, n: int) -> Scene:
@@ -178,6 +203,117 @@ def measure(n: int, seconds: float) -> dict[str, float]:
     }
 
 
+def conic_steps(grasp: Grasp, k_max: float) -> tuple[Counter, float]:
+    """The conic solver's kernel calls on one grasp, counted: the kernels' own Python source
+    (``py_func``, what numba compiles) run with plain floats, each kernel's calls tallied by
+    name (``cholesky_solve``: a barrier Newton step; ``lu_solve``: a KKT Newton step;
+    ``level``: a level t tried). Returns (the tallies, the largest angle found). Seconds a
+    solve (about 2 s at n = 5, 15 s at n = 8)."""
+    calls: Counter = Counter()
+    names = dict(vars(conic_kernels))
+    for name, value in list(names.items()):
+        if isinstance(value, Dispatcher):
+            source = value.py_func
+            body = types.FunctionType(
+                source.__code__, names, name, source.__defaults__, source.__closure__
+            )
+
+            def counting(*args, _body=body, _name=name):  # type: ignore[no-untyped-def]
+                calls[_name] += 1
+                return _body(*args)
+
+            names[name] = counting
+    F, E, N = (np.array(x, dtype=float) for x in (grasp.equilibrating, grasp.basis, grasp.normals))
+    k, theta = np.empty(E.shape[0]), np.empty(F.shape[0])
+    names["solve_one"](F, E, N, float(k_max), np.inf, k, theta)
+    return calls, float(theta.max())
+
+
+def measure_general(n: int, seconds: float) -> dict[str, float]:
+    """The conic solver's rates on GENERAL_BATCH random scenes with ``n`` contacts, the
+    reference's on the first GENERAL_REFERENCE of them, and the Newton steps counted on the
+    first GENERAL_COUNTED."""
+    scenes = general_scenes(n, GENERAL_BATCH, seed=n)
+    grasps = [scenes.one(b)[0] for b in range(len(scenes))]
+    k_max = scenes.k_max
+    solve_minimax(grasps[0], k_max[0])  # warm-up: compile or load the kernels
+    solve_minimax(scenes.grasp, k_max)
+
+    def single(i: int) -> int:
+        solve_minimax(grasps[i % GENERAL_BATCH], k_max[i % GENERAL_BATCH])
+        return 1
+
+    def batched(_: int) -> int:
+        solve_minimax(scenes.grasp, k_max)
+        return GENERAL_BATCH
+
+    speeds = {mode: rate(call, seconds) for mode, call in (("single", single),
+                                                           ("batched", batched))}  # fmt: skip
+    result = solve_minimax(scenes.grasp, k_max)
+    reference = ConeBisection(n)
+    errors = []
+    start = time.perf_counter()
+    for i in range(GENERAL_REFERENCE):
+        g = grasps[i]
+        ref = reference.solve(g.equilibrating, g.basis, g.normals, k_max[i])
+        errors.append(abs(result.max_angle[i] - ref.feasible))
+    reference_rate = GENERAL_REFERENCE / (time.perf_counter() - start)
+    steps: Counter = Counter()
+    for i in range(GENERAL_COUNTED):
+        calls, largest = conic_steps(grasps[i], k_max[i])
+        if abs(largest - result.max_angle[i]) > 1e-9:
+            raise RuntimeError(
+                f"the interpreted conic solve found {largest!r} rad, the compiled one "
+                f"{result.max_angle[i]!r} (scene {i}, n = {n})"
+            )
+        steps.update(calls)
+    pushing = result.status != Status.NOT_PUSHING
+    return {
+        **speeds,
+        "reference": reference_rate,
+        "error_deg": float(np.rad2deg(max(errors))),
+        "certified": float(np.mean(result.status != Status.UNCERTIFIED)),
+        "gap": float(np.where(pushing, result.gap, 0.0).max()),
+        "status": np.bincount(result.status, minlength=4),
+        "barrier_steps": steps["cholesky_solve"] / GENERAL_COUNTED,
+        "kkt_steps": steps["lu_solve"] / GENERAL_COUNTED,
+        "levels": steps["level"] / GENERAL_COUNTED,
+    }
+
+
+def general_lines(n: int, figures: dict, targets: Targets) -> list[str]:
+    """The printed rows of the conic solver with ``n`` contacts, its targets judged."""
+    interior, boundary, not_pushing, uncertified = figures["status"]
+    lines = [
+        f"{n} contacts (conic solver, {GENERAL_BATCH} random scenes on four shapes): reference "
+        f"{figures['reference']:.2f} solves/s ({GENERAL_REFERENCE} of the scenes); largest "
+        f"|optimum - reference's feasible level| {figures['error_deg']:.1e} deg; statuses: "
+        f"{interior} interior, {boundary} boundary, {not_pushing} not pushing, {uncertified} "
+        f"uncertified ({figures['certified']:.1%} certified, largest gap {figures['gap']:.1e}"
+        " rad)"
+    ]
+    for mode in ("single", "batched"):
+        speed = figures[mode]
+        ratio = speed / figures["reference"]
+        line = f"  {mode:8s}{speed:12,.1f} solves/s   {ratio:8,.1f} x the reference"
+        if n in RATIO_TARGETS:
+            goal = RATIO_TARGETS[n]
+            verdict = targets.check(f"{n} contacts {mode} >= {goal:,} x the reference",
+                                    ratio >= goal)  # fmt: skip
+            line += f"   target >= {goal:,} x: {verdict}"
+        lines.append(line)
+    steps = figures["barrier_steps"] + figures["kkt_steps"]
+    lines.append(
+        f"  a solve takes {figures['barrier_steps']:,.0f} barrier Newton steps (Cholesky) and "
+        f"{figures['kkt_steps']:,.1f} KKT Newton steps (LU) over {figures['levels']:.1f} "
+        f"levels t (its kernels' source run on {GENERAL_COUNTED} of the scenes, calls "
+        f"counted): {1e6 / figures['single'] / steps:,.1f} us a step at the single rate; "
+        "the flops are not counted (limits.py's counted arithmetic does not cover the conic "
+        "kernels' SVD and matrix products)"
+    )
+    return lines
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--seconds", type=float, default=2.0, help="time per measurement")
@@ -216,11 +352,14 @@ def main() -> int:
             f"    a solve along them: {warm:,.0f} flops from the previous optima, {cold:,.0f} "
             f"on its own (counted on the poses after the first two of every "
             f"{COUNTED_EVERY[n]}th scene): at one rate of arithmetic {cold / warm:.2f} x, "
-            f"{'above' if cold / warm >= 2 else 'BELOW'} issue 19's target of 2 x (the costs "
+            f"{'above' if cold / warm >= 2 else 'BELOW'} the target of 2 x (the costs "
             "a solve has besides its arithmetic lower it)",
             flush=True,
         )
         for line in figures["limit"].lines(figures):
+            print(line, flush=True)
+    for n in GENERAL:
+        for line in general_lines(n, measure_general(n, args.seconds), targets):
             print(line, flush=True)
     return targets.exit_code()
 
