@@ -50,6 +50,8 @@ DINKELBACH_STEPS = 40
 POLISH_FROM = 1e9
 #: Rounds of polishing below the best grip (each may find a better one).
 POLISH_ROUNDS = 6
+#: A Dinkelbach level is solved until its bounds are within this fraction of each other.
+LEVEL_GAP = 1e-4
 
 # results (status codes as minimax.codes: INTERIOR, BOUNDARY, NOT_PUSHING, UNCERTIFIED)
 INTERIOR = 0
@@ -475,7 +477,7 @@ def level(t, w, k, x, a0, al, tau0, T, box, K, f, decide):
             lower, share = value / norm, part
         if decide and (upper < 0.0 or lower > 0.0):
             break
-        if upper - lower <= 0.01 * abs(upper) or tb > POLISH_FROM:
+        if upper - lower <= LEVEL_GAP * abs(upper) or tb > POLISH_FROM:
             break  # (beyond POLISH_FROM the barrier's duals lose digits: polish() takes over)
         tb *= GROWTH
     return upper, lower, share, tb
@@ -623,7 +625,7 @@ def solve_one(F, E, N, K_in, f_in, k, theta):
         if improved:
             continue
         active_sets(x, a0, al, tau0, T, box, K, f, ct, st, w, tb, cone, ball, fixed)
-        for _ in range(n + 2):  # change the sets by one member a pass
+        for _ in range(n + 2):  # change the sets a pass
             trial[:] = x[:m]
             low, part, changed = polish(t, w, trial, a0, al, tau0, T, box, K, f, cone, ball, fixed)
             finger_forces(trial, a0, al, tau0, T, P)
@@ -931,11 +933,13 @@ def polish(t, w, y, a0, al, tau0, T, box, K, f, cone, ball, fixed):
         if mu[h] < worst:
             worst, drop = mu[h], 2 * n + rows_held[h]
     changed = False
-    if side >= 0:
-        v = 0.0
-        for p in range(d):
-            v += box[side, p] * x[p]
-        fixed[side] = 1 if v > 0 else -1
+    if side >= 0:  # every box row polished past K is held there next
+        for j in range(pairs):
+            v = 0.0
+            for p in range(d):
+                v += box[j, p] * x[p]
+            if fixed[j] == 0 and abs(v) - K > 1e-12 * K:
+                fixed[j] = 1 if v > 0 else -1
         changed = True
     elif worst < -1e-9 * scale:
         changed = True
