@@ -219,6 +219,8 @@ def barrier(x, a0, al, tau0, T, box, K, f, ct, st, w, tb, g, H, derivatives):
                 H[p, q] += curve * box[j, p] * box[j, q]
     G = np.empty((4, d))  # the cone's coordinates' Jacobian rows
     u = np.empty(4)
+    Ju = np.empty(4)
+    slope = np.empty(d)
     for i in range(n):
         a, t1, t2 = a0[i], tau0[i, 0], tau0[i, 1]
         for j in range(m):
@@ -257,7 +259,6 @@ def barrier(x, a0, al, tau0, T, box, K, f, ct, st, w, tb, g, H, derivatives):
                 G[0, m], G[1, m], G[2, m], G[3, m] = f, 0.0, 0.0, 0.0
             # -log(u' J u), J = diag(1, -1, ...): gradient -2 J u / D, Hessian
             # -2 J / D + 4 (J u)(J u)' / D^2
-            Ju = np.empty(rows)
             Ju[0] = u[0] / D
             for c in range(1, rows):
                 Ju[c] = -u[c] / D
@@ -265,15 +266,14 @@ def barrier(x, a0, al, tau0, T, box, K, f, ct, st, w, tb, g, H, derivatives):
                 gp = 0.0
                 for c in range(rows):
                     gp += Ju[c] * G[c, p]
+                slope[p] = gp
                 g[p] -= 2.0 * gp
+            for p in range(d):
                 for q in range(p, d):
-                    hq = 0.0
-                    for c in range(rows):
-                        hq += (-2.0 / D if c == 0 else 2.0 / D) * G[c, p] * G[c, q]
-                    gq = 0.0
-                    for c in range(rows):
-                        gq += Ju[c] * G[c, q]
-                    H[p, q] += hq + 4.0 * gp * gq
+                    hq = -G[0, p] * G[0, q]
+                    for c in range(1, rows):
+                        hq += G[c, p] * G[c, q]
+                    H[p, q] += 2.0 / D * hq + 4.0 * slope[p] * slope[q]
     if derivatives:
         for p in range(d):
             for q in range(p):
