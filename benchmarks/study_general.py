@@ -89,10 +89,12 @@ def grip_failures(scenes: GeneralScenes, result: MinimaxResult) -> list[list[str
     pushing = result.status != Status.NOT_PUSHING
     angles = g.angles(result.k)
     # a finger's angle is rounding where its force is tiny (a released finger, |P_i| ~ 1e-14
-    # of the load): compared to within 1e-10 rad x (1e-4 of the load / |P_i|), if larger
+    # of the load), and loses digits where it is small beside the largest (eps max|P| / |P_i|
+    # rad): compared to within 1e-10 rad x (1e-5 max_j |P_j| / |P_i|), if larger
     load = np.linalg.norm(g.equilibrating, axis=-1).max(-1, keepdims=True)
     force = np.linalg.norm(g.forces(result.k), axis=-1)
-    tolerance = ANGLE_TOL * np.maximum(1.0, 1e-4 * load / np.maximum(force, 1e-300))
+    largest = force.max(-1, keepdims=True)
+    tolerance = ANGLE_TOL * np.maximum(1.0, 1e-5 * largest / np.maximum(force, 1e-300))
     released = force < RELEASED * load
 
     def held(values: np.ndarray) -> np.ndarray:
