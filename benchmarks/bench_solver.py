@@ -63,10 +63,10 @@ from grasp_env.mechanics import (
     solve_minimax,
 )
 from grasp_env.mechanics.minimax.conic import kernels as conic_kernels
-from grasp_env_agents.bench import Targets
 from grasp_env_agents.benchmarks.general_scenes import general_scenes
 from grasp_env_agents.benchmarks.limits import Limit, count_along
 from grasp_env_agents.benchmarks.reference_solver import ConeBisection
+from grasp_env_agents.commands.bench import Targets
 
 BATCH = 4096
 TRAJECTORIES = 128  # x 32 poses = BATCH
