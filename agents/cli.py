@@ -139,7 +139,7 @@ def main(argv: list[str] | None = None) -> int:
             )
             try:
                 with loading:
-                    module = importlib.import_module(f".{name}", __package__)
+                    module = importlib.import_module(f".commands.{name}", __package__)
             except KeyboardInterrupt:  # Ctrl-C while torch and friends load
                 print("interrupted", file=sys.stderr)
                 return 130

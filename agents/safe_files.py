@@ -10,7 +10,7 @@ hostile or malformed one is refused in one line, quickly and in bounded memory:
   is inflated; members are then read with :func:`read_member`, which reads at most the bound
   plus one byte whatever the header says;
 - JSON (a model's ``data``) is scanned for its bracket depth before it is parsed
-  (:func:`check_json_depth`), YAML while it is composed (``grasp_env_agents.config``), and an
+  (:func:`check_json_depth`), YAML while it is composed (``grasp_env_agents.run.config``), and an
   unpickled object is walked for its depth (:func:`check_object_depth`): Python's parsers
   and ``repr`` recurse, and past about 1,000 levels raise RecursionError.
 """

@@ -60,7 +60,7 @@ from grasp_env.envs.cube_grasp.scenes import SceneSampler
 from grasp_env.envs.kernels import grip_row
 from grasp_env.mechanics import Grasp, contact_pairs
 from grasp_env.mechanics.threads import LEAD_SECONDS, available_cores, caller_items, hand_off
-from grasp_env_agents.bench import Targets
+from grasp_env_agents.commands.bench import Targets
 
 NUM_ENVS = 4096
 #: Environments whose resets are timed with and without render_mode="rgb_array", and the target.

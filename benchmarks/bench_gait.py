@@ -35,7 +35,7 @@ from grasp_env.mechanics import (
     site_reach,
     solve_gait,
 )
-from grasp_env_agents.bench import Targets
+from grasp_env_agents.commands.bench import Targets
 
 from .bench_envs import NUM_ENVS, single, vector
 

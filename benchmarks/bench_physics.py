@@ -32,7 +32,7 @@ from grasp_env.mechanics import PHI, Scene, Trajectory, scene_grasp, solve_minim
 from grasp_env.physics import StabilityChecker, TrajectoryChecker
 from grasp_env.physics.motion import plan_poses
 from grasp_env.physics.simulation import _controls, available_cores, in_parallel
-from grasp_env_agents.bench import Targets
+from grasp_env_agents.commands.bench import Targets
 
 POSE_TARGET_MS = 5.0
 ROLLOUT_TARGET_S = 0.5

@@ -24,10 +24,10 @@ import torch
 from stable_baselines3 import PPO
 from stable_baselines3.common.env_util import make_vec_env as sb3_make_vec_env
 
-from grasp_env_agents.algorithms import new_model
-from grasp_env_agents.config import CONFIG_DIR, DEFAULT_CONFIG, load_config
-from grasp_env_agents.envs import make_vec_env
-from grasp_env_agents.imitation import StateCollector, fit, grasp_of, make_teacher
+from grasp_env_agents.learning.algorithms import new_model
+from grasp_env_agents.learning.envs import make_vec_env
+from grasp_env_agents.learning.imitation import StateCollector, fit, grasp_of, make_teacher
+from grasp_env_agents.run.config import CONFIG_DIR, DEFAULT_CONFIG, load_config
 
 STATES = 20_000  # the fits' data set
 CHUNK = 2_000  # labelled states per collection

@@ -17,11 +17,11 @@ from stable_baselines3 import PPO
 from stable_baselines3.common.evaluation import evaluate_policy
 
 from grasp_env_agents import cli
-from grasp_env_agents.baselines import ConstantPolicy, equal_k_policy
-from grasp_env_agents.checkpoints import checkpoint_steps
-from grasp_env_agents.config import CONFIG_DIR, config_from_dict, load_config, save_config
-from grasp_env_agents.envs import find_held_out, make_held_out_env
-from grasp_env_agents.train import RecordEvaluation, train
+from grasp_env_agents.commands.train import RecordEvaluation, train
+from grasp_env_agents.learning.baselines import ConstantPolicy, equal_k_policy
+from grasp_env_agents.learning.checkpoints import checkpoint_steps
+from grasp_env_agents.learning.envs import find_held_out, make_held_out_env
+from grasp_env_agents.run.config import CONFIG_DIR, config_from_dict, load_config, save_config
 
 TINY = {
     "env_id": "grasp_env/CubeGrasp-v0",
@@ -188,7 +188,7 @@ def test_cli_refuses_an_empty_path(argv, tmp_path, monkeypatch, capsys):
 
 def test_shipped_configs_by_name_from_any_directory(tmp_path, monkeypatch):
     """--config NAME finds the shipped config wherever the command runs (and paths still work)."""
-    import grasp_env_agents.train as training
+    import grasp_env_agents.commands.train as training
 
     started = []
 
@@ -197,7 +197,7 @@ def test_shipped_configs_by_name_from_any_directory(tmp_path, monkeypatch):
 
     monkeypatch.setattr(training, "train", record)
     report = types.SimpleNamespace(markdown="(the comparison)")
-    monkeypatch.setattr("grasp_env_agents.evaluate.evaluate_run", lambda run: report)
+    monkeypatch.setattr("grasp_env_agents.commands.evaluate.evaluate_run", lambda run: report)
     monkeypatch.chdir(tmp_path)  # no configs/ here
     assert cli.main(["train", "--config", "dagger", "--run-dir", "run"]) == 0
     ((config, run_dir),) = started
@@ -335,7 +335,7 @@ HELD_OUT = ("mean_gap_deg", "p90_gap_deg", "worst_gap_deg", "success_rate", "mea
 
 def final_metrics(run: Path) -> dict[str, float]:
     """The trained agent's metrics in the run's report (model.zip on the curve's scenes)."""
-    from grasp_env_agents.evaluate import evaluate_run
+    from grasp_env_agents.commands.evaluate import evaluate_run
 
     agent = evaluate_run(run, physics_episodes=0).metrics["trained agent"]
     return {key: agent[key] for key in HELD_OUT}
@@ -388,7 +388,7 @@ def test_an_off_policy_curve_ends_with_the_final_model(tmp_path):
 def test_an_interrupted_rollout_is_not_counted_in_the_checkpoint(tmp_path, monkeypatch):
     """Ctrl-C in the middle of a PPO rollout saved the weights of the rollout's start under the
     steps counted so far, so a resumed run was labelled with steps it never trained on."""
-    from grasp_env_agents.train import TrainedSteps
+    from grasp_env_agents.commands.train import TrainedSteps
 
     step = TrainedSteps._on_step
 
@@ -535,8 +535,8 @@ def test_sigkill_then_resume_logs_every_step_once(tmp_path):
 def test_interrupted_imitation_resumes_after_its_last_round(tmp_path, monkeypatch, label_weight):
     """Rounds done are checkpointed with their data: a resumed run does only the rest (with
     the expert's labels, and with none: label_weight 0)."""
-    import grasp_env_agents.imitation as imitation
-    from grasp_env_agents.checkpoints import load_round_data
+    import grasp_env_agents.learning.imitation as imitation
+    from grasp_env_agents.learning.checkpoints import load_round_data
 
     config = tiny(
         total_timesteps=0,
@@ -647,7 +647,7 @@ def test_a_round_that_leaves_the_policy_worse_is_undone(tmp_path, monkeypatch, c
     """Keep-best on the validation set: a fit that wrecks the grip does not reach the model."""
     import torch
 
-    import grasp_env_agents.imitation as imitation
+    import grasp_env_agents.learning.imitation as imitation
 
     fit, calls = imitation.fit, []
 
@@ -679,8 +679,8 @@ def test_a_fit_whose_loss_spikes_goes_back_to_its_best_epoch(tmp_path, monkeypat
 
     import torch
 
-    import grasp_env_agents.imitation as imitation
-    from grasp_env_agents.train import Start, build
+    import grasp_env_agents.learning.imitation as imitation
+    from grasp_env_agents.commands.train import Start, build
 
     config = tiny(total_timesteps=0, imitation={"rounds": 1, "n_envs": 4})
     _, _, model = build(config, Start(), tmp_path)
@@ -768,7 +768,7 @@ def test_grasp_features_are_the_object_frame_grasp():
 
     from grasp_env.envs.observation import ObservationLayout
     from grasp_env.mechanics import contact_pairs, equilibrating_forces, interaction_basis
-    from grasp_env_agents.features import GraspFeatures
+    from grasp_env_agents.learning.features import GraspFeatures
 
     layout = ObservationLayout(3)
     obs = np.concatenate([o for o, _, _ in random_env_steps()])
@@ -805,7 +805,7 @@ def test_max_friction_angle_is_the_environments_reward():
     import torch
 
     from grasp_env.envs.observation import ObservationLayout
-    from grasp_env_agents.features import grasp_tensors, max_friction_angle
+    from grasp_env_agents.learning.features import grasp_tensors, max_friction_angle
 
     for obs, action, info in random_env_steps(steps=8):
         forces, basis, normals, _ = grasp_tensors(torch.as_tensor(obs), ObservationLayout(3))
@@ -825,8 +825,8 @@ def test_force_directions_of_the_experts_grip_give_back_that_grip():
     import torch
 
     from grasp_env import MinimaxExpert
-    from grasp_env_agents.features import GraspFeatures, object_frame_grasp
-    from grasp_env_agents.policy import grip_along
+    from grasp_env_agents.learning.features import GraspFeatures, object_frame_grasp
+    from grasp_env_agents.learning.policy import grip_along
 
     obs = np.concatenate([o for o, _, _ in random_env_steps(steps=10)])
     k_star = MinimaxExpert(2.0).actions(obs).astype(float) * 2.0
@@ -844,7 +844,7 @@ def test_force_directions_of_the_experts_grip_give_back_that_grip():
 
 def test_force_direction_policy_learns_the_expert_and_reloads(tmp_path):
     """Behaviour cloning through the least squares, on random scenes; the saved model reloads."""
-    from grasp_env_agents.policy import ForceDirectionPolicy
+    from grasp_env_agents.learning.policy import ForceDirectionPolicy
 
     config = tiny(
         env_id="grasp_env/CubeGraspRandom-v0",
@@ -886,7 +886,7 @@ def test_force_direction_policy_learns_the_expert_and_reloads(tmp_path):
 def test_reward_gradient_fit_learns_with_no_expert(tmp_path, monkeypatch):
     """label_weight 0: the policy learns the grip from the reward's exact gradient, and the
     imitation never makes an expert (the environment's own screening and info keep theirs)."""
-    import grasp_env_agents.imitation as imitation
+    import grasp_env_agents.learning.imitation as imitation
 
     def no_teacher(env_kwargs):
         raise AssertionError("label_weight 0 made an expert")
@@ -922,7 +922,7 @@ def test_validation_poses_are_the_experts_states_without_an_expert(monkeypatch):
     """The validation set is collected with zero actions and slips not ending episodes: on
     expert-feasible scenes those are exactly the states the expert visits (so the main job's
     validation did not change when it stopped needing a driver)."""
-    import grasp_env_agents.imitation as imitation
+    import grasp_env_agents.learning.imitation as imitation
 
     monkeypatch.setattr(imitation, "VALIDATION_STATES", 3_000)
     env_id = "grasp_env/CubeGraspRandom-v0"
@@ -952,7 +952,7 @@ def saved_run(folder: Path, algo: str = "ppo", env_id: str = TINY["env_id"]) -> 
     and an untrained ``algo`` model of ``env_id``."""
     import gymnasium as gym
 
-    from grasp_env_agents.models import ALGORITHMS
+    from grasp_env_agents.learning.models import ALGORITHMS
 
     folder.mkdir()
     settings = {**TINY, "algo": algo, "env_id": env_id}

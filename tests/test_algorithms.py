@@ -13,14 +13,14 @@ import yaml
 from stable_baselines3 import SAC, TD3
 from stable_baselines3.common.logger import Logger
 
-from grasp_env_agents.algorithms import (
+from grasp_env_agents.learning.algorithms import (
     ForceDirectionSACPolicy,
     ForceDirectionTD3Policy,
     WarmCriticPPO,
 )
-from grasp_env_agents.envs import make_vec_env
-from grasp_env_agents.features import GraspFeatures, max_friction_angle, object_frame_grasp
-from grasp_env_agents.policy import ForceDirectionPolicy, force_directions, grip_along
+from grasp_env_agents.learning.envs import make_vec_env
+from grasp_env_agents.learning.features import GraspFeatures, max_friction_angle, object_frame_grasp
+from grasp_env_agents.learning.policy import ForceDirectionPolicy, force_directions, grip_along
 
 ENV_ID = "grasp_env/CubeGraspRandom-v0"
 K_MAX_RATIO = 2.0
@@ -311,7 +311,7 @@ TINY = {
     ],
 )
 def test_algo_keys_are_checked(change: dict, message: str) -> None:
-    from grasp_env_agents.config import config_from_dict
+    from grasp_env_agents.run.config import config_from_dict
 
     with pytest.raises(ValueError, match=message):
         config_from_dict({**TINY, **change})
@@ -319,10 +319,10 @@ def test_algo_keys_are_checked(change: dict, message: str) -> None:
 
 @pytest.mark.parametrize("algo", ["td3", "sac"])
 def test_off_policy_run_trains_and_its_model_file_loads_safely(tmp_path: Path, algo: str) -> None:
-    from grasp_env_agents.config import config_from_dict, load_config
-    from grasp_env_agents.evaluate import evaluate_run
-    from grasp_env_agents.models import load_agent
-    from grasp_env_agents.train import train
+    from grasp_env_agents.commands.evaluate import evaluate_run
+    from grasp_env_agents.commands.train import train
+    from grasp_env_agents.learning.models import load_agent
+    from grasp_env_agents.run.config import config_from_dict, load_config
 
     config = config_from_dict(
         {
@@ -361,10 +361,10 @@ def test_off_policy_run_trains_and_its_model_file_loads_safely(tmp_path: Path, a
 def test_off_policy_resume_restores_weights_buffer_and_step_count(
     tmp_path: Path, monkeypatch, algo: str
 ) -> None:
-    from grasp_env_agents.checkpoints import find_start
-    from grasp_env_agents.config import config_from_dict
-    from grasp_env_agents.models import load_replay_buffer
-    from grasp_env_agents.train import RecordEvaluation, train
+    from grasp_env_agents.commands.train import RecordEvaluation, train
+    from grasp_env_agents.learning.checkpoints import find_start
+    from grasp_env_agents.learning.models import load_replay_buffer
+    from grasp_env_agents.run.config import config_from_dict
 
     config = config_from_dict(
         {
@@ -398,9 +398,9 @@ def test_off_policy_resume_restores_weights_buffer_and_step_count(
     start = find_start(run, False, 0, algo)
     assert start.checkpoint == folder / f"{algo}_124_steps.zip" and start.model_steps == 124
 
-    from grasp_env_agents.algorithms import new_model
-    from grasp_env_agents.checkpoints import restore
-    from grasp_env_agents.envs import make_vec_env
+    from grasp_env_agents.learning.algorithms import new_model
+    from grasp_env_agents.learning.checkpoints import restore
+    from grasp_env_agents.learning.envs import make_vec_env
 
     saved = load_replay_buffer(buffer_file)
     # every transition but the interrupted step's (SB3 stores it after the callbacks, one of
@@ -427,7 +427,7 @@ def test_off_policy_resume_restores_weights_buffer_and_step_count(
 
 
 def load_model_from(path: Path, algo: str):
-    from grasp_env_agents.models import load_model
+    from grasp_env_agents.learning.models import load_model
 
     return load_model(path, algo)
 
@@ -436,7 +436,7 @@ def test_a_replay_buffer_that_would_run_code_is_refused(tmp_path: Path) -> None:
     import os
     import pickle
 
-    from grasp_env_agents.models import load_replay_buffer
+    from grasp_env_agents.learning.models import load_replay_buffer
 
     class Payload:
         def __reduce__(self):
@@ -476,9 +476,9 @@ def test_critic_warmup_is_counted_in_steps_so_a_resumed_model_does_not_warm_up_a
 def test_ppo_keys_reach_the_model_and_a_gsde_run_loads_safely(tmp_path: Path) -> None:
     from stable_baselines3.common.distributions import StateDependentNoiseDistribution
 
-    from grasp_env_agents.config import config_from_dict
-    from grasp_env_agents.models import load_agent
-    from grasp_env_agents.train import train
+    from grasp_env_agents.commands.train import train
+    from grasp_env_agents.learning.models import load_agent
+    from grasp_env_agents.run.config import config_from_dict
 
     config = config_from_dict(
         {
@@ -508,10 +508,10 @@ def test_ppo_keys_reach_the_model_and_a_gsde_run_loads_safely(tmp_path: Path) ->
 def test_normalized_features_reach_the_hidden_layers_and_a_run_loads_safely(
     tmp_path: Path,
 ) -> None:
-    from grasp_env_agents.config import config_from_dict
-    from grasp_env_agents.envs import sample_poses
-    from grasp_env_agents.models import load_agent
-    from grasp_env_agents.train import train
+    from grasp_env_agents.commands.train import train
+    from grasp_env_agents.learning.envs import sample_poses
+    from grasp_env_agents.learning.models import load_agent
+    from grasp_env_agents.run.config import config_from_dict
 
     policy = {**TINY["policy"], "normalize_features": True}
     config = config_from_dict({**TINY, "policy": policy, "ppo": {"baseline": "mean_action"}})

@@ -15,9 +15,9 @@ import numpy as np
 import pytest
 
 from grasp_env.mechanics import PHI, Scene, Trajectory
-from grasp_env_agents import bench
 from grasp_env_agents.cli import main
-from grasp_env_agents.reproduce import newtons, run_sweep, theta1_figure, trend_figure
+from grasp_env_agents.commands import bench
+from grasp_env_agents.commands.reproduce import newtons, run_sweep, theta1_figure, trend_figure
 
 OFFSETS = ["--offsets", "0.3,0.1,-0.2,0.3,0.1,-0.3", "--cg-offset", "0.05,0,0.1"]
 
@@ -130,7 +130,7 @@ def test_gait_checks_models_before_solving(tmp_path, capsys):
 FAKE = {
     "bench_fast.py": """
 import sys
-from grasp_env_agents.bench import Targets
+from grasp_env_agents.commands.bench import Targets
 targets = Targets("fast")
 print("speed 1 op/s, target >= 2:", targets.check("speed >= 2 op/s", False))
 print("size 1, target <= 3:", targets.check("size <= 3", True))
@@ -138,7 +138,7 @@ sys.exit(targets.exit_code())
 """,
     "bench_good.py": """
 import sys
-from grasp_env_agents.bench import Targets
+from grasp_env_agents.commands.bench import Targets
 targets = Targets("good")
 print("rate:", targets.check("rate >= 1", True))
 sys.exit(targets.exit_code())

@@ -530,8 +530,8 @@ def test_gait_command_bounds_k_max(capsys):
     any solving and named in newtons (beyond it a solve takes minutes)."""
     import argparse
 
-    from grasp_env_agents import gait as command
     from grasp_env_agents.cli import main
+    from grasp_env_agents.commands import gait as command
 
     argv = ["gait", "--no-plots", "--alpha-step", "90"]
     assert main([*argv, "--k-max", "1e8"]) == 2
@@ -558,8 +558,8 @@ def test_gait_command_plays_models_beside_the_gaits(tmp_path, capsys, monkeypatc
     import gymnasium as gym
     from stable_baselines3 import PPO
 
-    from grasp_env_agents import gait as command
     from grasp_env_agents.cli import main
+    from grasp_env_agents.commands import gait as command
 
     monkeypatch.setenv("COLUMNS", "200")  # rich's width
     model = PPO("MlpPolicy", gym.make(GAIT_ID), n_steps=64, batch_size=64, seed=0)
@@ -966,7 +966,7 @@ def test_gait_env_through_the_sb3_adapter_and_not_grasp_env_train():
     from stable_baselines3 import PPO
 
     from grasp_env.envs.sb3 import SB3VecEnv
-    from grasp_env_agents.config import config_from_dict
+    from grasp_env_agents.run.config import config_from_dict
 
     for env_id in (GAIT_ID, MOVES_ID):  # a Box action and a Discrete one
         venv = SB3VecEnv(env_id, num_envs=4)

@@ -22,14 +22,14 @@ from stable_baselines3 import PPO
 from stable_baselines3.common.vec_env import VecNormalize
 
 import grasp_env_agents
-import grasp_env_agents.features
-import grasp_env_agents.policy
+import grasp_env_agents.learning.features
+import grasp_env_agents.learning.policy
 from grasp_env.envs.sb3 import SB3VecEnv
 from grasp_env_agents import cli
-from grasp_env_agents.baselines import TrainedAgent
-from grasp_env_agents.config import config_from_dict, save_config
-from grasp_env_agents.models import load_agent, load_model, load_vecnormalize
-from grasp_env_agents.train import train
+from grasp_env_agents.commands.train import train
+from grasp_env_agents.learning.baselines import TrainedAgent
+from grasp_env_agents.learning.models import load_agent, load_model, load_vecnormalize
+from grasp_env_agents.run.config import config_from_dict, save_config
 
 ENV = "grasp_env/CubeGrasp-v0"
 TINY = {
@@ -261,21 +261,28 @@ def test_models_pickled_under_the_earlier_import_name_load(tmp_path, monkeypatch
     """Until the rename the package was importable as ``agents``: its files name
     agents.policy.ForceDirectionPolicy and agents.features.GraspFeatures, and the linear
     learning-rate schedule was a lambda, pickled by value."""
-    for module in (grasp_env_agents, grasp_env_agents.policy, grasp_env_agents.features):
-        old = module.__name__.replace("grasp_env_agents", "agents")
+    for old, module in (
+        ("agents", grasp_env_agents),
+        ("agents.policy", grasp_env_agents.learning.policy),
+        ("agents.features", grasp_env_agents.learning.features),
+    ):
         monkeypatch.setitem(sys.modules, old, module)
-    monkeypatch.setattr(grasp_env_agents.policy.ForceDirectionPolicy, "__module__", "agents.policy")
-    monkeypatch.setattr(grasp_env_agents.features.GraspFeatures, "__module__", "agents.features")
+    monkeypatch.setattr(
+        grasp_env_agents.learning.policy.ForceDirectionPolicy, "__module__", "agents.policy"
+    )
+    monkeypatch.setattr(
+        grasp_env_agents.learning.features.GraspFeatures, "__module__", "agents.features"
+    )
     env = SB3VecEnv("grasp_env/CubeGraspRandom-v0", num_envs=2)
     rate = 1e-3
     saved = PPO(
-        grasp_env_agents.policy.ForceDirectionPolicy,
+        grasp_env_agents.learning.policy.ForceDirectionPolicy,
         env,
         learning_rate=lambda progress: progress * rate,
         n_steps=16,
         policy_kwargs={
             "net_arch": [16],
-            "features_extractor_class": grasp_env_agents.features.GraspFeatures,
+            "features_extractor_class": grasp_env_agents.learning.features.GraspFeatures,
             "k_max_ratio": 2.0,
         },
         device="cpu",
@@ -290,7 +297,48 @@ def test_models_pickled_under_the_earlier_import_name_load(tmp_path, monkeypatch
 
     with pytest.warns(UserWarning, match="are code in the file and were not loaded"):
         model = load_model(tmp_path / "model.zip")
-    assert type(model.policy) is grasp_env_agents.policy.ForceDirectionPolicy
+    assert type(model.policy) is grasp_env_agents.learning.policy.ForceDirectionPolicy
+    obs = observations("grasp_env/CubeGraspRandom-v0")
+    expected = saved.predict(obs, deterministic=True)[0]
+    np.testing.assert_array_equal(model.predict(obs, deterministic=True)[0], expected)
+
+
+@pytest.mark.parametrize("loader", ["safe", "sb3"])
+def test_models_saved_under_the_flat_module_paths_load(tmp_path, monkeypatch, loader):
+    """Before the package was split by role its modules were flat: a model saved then names
+    grasp_env_agents.policy.ForceDirectionPolicy and grasp_env_agents.features.GraspFeatures.
+    Both the safe loader and SB3's own (through the alias modules) still load it."""
+    import grasp_env_agents.features
+    import grasp_env_agents.policy
+
+    policy = grasp_env_agents.learning.policy.ForceDirectionPolicy
+    features = grasp_env_agents.learning.features.GraspFeatures
+    assert grasp_env_agents.policy.ForceDirectionPolicy is policy
+    assert grasp_env_agents.features.GraspFeatures is features
+    monkeypatch.setattr(policy, "__module__", "grasp_env_agents.policy")
+    monkeypatch.setattr(features, "__module__", "grasp_env_agents.features")
+    env = SB3VecEnv("grasp_env/CubeGraspRandom-v0", num_envs=2)
+    saved = PPO(
+        policy,
+        env,
+        n_steps=16,
+        policy_kwargs={"net_arch": [16], "features_extractor_class": features, "k_max_ratio": 2.0},
+        device="cpu",
+    )
+    saved.save(tmp_path / "model.zip")
+    monkeypatch.undo()
+    with zipfile.ZipFile(tmp_path / "model.zip") as archive:
+        data = json.loads(archive.read("data"))
+    policy_pickle = base64.b64decode(data["policy_class"][":serialized:"])
+    assert b"grasp_env_agents.policy" in policy_pickle
+    assert b"grasp_env_agents.learning" not in policy_pickle
+
+    model = (
+        load_model(tmp_path / "model.zip")
+        if loader == "safe"
+        else PPO.load(tmp_path / "model.zip", device="cpu")
+    )
+    assert type(model.policy) is policy
     obs = observations("grasp_env/CubeGraspRandom-v0")
     expected = saved.predict(obs, deterministic=True)[0]
     np.testing.assert_array_equal(model.predict(obs, deterministic=True)[0], expected)

@@ -39,7 +39,12 @@ from grasp_env.physics import (
     agreement,
     check_poses,
 )
-from grasp_env.physics.agreement import (
+from grasp_env.physics.model import G, build_mjcf, model_cg, model_contacts
+from grasp_env.physics.motion import released as motion_released
+from grasp_env.physics.rollout import rollout_report
+from grasp_env.physics.simulation import PhysicsModel, available_cores
+from grasp_env_agents.cli import main
+from grasp_env_agents.studies.agreement import (
     CROSSINGS_DEG,
     ForceSet,
     check_cases,
@@ -54,11 +59,6 @@ from grasp_env.physics.agreement import (
     summarise_trajectories,
     trajectory_cases,
 )
-from grasp_env.physics.model import G, build_mjcf, model_cg, model_contacts
-from grasp_env.physics.motion import released as motion_released
-from grasp_env.physics.rollout import rollout_report
-from grasp_env.physics.simulation import PhysicsModel, available_cores
-from grasp_env_agents.cli import main
 
 EDGE_SCENES = {
     "paper grip, mu = tan 10 deg": (
@@ -669,7 +669,7 @@ def test_the_polish_stops_where_a_secant_would_leave_the_bisected_scale():
     forces of 212 w, which the MuJoCo check refuses: the 200-scene study failed. Where the
     polish does not converge the perturbation is refused: its margin on the steps run is not
     the target (seed 1's study had an "inside" grip 0.084 deg outside its cone)."""
-    from grasp_env.physics.agreement import _polished
+    from grasp_env_agents.studies.agreement import _polished
 
     asked = []
 
@@ -800,7 +800,7 @@ def test_verify_and_gait_say_which_path_they_cannot_write(tmp_path, capsys):
 
 
 def test_verify_states_the_current_settings():
-    from grasp_env_agents import verify
+    from grasp_env_agents.commands import verify
 
     def num(value: float) -> str:
         return f"{value:g}".replace("e-0", "e-")
@@ -863,8 +863,8 @@ def test_verify_trajectory_agreement_adds_a_saved_models_grips(tmp_path, capsys,
 
 
 def test_verify_drives_a_run_with_its_own_env_kwargs(tmp_path, capsys):
-    from grasp_env_agents.config import config_from_dict, save_config
-    from grasp_env_agents.verify import model_env, model_setup
+    from grasp_env_agents.commands.verify import model_env, model_setup
+    from grasp_env_agents.run.config import config_from_dict, save_config
 
     run = tmp_path / "run"
     run.mkdir()
@@ -893,8 +893,8 @@ def test_verify_rejects_a_missing_model(tmp_path, capsys):
 
 
 def test_an_agreement_study_that_misses_says_why_it_exits_1(capsys):
-    from grasp_env.physics.agreement import agreement
-    from grasp_env_agents.verify import _verdict
+    from grasp_env_agents.commands.verify import _verdict
+    from grasp_env_agents.studies.agreement import agreement
 
     holds = np.array([True, True, False, False])
     far = np.array([1.0, 1.0, 1.0, 0.01])  # deg from the edge

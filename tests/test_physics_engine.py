@@ -26,14 +26,14 @@ from grasp_env.physics import (
     check_poses,
     check_trajectories,
 )
-from grasp_env.physics.agreement import (
+from grasp_env.physics.motion import path_settings, plan_motion, plan_poses
+from grasp_env.physics.simulation import PhysicsModel, _tip_inertia, simulate
+from grasp_env_agents.studies.agreement import (
     check_cases,
     gait_window_case,
     gait_windows,
     perturbed_gait,
 )
-from grasp_env.physics.motion import path_settings, plan_motion, plan_poses
-from grasp_env.physics.simulation import PhysicsModel, _tip_inertia, simulate
 
 SIMULATION_STATE = mujoco.mjtState.mjSTATE_FULLPHYSICS
 

@@ -18,8 +18,8 @@ from grasp_env.mechanics import (
 )
 from grasp_env.mechanics.objects import Box, ConvexMesh, Cylinder, Sphere, parse_object
 from grasp_env_agents.cli import main
-from grasp_env_agents.reproduce import newtons
-from grasp_env_agents.reproduce_object import (
+from grasp_env_agents.commands.reproduce import newtons
+from grasp_env_agents.commands.reproduce_object import (
     CONTACTS_HELP,
     finger_contacts,
     object_scene,

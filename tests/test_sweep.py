@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import yaml
 
-from grasp_env_agents import results, sweep
+from grasp_env_agents.commands import results, sweep
 
 TINY = {
     "env_id": "grasp_env/CubeGraspRandom-v0",
@@ -370,8 +370,8 @@ def test_a_key_the_config_refuses_fails_before_any_trial(tmp_path: Path) -> None
 def test_a_trial_counts_as_finished_only_after_its_rounds_and_steps(
     tmp_path: Path, rounds: int, phases: list[tuple[str, int]], finished: bool
 ) -> None:
-    from grasp_env_agents.config import config_from_dict
-    from grasp_env_agents.curve import FIELDS
+    from grasp_env_agents.run.config import config_from_dict
+    from grasp_env_agents.run.curve import FIELDS
 
     imitation = {"imitation": {"rounds": rounds, "samples_per_round": 100}} if rounds else {}
     config = config_from_dict(TINY | imitation)
@@ -388,8 +388,8 @@ def test_a_trial_run_again_keeps_its_training_and_its_evaluation(tmp_path, monke
     evaluated again (minutes each on 2,048 scenes)."""
     from ray import tune
 
-    from grasp_env_agents import evaluate, train
-    from grasp_env_agents.curve import FIELDS
+    from grasp_env_agents.commands import evaluate, train
+    from grasp_env_agents.run.curve import FIELDS
 
     calls = []
     monkeypatch.setattr(train, "train", lambda *a, **k: calls.append("train"))
@@ -593,8 +593,8 @@ def test_two_trial_sweep_on_a_local_ray_then_resumed(tmp_path: Path) -> None:
 @pytest.mark.slow
 def test_evaluate_several_runs_reports_across_seeds(tmp_path: Path) -> None:
     from grasp_env_agents import cli
-    from grasp_env_agents.config import config_from_dict
-    from grasp_env_agents.train import train
+    from grasp_env_agents.commands.train import train
+    from grasp_env_agents.run.config import config_from_dict
 
     runs = []
     for seed in (0, 1):

@@ -8,7 +8,7 @@ import sys
 import pytest
 import yaml
 
-from grasp_env_agents.config import ZOO_HYPERPARAMS
+from grasp_env_agents.run.config import ZOO_HYPERPARAMS
 
 
 def test_zoo_config_covers_every_environment():

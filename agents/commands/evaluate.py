@@ -34,13 +34,13 @@ from grasp_env import MinimaxExpert
 from grasp_env.envs.validation import MAX_ENVS
 from grasp_env.mechanics import contact_pairs
 
-from .baselines import ConstantPolicy, RandomPolicy, equal_k_policy
-from .cli import folder_argument, integer_argument, path_argument
-from .config import load_config
-from .envs import HELD_OUT_SEED, Episode, find_held_out, make_held_out_env, summarise
-from .models import load_agent, misfit
-from .plotting import plot_series
-from .progress import status
+from ..cli import folder_argument, integer_argument, path_argument
+from ..learning.baselines import ConstantPolicy, RandomPolicy, equal_k_policy
+from ..learning.envs import HELD_OUT_SEED, Episode, find_held_out, make_held_out_env, summarise
+from ..learning.models import load_agent, misfit
+from ..progress import status
+from ..run.config import load_config
+from ..studies.plotting import plot_series
 
 HELP = "compare a trained agent with the minimax expert and baselines"
 #: Default number of held-out scenes also checked in MuJoCo physics.
@@ -130,7 +130,8 @@ def run(args: argparse.Namespace) -> int:
 
 @dataclass(frozen=True)
 class Comparison:
-    """Metrics per policy (:func:`grasp_env_agents.envs.summarise`), the markdown, its path."""
+    """Metrics per policy (:func:`grasp_env_agents.learning.envs.summarise`), the markdown,
+    its path."""
 
     metrics: dict[str, dict[str, float]]
     markdown: str

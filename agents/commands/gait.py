@@ -40,8 +40,8 @@ from grasp_env.mechanics import (
 )
 from grasp_env.mechanics.gait import _MAX_FINGERS, GAIT_CG_OFFSET, site_sets
 
-from .cli import folder_argument, path_argument
-from .progress import console, status
+from ..cli import folder_argument, path_argument
+from ..progress import console, status
 from .scene_args import floats, friction, weight
 
 HELP = "when to phase fingers out and in: the certified optimal gait along a long rotation"
@@ -327,13 +327,14 @@ def check_observes(policy: Any, env: Any, name: str = "the model") -> None:
 
 def load_models(args: argparse.Namespace) -> list[tuple[str, Any]]:
     """The agents of ``--models``, labelled (:func:`model_labels`) and checked before any work:
-    each file is a model (:func:`grasp_env_agents.models.load_agent`, which names the file and
-    the problem) that observes what ``grasp_env/CubeGait-v0`` with the options observes."""
+    each file is a model (:func:`grasp_env_agents.learning.models.load_agent`, which names
+    the file and the problem) that observes what ``grasp_env/CubeGait-v0`` with the options
+    observes."""
     import gymnasium as gym
 
     import grasp_env  # noqa: F401  (registers the environments)
 
-    from .models import load_agent
+    from ..learning.models import load_agent
 
     env = gym.make("grasp_env/CubeGait-v0", **env_kwargs(args))
     agents = []

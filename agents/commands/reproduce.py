@@ -34,9 +34,9 @@ from grasp_env.mechanics import (
 )
 from grasp_env.mechanics.forces import Grasp
 
-from .cli import folder_argument, integer_argument, shown_text
-from .plotting import plot_series
-from .progress import console, status
+from ..cli import folder_argument, integer_argument, shown_text
+from ..progress import console, status
+from ..studies.plotting import plot_series
 from .reproduce_object import (
     CONTACTS_HELP,
     finger_contacts,

@@ -30,8 +30,8 @@ from grasp_env.mechanics.objects import (
     parse_object,
 )
 
-from .cli import shown_text
-from .progress import console
+from ..cli import shown_text
+from ..progress import console
 
 if TYPE_CHECKING:
     from .reproduce import Sweep

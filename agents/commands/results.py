@@ -46,7 +46,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from .cli import folder_argument, path_argument
+from ..cli import folder_argument, path_argument
 
 HELP = "aggregate runs: IQM and 95% bootstrap CIs over seeds, learning curves, the README table"
 #: Bootstrap resamples of every interval (rliable's stratified bootstrap).
@@ -441,7 +441,7 @@ def plot_curves(groups: Sequence[Group], path: Path) -> None:
 
 def load_spec(path: Path) -> tuple[int, str, list[dict]]:
     """A results spec: the held-out scenes, where final metrics come from, the groups."""
-    from .config import read_yaml
+    from ..run.config import read_yaml
 
     spec = read_yaml(path, "results spec", SPEC_KEYS)
     episodes = spec.get("episodes", 2048)

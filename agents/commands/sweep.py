@@ -19,14 +19,15 @@ A value of the space is ``{grid: [...]}``, ``{choice: [...]}``, ``{uniform: [low
 ``{loguniform: [low, high]}``, ``{randint: [low, high]}`` (high excluded), or a plain value.
 A sweep that would train one config with one seed twice (a seed or a grid value listed twice,
 ``num_samples`` above 1 over a space with nothing to sample) is refused before any trial: the
-report refuses such runs as one group's seeds (:func:`grasp_env_agents.results.check_seeds`);
+report refuses such runs as one group's seeds
+(:func:`grasp_env_agents.commands.results.check_seeds`);
 a point a random search happens to draw twice is reported once. Every value the space can
 draw (each grid and choice value, each range's ends) is checked before any trial, as a single
 run checks its config (every key and value) and its environment (``env_kwargs``, by making
 it); so are the seeds (the config's range, [0, 2^32 - 1]), ``episodes`` (``grasp-env evaluate
 --episodes``'s range) and the extras the sweep imports (Ray Tune, Optuna for ``search:
 optuna``, rliable for the report), before Ray starts.
-Every trial is one training run (:func:`grasp_env_agents.train.train`) with its own run
+Every trial is one training run (:func:`grasp_env_agents.commands.train.train`) with its own run
 directory under ``OUT/runs/`` (config, checkpoints, learning curve, model, held-out report);
 Ray Tune schedules the trials, ``cpus_per_trial`` cores each, on a local Ray with the
 machine's cores, or on an existing cluster with ``--address`` (then OUT must be a path every
@@ -34,7 +35,8 @@ node sees). Run the same command again and an interrupted sweep resumes: Tune re
 experiment from ``OUT/tune`` and every unfinished trial continues its run from its newest
 checkpoint. ``OUT/sweep.yaml`` records the sweep (its file and the base config's contents):
 another sweep into the same OUT is refused, since Tune would restore the old one. The sweep
-ends with the aggregate report of :mod:`grasp_env_agents.results` over the trials, grouped by
+ends with the aggregate report of :mod:`grasp_env_agents.commands.results` over the trials,
+grouped by
 everything but the seed (``OUT/results.md``, ``learning_curves.png``).
 """
 
@@ -52,8 +54,8 @@ from typing import Any
 
 from grasp_env.envs.validation import MAX_ENVS
 
-from .cli import MAX_SEED, folder_argument, integer_argument, path_argument
-from .curve import last_steps
+from ..cli import MAX_SEED, folder_argument, integer_argument, path_argument
+from ..run.curve import last_steps
 
 HELP = "a hyperparameter sweep on Ray Tune (grid, random or Optuna) over config keys and seeds"
 SEARCHES = ("grid", "random", "optuna")
@@ -91,7 +93,7 @@ class MissingExtra(ValueError, ImportError):
 
 def load_sweep(path: Path) -> dict[str, Any]:
     """Read and check a sweep file (every key and distribution), with its defaults filled in."""
-    from .config import read_yaml
+    from ..run.config import read_yaml
 
     sweep = read_yaml(path, "sweep file", SWEEP_KEYS)
     if "config" not in sweep:
@@ -150,7 +152,7 @@ def load_sweep(path: Path) -> dict[str, Any]:
             "optuna suggests one config per trial: search the seed as a key "
             "(space: {seed: {choice: [...]}}) or use grid or random search with seeds"
         )
-    from .config import config_path
+    from ..run.config import config_path
 
     config = Path(sweep["config"])
     if not config.is_absolute() and (path.parent / config).is_file():
@@ -196,7 +198,7 @@ def check_key(key: Any) -> None:
 
 def yaml_key(value: Any) -> str:
     """A value as comparable text (a grid's values may be lists or mappings; anything YAML
-    cannot write, such as a :class:`~grasp_env_agents.config.LongInteger`, by its repr)."""
+    cannot write, such as a :class:`~grasp_env_agents.run.config.LongInteger`, by its repr)."""
     import yaml
 
     class Dumper(yaml.SafeDumper):
@@ -232,7 +234,7 @@ def check_distribution(key: str, value: Any) -> None:
 
 def base_config(sweep: Mapping[str, Any]) -> dict[str, Any]:
     """The base config as plain data (checked by loading it)."""
-    from .config import config_path, load_config, read_yaml
+    from ..run.config import config_path, load_config, read_yaml
 
     path = config_path(sweep["config"])
     load_config(path)
@@ -265,7 +267,7 @@ def _copy(data: Any) -> Any:
 
 def trial_config(sweep: Mapping[str, Any], params: Mapping[str, Any]) -> Any:
     """The TrainConfig of one trial: the base config with the trial's keys, checked."""
-    from .config import config_from_dict
+    from ..run.config import config_from_dict
 
     return config_from_dict(with_overrides(base_config(sweep), params))
 
@@ -298,7 +300,7 @@ def _check_trial(
         config = trial_config(sweep, params)
         environment = yaml_key({"env_id": config.env_id, "env_kwargs": config.env_kwargs})
         if environment not in environments:
-            from .envs import make_vec_env
+            from ..learning.envs import make_vec_env
 
             make_vec_env(config.env_id, config.env_kwargs, 1, config.seed).close()
             environments.add(environment)

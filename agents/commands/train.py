@@ -5,23 +5,25 @@ One run, top to bottom (:func:`train`):
 
 1. seed torch, numpy and Python, and cap torch's threads;
 2. build the training environments and the held-out evaluation scenes;
-3. build a fresh model of the config's ``algo`` (:func:`grasp_env_agents.algorithms.new_model`),
+3. build a fresh model of the config's ``algo``
+   (:func:`grasp_env_agents.learning.algorithms.new_model`),
    or, with ``--resume``, load the newest intact checkpoint
-   (:mod:`grasp_env_agents.checkpoints`: the algorithm's, else the last imitation round's);
+   (:mod:`grasp_env_agents.learning.checkpoints`: the algorithm's, else the last imitation round's);
 4. if the config has an ``imitation`` section: behaviour cloning and DAgger rounds from the
-   minimax expert into the same policy network (:mod:`grasp_env_agents.imitation`), each round
+   minimax expert into the same policy network (:mod:`grasp_env_agents.learning.imitation`),
+   each round
    evaluated, logged and checkpointed;
 5. the algorithm for ``total_timesteps`` environment steps with evaluation and checkpoint
    callbacks (each evaluation labelled with the steps its weights were trained on, the last
    one of the final model); Ctrl-C (or SIGTERM, from `grasp-env train`) saves a checkpoint
    before stopping;
 6. save the model, the learning curve (CSV and PNG) and print the comparison with the expert
-   and the baselines (:mod:`grasp_env_agents.evaluate`).
+   and the baselines (:mod:`grasp_env_agents.commands.evaluate`).
 
 The run directory holds ``config.yaml`` (the exact config used), ``model.zip`` (and
 ``vecnormalize.pkl`` if observations are normalised), ``checkpoints/``, ``tb/imitation`` and
 ``tb/<algo>`` (TensorBoard, at the run's environment steps), ``eval/evaluations.npz`` (SB3's
-evaluation log), ``learning_curve.csv`` and ``.png`` (:mod:`grasp_env_agents.curve`).
+evaluation log), ``learning_curve.csv`` and ``.png`` (:mod:`grasp_env_agents.run.curve`).
 """
 
 from __future__ import annotations
@@ -44,8 +46,9 @@ from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 from stable_baselines3.common.utils import set_random_seed
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize, sync_envs_normalization
 
-from .algorithms import new_model
-from .checkpoints import (
+from ..cli import folder_argument, integer_argument, path_argument
+from ..learning.algorithms import new_model
+from ..learning.checkpoints import (
     Start,
     find_start,
     imitation_checkpoint,
@@ -58,15 +61,14 @@ from .checkpoints import (
     tensorboard_logger,
     trim_tensorboard,
 )
-from .cli import folder_argument, integer_argument, path_argument
-from .config import TrainConfig, config_path, load_config, save_config, shipped_configs
-from .curve import Clock, LearningCurve, last_steps
-from .envs import HeldOutScenes, find_held_out, make_held_out_env, make_vec_env
-from .models import load_vecnormalize
-from .progress import say, status
+from ..learning.envs import HeldOutScenes, find_held_out, make_held_out_env, make_vec_env
+from ..learning.models import load_vecnormalize
+from ..progress import say, status
+from ..run.config import TrainConfig, config_path, load_config, save_config, shipped_configs
+from ..run.curve import Clock, LearningCurve, last_steps
 
 if TYPE_CHECKING:
-    from .imitation import RoundResult
+    from ..learning.imitation import RoundResult
 
 HELP = "train an agent (PPO, TD3 or SAC) from a YAML config (default: the expert as teacher)"
 
@@ -295,7 +297,7 @@ def teach(
 ) -> int:
     """The imitation phase from ``start``: the expert teaches ``model.policy``, each round
     evaluated, logged to TensorBoard and checkpointed; returns the env steps it used."""
-    from .imitation import imitate
+    from ..learning.imitation import imitate
 
     assert config.imitation is not None
     logger = tensorboard_logger(run_dir / "tb" / "imitation")

@@ -3,7 +3,8 @@
 A policy chooses the grip at every pose of the paper's trajectory: ``expert`` (the minimax
 optimum over |k_ij| <= 2 w, the default), ``equal-k`` (the paper's symmetric grip
 k_ij = w tan(phi) / (3 sqrt 3) for every pair, eq. 8) or a saved Stable-Baselines3 model (its
-.zip, or a ``grasp-env train`` run directory; read by ``grasp_env_agents.models.load_agent``,
+.zip, or a ``grasp-env train`` run directory; read by
+``grasp_env_agents.learning.models.load_agent``,
 which runs no code from the file), driven through a Gymnasium environment.
 
 Each pose on its own (the default): every pose is a separate MuJoCo check (a 0.05 s settle at
@@ -27,7 +28,7 @@ cube where MuJoCo has it, the fingertips, the force arrows and friction cones co
 nearness to slip, and alpha, the largest friction angle and the margin. ``--alphas`` sets the
 trajectory (default the paper's -15 to +15 deg by 1 deg).
 
-With ``--agreement``: the pose agreement study of ``grasp_env.physics.agreement`` (force sets
+With ``--agreement``: the pose agreement study of ``grasp_env_agents.studies.agreement`` (force sets
 from 0 to 40 deg max friction angle and within 0.01 to 1 deg of the cone's edge, mu = tan 10,
 20 and 30 deg, several poses and contact layouts; writes ``agreement.png``); with
 ``--agreement --trajectory`` the trajectory study (``--scenes`` random scenes, each with the
@@ -73,7 +74,7 @@ from grasp_env.physics import (
     StabilityChecker,
     check_trajectories,
 )
-from grasp_env.physics.agreement import (
+from grasp_env_agents.studies.agreement import (
     FAR_FROM_EDGE_DEG,
     Agreement,
     TrajectoryCase,
@@ -86,8 +87,8 @@ from grasp_env.physics.agreement import (
     trajectory_cases,
 )
 
-from .cli import folder_argument, integer_argument, path_argument
-from .progress import console, status
+from ..cli import folder_argument, integer_argument, path_argument
+from ..progress import console, status
 from .scene_args import add_scene_arguments, floats, scene_from_arguments
 
 HELP = "check grip forces in MuJoCo physics along a trajectory (or --agreement)"
@@ -275,7 +276,7 @@ def model_setup(path: Path, algo: str | None, env_id: str | None) -> SavedModel:
     ``grasp-env train`` run directory (or its model.zip), else ``algo`` and ``env_id``
     (default :data:`DEFAULT_MODEL_ENV`) with the environment's defaults. An ``algo`` that
     contradicts the run's is refused."""
-    from .models import ALGORITHMS
+    from ..learning.models import ALGORITHMS
 
     if algo is not None and algo not in ALGORITHMS:
         raise ValueError(f"--algo must be one of {', '.join(ALGORITHMS)}, got {algo!r}")
@@ -283,7 +284,7 @@ def model_setup(path: Path, algo: str | None, env_id: str | None) -> SavedModel:
     run_dir = path if path.is_dir() else path.parent if path.name == "model.zip" else None
     if run_dir is None or not (run_dir / "config.yaml").is_file():
         return SavedModel(path, algo, check_model_env(env_id or DEFAULT_MODEL_ENV), {})
-    from .config import load_config
+    from ..run.config import load_config
 
     config = load_config(run_dir / "config.yaml")
     if algo is not None and algo != config.algo:
@@ -310,7 +311,7 @@ def model_forces(
 ) -> tuple[Scene, np.ndarray]:
     """A saved model's grip, stepping its environment pinned to ``scene`` and ``trajectory``.
 
-    The model is read by :func:`grasp_env_agents.models.load_agent` (no code from the file
+    The model is read by :func:`grasp_env_agents.learning.models.load_agent` (no code from the file
     runs; the ``vecnormalize.pkl`` beside it, if any, normalises the observations). Returns
     the environment's scene and the contact forces it applied, (T, n, 3).
     """
@@ -351,7 +352,7 @@ def model_grips(
             f"--policy must be 'expert', 'equal-k' or the path of a saved model; {model_file}"
             " is not a file"
         )
-    from .models import load_agent, misfit
+    from ..learning.models import load_agent, misfit
 
     agent = load_agent(path, model.algo)
     env = model_env(model)

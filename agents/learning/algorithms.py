@@ -13,8 +13,8 @@ action at each state:
 - SAC and TD3 learn Q(s, a) = E[r | s, a] by regression (gamma = 0: no bootstrap) and move the
   actor along the critic's action gradient dQ/da. :class:`ForceDirectionTD3Policy` and
   :class:`ForceDirectionSACPolicy` give them the same head as
-  :class:`~grasp_env_agents.policy.ForceDirectionPolicy` (each finger's force direction, k by
-  least squares).
+  :class:`~grasp_env_agents.learning.policy.ForceDirectionPolicy` (each finger's force
+  direction, k by least squares).
 """
 
 from __future__ import annotations
@@ -39,7 +39,7 @@ from grasp_env.envs.observation import ObservationLayout
 from grasp_env.envs.validation import DEFAULT_K_MAX_RATIO
 
 if TYPE_CHECKING:
-    from .config import TrainConfig
+    from ..run.config import TrainConfig
 from .envs import sample_poses
 from .features import GraspFeatures, grasp_tensors, max_friction_angle
 from .imitation import mean_action

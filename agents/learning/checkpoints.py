@@ -40,6 +40,8 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.logger import Logger, TensorBoardOutputFormat
 from torch.utils.tensorboard import SummaryWriter
 
+from ..progress import say
+from ..safe_files import ROUND_DATA, check_zip_directory
 from .models import (
     ALGORITHMS,
     check_tensors,
@@ -48,8 +50,6 @@ from .models import (
     load_vecnormalize,
     read_archive,
 )
-from .progress import say
-from .safe_files import ROUND_DATA, check_zip_directory
 
 IMITATION_PREFIX = "imitation_round"
 #: A checkpoint of an algorithm's model: ``<algo>_<N>_steps.zip``.

@@ -27,7 +27,8 @@ environment:
 Imitating k* is a proxy: what counts is the largest friction angle the action gives, which
 near the optimum grows linearly with the error in k (a max of angles has a kink there). The
 observation holds the whole grasp, so that angle is a differentiable function of the action
-(eqs. 2 and 4, :func:`grasp_env_agents.features.max_friction_angle`); with ``gap_weight`` > 0
+(eqs. 2 and 4, :func:`grasp_env_agents.learning.features.max_friction_angle`); with
+``gap_weight`` > 0
 the loss adds it, in radians: label_weight x mean squared error + gap_weight x mean
 max_i theta_i. Its gradient is the exact gradient of the environment's reward.
 
@@ -60,9 +61,9 @@ from grasp_env import MinimaxExpert
 from grasp_env.envs.observation import ObservationLayout
 from grasp_env.envs.validation import DEFAULT_K_MAX_RATIO
 
-from .config import ImitationConfig
+from ..progress import say, status
+from ..run.config import ImitationConfig
 from .features import grasp_tensors, max_friction_angle
-from .progress import say, status
 
 #: Final learning rate of each round's cosine decay, as a fraction of the initial one.
 LR_FLOOR = 0.01

@@ -58,8 +58,7 @@ from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.running_mean_std import RunningMeanStd
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
-from .baselines import TrainedAgent
-from .safe_files import (
+from ..safe_files import (
     MODEL_ZIP,
     NestedTooDeep,
     check_json_depth,
@@ -69,6 +68,7 @@ from .safe_files import (
     read_member,
     size_text,
 )
+from .baselines import TrainedAgent
 
 #: The algorithms a model file may be loaded as; its policy class says which wrote it.
 ALGORITHMS: dict[str, type[BaseAlgorithm]] = {"ppo": PPO, "td3": TD3, "sac": SAC}
@@ -100,14 +100,22 @@ ALLOWED: dict[str, set[str]] = {
     "stable_baselines3.common.utils": {"FloatSchedule", "ConstantSchedule", "LinearSchedule"},
     "stable_baselines3.common.running_mean_std": {"RunningMeanStd"},
     "stable_baselines3.common.vec_env.vec_normalize": {"VecNormalize"},
-    "grasp_env_agents.policy": {"ForceDirectionPolicy"},
-    "grasp_env_agents.algorithms": {"ForceDirectionTD3Policy", "ForceDirectionSACPolicy"},
-    "grasp_env_agents.features": {"GraspFeatures"},
+    "grasp_env_agents.learning.policy": {"ForceDirectionPolicy"},
+    "grasp_env_agents.learning.algorithms": {
+        "ForceDirectionTD3Policy",
+        "ForceDirectionSACPolicy",
+    },
+    "grasp_env_agents.learning.features": {"GraspFeatures"},
 }
-#: Modules under their earlier names (the package was importable as ``agents``).
+#: Modules under their earlier names, which models saved by earlier versions name: the package
+#: was importable as ``agents``, and its modules were flat (``grasp_env_agents.policy``; those
+#: paths stay importable as aliases for SB3's own loader too).
 RENAMED = {
-    "agents.policy": "grasp_env_agents.policy",
-    "agents.features": "grasp_env_agents.features",
+    "agents.policy": "grasp_env_agents.learning.policy",
+    "agents.features": "grasp_env_agents.learning.features",
+    "grasp_env_agents.policy": "grasp_env_agents.learning.policy",
+    "grasp_env_agents.algorithms": "grasp_env_agents.learning.algorithms",
+    "grasp_env_agents.features": "grasp_env_agents.learning.features",
 }
 #: The entries a model needs to predict: decoded, or the file is refused.
 NEEDED = ("policy_class", "policy_kwargs", "observation_space", "action_space")
@@ -442,7 +450,7 @@ def misfit(model: BaseAlgorithm, env: gym.Env | VecEnv, env_id: str) -> str | No
 def _normalized_run(folder: Path) -> bool:
     """Whether ``folder`` holds a run config (``config.yaml``) that says ``normalize: true``
     (a config.yaml of something else says nothing about the model)."""
-    from .config import load_config
+    from ..run.config import load_config
 
     try:
         return load_config(folder / "config.yaml").normalize

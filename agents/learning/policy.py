@@ -160,7 +160,7 @@ class ForceDirectionPolicy(ActorCriticPolicy):
     Takes ``ActorCriticPolicy``'s arguments, plus ``k_max_ratio`` (k_max / w, the environment's
     action scale) and ``normalize_features`` (the hidden layers' inputs standardised, once
     :meth:`set_feature_statistics` has measured them); its features are always
-    :class:`~grasp_env_agents.features.GraspFeatures`.
+    :class:`~grasp_env_agents.learning.features.GraspFeatures`.
     """
 
     def __init__(
@@ -208,7 +208,7 @@ class ForceDirectionPolicy(ActorCriticPolicy):
     def set_feature_statistics(self, observations: np.ndarray) -> None:
         """Standardise the hidden layers' inputs by the mean and standard deviation of the
         grasp features of ``observations`` (poses, size), for example
-        :func:`grasp_env_agents.envs.sample_poses`. A feature that does not vary there (the
+        :func:`grasp_env_agents.learning.envs.sample_poses`. A feature that does not vary there (the
         object-frame normals of a cube's faces) is only centred."""
         if not self.normalize_features:
             raise ValueError("set_feature_statistics needs a policy made with normalize_features")

@@ -40,8 +40,8 @@ from pydantic import (
 from grasp_env import ENV_IDS
 from grasp_env.envs.validation import DEFAULT_K_MAX_RATIO
 
-from .cli import MAX_SEED
-from .safe_files import MAX_NESTING
+from ..cli import MAX_SEED
+from ..safe_files import MAX_NESTING
 
 #: The finger-gait environments: sequential, scored by their own programme, not the held-out
 #: grasp scenes this module's runs are evaluated on.
@@ -133,11 +133,12 @@ class PolicyConfig(_Section):
             action units (-1 gives std 0.37; a low value keeps a pretrained policy precise);
             TD3's noise is ``offpolicy.action_noise``, SAC's std is learnt per state.
         features: the network's input: the raw ``observation``, or the ``grasp`` in the
-            object's frame computed from it (:class:`grasp_env_agents.features.GraspFeatures`: the
-            equilibrating forces, pair directions and normals, which is all k* depends on).
+            object's frame computed from it
+            (:class:`grasp_env_agents.learning.features.GraspFeatures`: the equilibrating forces,
+            pair directions and normals, which is all k* depends on).
         output: what the actor network outputs: the actions ``k`` themselves (SB3's linear
             action layer), or each finger's ``force_directions``, from which the action is the
-            least-squares grip that realises them (:mod:`grasp_env_agents.policy`; needs
+            least-squares grip that realises them (:mod:`grasp_env_agents.learning.policy`; needs
             features: grasp).
         normalize_features: the hidden layers see the grasp features standardised by their
             mean and standard deviation over 4,096 poses of the config's scenes, fixed when the
@@ -174,7 +175,7 @@ class PPOConfig(_Section):
         target_kl: stop an update's epochs early past this KL divergence (None: never).
         critic_warmup: rollouts during which only the critic learns (the actor, its head and
             log std fixed), so that the first actor updates follow the advantages of a fitted
-            critic (:class:`grasp_env_agents.algorithms.WarmCriticPPO`).
+            critic (:class:`grasp_env_agents.learning.algorithms.WarmCriticPPO`).
         baseline: what an action's advantage is measured against: ``critic``, PPO's learned
             value V(s), or ``mean_action``, the reward of the policy's own mean action at the
             same pose, computed exactly from the observation (a self-critical baseline; needs
@@ -239,8 +240,8 @@ OTHER_ALGORITHMS_KEY = {"td3": "ent_coef", "sac": "action_noise"}
 
 class ImitationConfig(_Section):
     """The policy's mean action fitted on collected states, before PPO
-    (:mod:`grasp_env_agents.imitation`): to the minimax expert's grip, to the reward's exact
-    gradient, or both.
+    (:mod:`grasp_env_agents.learning.imitation`): to the minimax expert's grip, to the reward's
+    exact gradient, or both.
 
     Round 0 is behaviour cloning: the expert drives the vector environment and every state it
     visits is stored with the expert's action. Each further round is a DAgger round: the
@@ -302,7 +303,7 @@ class TrainConfig(_Section):
         torch_threads: CPU threads torch may use (fewer threads: less contention, the same
             numbers on every machine).
         algo: the learning algorithm: ``ppo``, or SB3's off-policy ``td3`` or ``sac``
-            (:mod:`grasp_env_agents.algorithms`).
+            (:mod:`grasp_env_agents.learning.algorithms`).
         policy: the network.
         ppo: PPO hyperparameters (algo: ppo).
         offpolicy: TD3's and SAC's hyperparameters (algo: td3 or sac; absent or null: the

@@ -5,7 +5,7 @@ the algorithm: ``ppo``, ``td3``, ``sac``), the environment steps the evaluated w
 trained on (imitation's labelled states, then the algorithm's steps after them; not the steps
 collected when the evaluation ran, which for PPO include a rollout not yet learnt from), the
 wall and CPU seconds of training, and the held-out metrics of
-:func:`grasp_env_agents.envs.summarise`. The last row of a finished run is its final model
+:func:`grasp_env_agents.learning.envs.summarise`. The last row of a finished run is its final model
 (``model.zip``, which the run's report evaluates on the same scenes).
 ``learning_curve.png`` draws the mean and p90 gap and the success rate against steps and
 against wall time, the phases shaded.
@@ -186,7 +186,7 @@ def curve_figure(rows: list[dict[str, str]], expert: bool = True) -> Any:
     return fig
 
 
-if __name__ == "__main__":  # redraw a run's curve: python -m grasp_env_agents.curve RUN
+if __name__ == "__main__":  # redraw a run's curve: python -m grasp_env_agents.run.curve RUN
     import sys
 
     from .config import load_config

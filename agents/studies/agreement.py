@@ -45,10 +45,9 @@ from grasp_env.mechanics import (
     solve_minimax,
 )
 from grasp_env.mechanics.checks import is_integer
-
-from .motion import path_settings, plan_motion, released
-from .rollout import RolloutReport, check_trajectories
-from .stability import SETTINGS, PhysicsReport, check_poses
+from grasp_env.physics.motion import path_settings, plan_motion, released
+from grasp_env.physics.rollout import RolloutReport, check_trajectories
+from grasp_env.physics.stability import SETTINGS, PhysicsReport, check_poses
 
 #: Friction limits of the study, degrees (mu = tan of each).
 LIMITS_DEG = (10.0, 20.0, 30.0)
