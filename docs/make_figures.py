@@ -7,7 +7,7 @@
   the expert's largest friction angle is 11.31 deg and mu is set 2 deg above it: the expert's
   grip, and the expert's perturbed by a bump mid-trajectory so that its largest friction angle
   passes the limit by 0.5 deg (it crosses it) or stays 0.5 deg inside it
-  (:func:`grasp_env_agents.studies.agreement.perturbed_k`).
+  (:func:`grasp_env_agents.studies.trajectory_agreement.perturbed_k`).
 - ``docs/video_still.png``: the first frame of ``grasp-env verify --video`` of the expert's
   grip on that scene (its largest friction angle, 11.31 deg at alpha = -15 deg, 2 deg inside
   the limit: the cones orange).
@@ -25,8 +25,8 @@ from grasp_env.mechanics import PAPER_FACES, Scene, Trajectory, scene_grasp, sol
 from grasp_env.physics import SETTINGS, check_trajectories
 from grasp_env.physics.motion import plan_motion, released
 from grasp_env_agents.cli import main
-from grasp_env_agents.commands.verify import plot_rollouts
-from grasp_env_agents.studies.agreement import perturbed_k
+from grasp_env_agents.studies.physics_plots import plot_rollouts
+from grasp_env_agents.studies.trajectory_agreement import perturbed_k
 
 DOCS = Path(__file__).resolve().parent
 LAYOUT = {

@@ -197,7 +197,7 @@ def test_shipped_configs_by_name_from_any_directory(tmp_path, monkeypatch):
 
     monkeypatch.setattr(training, "train", record)
     report = types.SimpleNamespace(markdown="(the comparison)")
-    monkeypatch.setattr("grasp_env_agents.commands.evaluate.evaluate_run", lambda run: report)
+    monkeypatch.setattr("grasp_env_agents.studies.evaluation.evaluate_run", lambda run: report)
     monkeypatch.chdir(tmp_path)  # no configs/ here
     assert cli.main(["train", "--config", "dagger", "--run-dir", "run"]) == 0
     ((config, run_dir),) = started
@@ -335,7 +335,7 @@ HELD_OUT = ("mean_gap_deg", "p90_gap_deg", "worst_gap_deg", "success_rate", "mea
 
 def final_metrics(run: Path) -> dict[str, float]:
     """The trained agent's metrics in the run's report (model.zip on the curve's scenes)."""
-    from grasp_env_agents.commands.evaluate import evaluate_run
+    from grasp_env_agents.studies.evaluation import evaluate_run
 
     agent = evaluate_run(run, physics_episodes=0).metrics["trained agent"]
     return {key: agent[key] for key in HELD_OUT}

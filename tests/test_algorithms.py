@@ -319,10 +319,10 @@ def test_algo_keys_are_checked(change: dict, message: str) -> None:
 
 @pytest.mark.parametrize("algo", ["td3", "sac"])
 def test_off_policy_run_trains_and_its_model_file_loads_safely(tmp_path: Path, algo: str) -> None:
-    from grasp_env_agents.commands.evaluate import evaluate_run
     from grasp_env_agents.commands.train import train
     from grasp_env_agents.learning.models import load_agent
     from grasp_env_agents.run.config import config_from_dict, load_config
+    from grasp_env_agents.studies.evaluation import evaluate_run
 
     config = config_from_dict(
         {

@@ -27,11 +27,12 @@ from stable_baselines3 import PPO
 
 from grasp_env.envs.sb3 import SB3VecEnv
 from grasp_env_agents import cli, safe_files
-from grasp_env_agents.commands import gait, sweep
+from grasp_env_agents.commands import gait
 from grasp_env_agents.learning import checkpoints, models
 from grasp_env_agents.learning.models import load_model, load_replay_buffer, load_vecnormalize
 from grasp_env_agents.run.config import load_config, read_yaml
 from grasp_env_agents.safe_files import MAX_NESTING, MODEL_ZIP, MiB
+from grasp_env_agents.studies import sweep
 
 ENV = "grasp_env/CubeGrasp-v0"
 #: Deeper than Python's recursion limit (1,000): before the bounds, a RecursionError.

@@ -36,7 +36,6 @@ from grasp_env.physics import (
     PhysicsReport,
     StabilityChecker,
     TrajectoryChecker,
-    agreement,
     check_poses,
 )
 from grasp_env.physics.model import G, build_mjcf, model_cg, model_contacts
@@ -44,18 +43,21 @@ from grasp_env.physics.motion import released as motion_released
 from grasp_env.physics.rollout import rollout_report
 from grasp_env.physics.simulation import PhysicsModel, available_cores
 from grasp_env_agents.cli import main
+from grasp_env_agents.studies import agreement, trajectory_agreement
 from grasp_env_agents.studies.agreement import (
-    CROSSINGS_DEG,
     ForceSet,
-    check_cases,
     check_sets,
-    coarse_steps_case,
     force_set_k,
+    released_sets,
+    summarise,
+)
+from grasp_env_agents.studies.trajectory_agreement import (
+    CROSSINGS_DEG,
+    check_cases,
+    coarse_steps_case,
     gait_cases,
     gait_windows,
     perturbed_k,
-    released_sets,
-    summarise,
     summarise_trajectories,
     trajectory_cases,
 )
@@ -669,7 +671,7 @@ def test_the_polish_stops_where_a_secant_would_leave_the_bisected_scale():
     forces of 212 w, which the MuJoCo check refuses: the 200-scene study failed. Where the
     polish does not converge the perturbation is refused: its margin on the steps run is not
     the target (seed 1's study had an "inside" grip 0.084 deg outside its cone)."""
-    from grasp_env_agents.studies.agreement import _polished
+    from grasp_env_agents.studies.trajectory_agreement import _polished
 
     asked = []
 
@@ -691,7 +693,7 @@ def test_gait_cases_hold_slip_and_agree_with_mujoco(monkeypatch):
     """The certified gait on a short trajectory (four contacts in the model, one of them
     placed on the way), and perturbed to cross the limit or stay inside by 0.05 deg: the
     margins are the targets, the in_contact schedule places the finger, and the verdicts agree."""
-    monkeypatch.setattr(agreement, "GAIT_TRAJECTORIES", SHORT_GAIT)
+    monkeypatch.setattr(trajectory_agreement, "GAIT_TRAJECTORIES", SHORT_GAIT)
     cases = gait_cases(seed=0)
     assert [c.kind for c in cases] == ["gait", "gait crossing", "gait inside"]
     gait = cases[0]
@@ -761,7 +763,7 @@ SHORT_GAIT = (Trajectory(tuple(PAPER_AXIS), -15.0, 15.0, 1.0),)
 
 
 def test_verify_trajectory_agreement_on_one_scene(tmp_path, capsys, monkeypatch):
-    monkeypatch.setattr(agreement, "GAIT_TRAJECTORIES", SHORT_GAIT)
+    monkeypatch.setattr(trajectory_agreement, "GAIT_TRAJECTORIES", SHORT_GAIT)
     argv = ["verify", "--agreement", "--trajectory", "--scenes", "1", "--out", str(tmp_path)]
     status = main(argv)
     out = capsys.readouterr().out
@@ -847,7 +849,7 @@ def test_verify_trajectory_agreement_adds_a_saved_models_grips(tmp_path, capsys,
 
     import grasp_env  # noqa: F401
 
-    monkeypatch.setattr(agreement, "GAIT_TRAJECTORIES", SHORT_GAIT)
+    monkeypatch.setattr(trajectory_agreement, "GAIT_TRAJECTORIES", SHORT_GAIT)
     PPO("MlpPolicy", gym.make("grasp_env/CubeGrasp-v0"), seed=0, device="cpu").save(
         tmp_path / "model.zip"
     )
@@ -863,8 +865,8 @@ def test_verify_trajectory_agreement_adds_a_saved_models_grips(tmp_path, capsys,
 
 
 def test_verify_drives_a_run_with_its_own_env_kwargs(tmp_path, capsys):
-    from grasp_env_agents.commands.verify import model_env, model_setup
     from grasp_env_agents.run.config import config_from_dict, save_config
+    from grasp_env_agents.studies.grips import model_env, model_setup
 
     run = tmp_path / "run"
     run.mkdir()

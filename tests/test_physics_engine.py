@@ -28,7 +28,7 @@ from grasp_env.physics import (
 )
 from grasp_env.physics.motion import path_settings, plan_motion, plan_poses
 from grasp_env.physics.simulation import PhysicsModel, _tip_inertia, simulate
-from grasp_env_agents.studies.agreement import (
+from grasp_env_agents.studies.trajectory_agreement import (
     check_cases,
     gait_window_case,
     gait_windows,

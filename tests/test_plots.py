@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 
 from grasp_env.mechanics import Scene, Trajectory
-from grasp_env_agents.commands.evaluate import grip_figure
 from grasp_env_agents.commands.reproduce import run_sweep, theta1_figure
 from grasp_env_agents.learning.envs import Episode
 from grasp_env_agents.run.curve import curve_figure
+from grasp_env_agents.studies.evaluation import grip_figure
 from grasp_env_agents.studies.plotting import plot_series
 
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import yaml
 
-from grasp_env_agents.commands import results, sweep
+from grasp_env_agents.studies import results, sweep
 
 TINY = {
     "env_id": "grasp_env/CubeGraspRandom-v0",
@@ -388,12 +388,13 @@ def test_a_trial_run_again_keeps_its_training_and_its_evaluation(tmp_path, monke
     evaluated again (minutes each on 2,048 scenes)."""
     from ray import tune
 
-    from grasp_env_agents.commands import evaluate, train
+    from grasp_env_agents.commands import train
     from grasp_env_agents.run.curve import FIELDS
+    from grasp_env_agents.studies import evaluation
 
     calls = []
     monkeypatch.setattr(train, "train", lambda *a, **k: calls.append("train"))
-    monkeypatch.setattr(evaluate, "evaluate_run", lambda *a, **k: calls.append("evaluate"))
+    monkeypatch.setattr(evaluation, "evaluate_run", lambda *a, **k: calls.append("evaluate"))
     monkeypatch.setattr(results, "read_run", lambda *a: results.RunResult(Path(), 0, {}, 1, 1))
     monkeypatch.setattr(tune, "report", lambda metrics: calls.append("report"))
 

@@ -9,7 +9,8 @@ import numpy as np
 from grasp_env.mechanics import Scene, Trajectory
 from grasp_env.physics import GraspView
 from grasp_env_agents.cli import main
-from grasp_env_agents.commands.verify import FPS, FRAMES_PER_POSE, expert_forces
+from grasp_env_agents.studies.grips import expert_forces
+from grasp_env_agents.studies.physics_plots import FPS, FRAMES_PER_POSE
 
 #: The overlay's dark box at 480 x 480 (three lines of text at the top left), and a band of
 #: the picture well below it.

@@ -423,7 +423,7 @@ def compare_models(
             f"{np.rad2deg(episode.worst):.3f}" if episode.held else "none held",
         )
     if len(agents) > 1:
-        from .results import iqm_interval
+        from ..studies.results import iqm_interval
 
         held = iqm_interval([e.held for _, e in agents])
         worst = [np.rad2deg(e.worst) for _, e in agents if e.held]

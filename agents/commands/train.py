@@ -18,7 +18,7 @@ One run, top to bottom (:func:`train`):
    one of the final model); Ctrl-C (or SIGTERM, from `grasp-env train`) saves a checkpoint
    before stopping;
 6. save the model, the learning curve (CSV and PNG) and print the comparison with the expert
-   and the baselines (:mod:`grasp_env_agents.commands.evaluate`).
+   and the baselines (:mod:`grasp_env_agents.studies.evaluation`).
 
 The run directory holds ``config.yaml`` (the exact config used), ``model.zip`` (and
 ``vecnormalize.pkl`` if observations are normalised), ``checkpoints/``, ``tb/imitation`` and
@@ -130,7 +130,7 @@ def run(args: argparse.Namespace) -> int:
     finally:
         signal.signal(signal.SIGTERM, previous)
     with status("loading the evaluation"):
-        from .evaluate import evaluate_run
+        from ..studies.evaluation import evaluate_run
 
     print(evaluate_run(run_dir).markdown)
     return 0

@@ -45,50 +45,59 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import time
 from pathlib import Path
-from typing import Any, NamedTuple
 
 import numpy as np
 
-from grasp_env import ENV_IDS
 from grasp_env.mechanics import (
-    PHI,
     Scene,
     Trajectory,
     friction_angles,
-    grasp_matrix,
-    load_wrench,
-    matrix_quaternion,
-    n_pairs,
-    quaternion_matrix,
-    scene_grasp,
-    solve_minimax,
 )
 from grasp_env.physics import (
-    SETTINGS,
-    GraspView,
-    PhysicsReport,
-    RolloutReport,
     StabilityChecker,
     check_trajectories,
 )
 from grasp_env_agents.studies.agreement import (
     FAR_FROM_EDGE_DEG,
     Agreement,
-    TrajectoryCase,
     agreement_sets,
-    check_cases,
     check_sets,
-    gait_cases,
     summarise,
+)
+from grasp_env_agents.studies.trajectory_agreement import (
+    check_cases,
+    gait_cases,
     summarise_trajectories,
     trajectory_cases,
 )
 
 from ..cli import folder_argument, integer_argument, path_argument
 from ..progress import console, status
+from ..studies.grips import (
+    DEFAULT_MODEL_ENV,
+    MODEL_ENV_IDS,
+    SavedModel,
+    equal_k_forces,
+    expert_forces,
+    learned_cases,
+    model_fingers,
+    model_forces,
+    model_name,
+    model_setup,
+)
+from ..studies.physics_plots import (
+    FPS,
+    FRAMES_PER_POSE,
+    _imageio,
+    _plot_agreement,
+    _plot_poses,
+    _plot_trajectory_agreement,
+    plot_rollouts,
+    pose_alpha,
+    write_video,
+)
 from .scene_args import add_scene_arguments, floats, scene_from_arguments
 
 HELP = "check grip forces in MuJoCo physics along a trajectory (or --agreement)"
@@ -97,13 +106,6 @@ HELP = "check grip forces in MuJoCo physics along a trajectory (or --agreement)"
 DEFAULT_SCENES = 20
 #: The most --scenes takes: about 300,000 trajectories, a day of rollouts on 2 cores.
 MAX_SCENES = 100_000
-#: The video of a rollout: frames per pose (spread evenly over the simulated time after the
-#: settle) and frames per second.
-FRAMES_PER_POSE, FPS = 10, 30
-#: The environments that can drive a saved model's grip (``--env``): grasp_env's but the gait
-#: ones, whose hand phases fingers in and out.
-MODEL_ENV_IDS = tuple(env_id for env_id in ENV_IDS if "Gait" not in env_id)
-DEFAULT_MODEL_ENV = "grasp_env/CubeGrasp-v0"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -240,180 +242,6 @@ def run(args: argparse.Namespace) -> int:
 # ------------------------------------------------------------------------------ the policies
 
 
-def expert_forces(scene: Scene, trajectory: Trajectory) -> np.ndarray:
-    """The minimax grip at every pose, k_max = 2 w as in the environments: (T, n, 3)."""
-    grasp = scene_grasp(scene, trajectory.rotations())
-    return grasp.forces(solve_minimax(grasp, 2 * scene.weight).k)
-
-
-def equal_k_forces(scene: Scene, trajectory: Trajectory) -> np.ndarray:
-    """The paper's symmetric grip, k_ij = w tan(phi) / (3 sqrt 3) for every pair (eq. 8)."""
-    grasp = scene_grasp(scene, trajectory.rotations())
-    k = scene.weight * np.tan(PHI) / (3 * np.sqrt(3)) * np.ones(n_pairs(scene.n_contacts))
-    return grasp.forces(k)
-
-
-def model_name(path: Path) -> str:
-    """A short name for a saved model in titles: its run directory's name, or the file's."""
-    path = path.resolve()
-    if path.is_dir():
-        return path.name
-    return path.parent.name if path.name == "model.zip" else path.stem
-
-
-class SavedModel(NamedTuple):
-    """A saved model to verify, and the environment that drives it."""
-
-    path: Path  # its .zip, or a training run's directory
-    algo: str | None  # None: the file's policy class says
-    env_id: str
-    env_kwargs: dict[str, Any]  # the run's (its grip depends on them: k_max_ratio, faces)
-
-
-def model_setup(path: Path, algo: str | None, env_id: str | None) -> SavedModel:
-    """The saved model at ``path``, the algorithm that wrote it and the environment that
-    drives it: those of the run's ``config.yaml`` (its ``env_kwargs`` too) when ``path`` is a
-    ``grasp-env train`` run directory (or its model.zip), else ``algo`` and ``env_id``
-    (default :data:`DEFAULT_MODEL_ENV`) with the environment's defaults. An ``algo`` that
-    contradicts the run's is refused."""
-    from ..learning.models import ALGORITHMS
-
-    if algo is not None and algo not in ALGORITHMS:
-        raise ValueError(f"--algo must be one of {', '.join(ALGORITHMS)}, got {algo!r}")
-    path = Path(path)
-    run_dir = path if path.is_dir() else path.parent if path.name == "model.zip" else None
-    if run_dir is None or not (run_dir / "config.yaml").is_file():
-        return SavedModel(path, algo, check_model_env(env_id or DEFAULT_MODEL_ENV), {})
-    from ..run.config import load_config
-
-    config = load_config(run_dir / "config.yaml")
-    if algo is not None and algo != config.algo:
-        raise ValueError(
-            f"--algo {algo}: the run {run_dir} was trained with algo: {config.algo} (its"
-            f" config.yaml); drop --algo or give --algo {config.algo}"
-        )
-    trained_on = config.env_id if config.env_id in MODEL_ENV_IDS else DEFAULT_MODEL_ENV
-    return SavedModel(path, config.algo, check_model_env(env_id or trained_on), config.env_kwargs)
-
-
-def check_model_env(env_id: str) -> str:
-    """``env_id`` if it is one of :data:`MODEL_ENV_IDS` (ValueError naming --env if not)."""
-    if env_id not in MODEL_ENV_IDS:
-        raise ValueError(
-            f"--env must be one of {', '.join(MODEL_ENV_IDS)} (the grasp environments that can"
-            f" drive a saved model), got {env_id!r}"
-        )
-    return env_id
-
-
-def model_forces(
-    model: SavedModel, scene: Scene, trajectory: Trajectory
-) -> tuple[Scene, np.ndarray]:
-    """A saved model's grip, stepping its environment pinned to ``scene`` and ``trajectory``.
-
-    The model is read by :func:`grasp_env_agents.learning.models.load_agent` (no code from the file
-    runs; the ``vecnormalize.pkl`` beside it, if any, normalises the observations). Returns
-    the environment's scene and the contact forces it applied, (T, n, 3).
-    """
-    return model_grips(model, [(scene, trajectory)])[0]
-
-
-def model_env(model: SavedModel) -> Any:
-    """The model's environment, made with the run's ``env_kwargs``; episodes run past a slip
-    (the whole trajectory is verified)."""
-    import gymnasium as gym  # the RL stack only when a model is verified
-
-    import grasp_env  # noqa: F401  (registers the environments)
-
-    kwargs = {**model.env_kwargs, "terminate_on_slip": False}
-    try:
-        return gym.make(model.env_id, **kwargs)
-    except (TypeError, ValueError) as error:
-        raise ValueError(
-            f"the run's env_kwargs {model.env_kwargs} do not make {model.env_id}: {error}"
-        ) from None
-
-
-def model_fingers(model: SavedModel) -> int:
-    """The number of fingers of the model's environment."""
-    env = model_env(model)
-    env.close()
-    return len(env.unwrapped.faces)
-
-
-def model_grips(
-    model: SavedModel, problems: list[tuple[Scene, Trajectory]]
-) -> list[tuple[Scene, np.ndarray]]:
-    """:func:`model_forces` on several (scene, trajectory) problems, the model loaded once."""
-    path, env_id = model.path, model.env_id
-    model_file = path / "model.zip" if path.is_dir() else path
-    if not model_file.is_file():
-        raise ValueError(
-            f"--policy must be 'expert', 'equal-k' or the path of a saved model; {model_file}"
-            " is not a file"
-        )
-    from ..learning.models import load_agent, misfit
-
-    agent = load_agent(path, model.algo)
-    env = model_env(model)
-    problem = misfit(agent.model, env, env_id)
-    if problem:
-        env.close()
-        raise ValueError(
-            f"--env {env_id} does not fit the model: {problem} (give --env the environment the"
-            " model was trained on)"
-        )
-    grips = []
-    for scene, trajectory in problems:
-        options: dict = {
-            "weight": scene.weight,
-            "mu": scene.mu,
-            "cg_offset": scene.cg_offset.tolist(),
-            "trajectory": {
-                "axis": tuple(trajectory.axis),
-                "alpha_start_deg": trajectory.alpha_start_deg,
-                "alpha_end_deg": trajectory.alpha_end_deg,
-                "alpha_step_deg": trajectory.alpha_step_deg,
-            },
-        }
-        if scene.n_contacts == len(env.unwrapped.faces):
-            options["contacts"] = scene.contacts.tolist()
-        obs, _ = env.reset(seed=0, options={"scene": options})
-        env_scene = env.unwrapped.scene
-        forces, done = [], False
-        while not done:
-            action, _ = agent.predict(obs, deterministic=True)
-            obs, _, terminated, truncated, info = env.step(action)
-            forces.append(info["contact_forces"])
-            done = terminated or truncated
-        forces = np.array(forces)
-        # The forces must balance the load at our poses: a guard against a mismatched
-        # trajectory.
-        if len(forces) != len(trajectory) or not _balanced(env_scene, trajectory, forces):
-            env.close()
-            raise ValueError(f"the environment {env_id} did not follow the verified trajectory")
-        grips.append((env_scene, forces))
-    env.close()
-    return grips
-
-
-def _balanced(scene: Scene, trajectory: Trajectory, forces: np.ndarray) -> bool:
-    """Whether ``forces`` (T, n, 3) balance ``scene``'s load at every pose: G P = -(f, tau)."""
-    grasp = scene_grasp(scene, trajectory.rotations())
-    wrench = load_wrench(scene.weight, scene.extra_force, scene.extra_torque)
-    residual = grasp_matrix(grasp.positions) @ forces.reshape(len(forces), -1, 1)
-    return bool(np.allclose(residual[..., 0], -wrench, atol=1e-6 * scene.weight))
-
-
-def _matplotlib():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
 VERDICT = {True: "[green]holds[/]", False: "[red]slips[/]"}
 
 
@@ -469,53 +297,7 @@ def run_poses(
     return 0
 
 
-def _angle_axis(ax, values: np.ndarray, limit: float) -> None:
-    """Scale ``ax``'s y axis to the friction angles ``values`` (deg) and draw the friction
-    limit if it lies in that range or near it; otherwise say where it is."""
-    top = float(np.max(values))
-    if limit <= 1.5 * top:
-        ax.axhline(limit, color="k", ls="--", lw=1, label=f"atan(mu) = {limit:.2f} deg")
-        top = max(top, limit)
-    else:
-        ax.text(
-            0.99, 0.96, f"atan(mu) = {limit:.2f} deg, far above", transform=ax.transAxes,
-            ha="right", va="top", fontsize=8,
-        )  # fmt: skip
-    ax.set_ylim(0.0, 1.12 * top if top > 0 else 1.0)
-
-
-def _plot_poses(scene, alphas, angles, limit, reports: list[PhysicsReport], title, path) -> None:
-    plt = _matplotlib()
-    length = float(np.max(scene.size))
-    holds = np.array([r.holds for r in reports])
-    slip = np.array([r.slip.max() for r in reports])
-    fig, (top, bottom) = plt.subplots(2, 1, figsize=(7, 6), sharex=True)
-    top.plot(alphas, angles, "-", color="0.5", label="max friction angle (analytic)")
-    top.scatter(alphas[holds], angles[holds], c="tab:green", zorder=3, label="MuJoCo: holds")
-    top.scatter(alphas[~holds], angles[~holds], c="tab:red", marker="x", zorder=3,
-                label="MuJoCo: slips")  # fmt: skip
-    _angle_axis(top, angles, limit)
-    top.set_ylabel("max friction angle, deg")
-    top.set_title(title, fontsize=10)
-    top.legend(fontsize=8, loc="lower left")
-    floor = 1e-6  # um: smaller slides are drawn here
-    bottom.semilogy(alphas, np.maximum(1e6 * slip, floor), "o-", ms=3, label="largest slide")
-    bottom.axhline(1e6 * SETTINGS["slip_threshold"] * length, color="k", ls="--", lw=1,
-                   label="slip threshold")  # fmt: skip
-    bottom.legend(fontsize=8)
-    bottom.set_xlabel("alpha, deg")
-    bottom.set_ylabel(f"slide in the hold, um (floor {floor:g})")
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-
-
 # ------------------------------------------------------------------------------ the rollout
-
-
-def pose_alpha(alphas: np.ndarray, coordinate: float | np.ndarray) -> float | np.ndarray:
-    """The alpha (deg) of a pose coordinate t + s (between poses t and t + 1)."""
-    return np.interp(coordinate, np.arange(len(alphas)), alphas)
 
 
 def run_rollout(
@@ -590,101 +372,6 @@ def run_rollout(
     return 0
 
 
-def _imageio():
-    try:
-        import imageio.v2 as imageio
-        import imageio_ffmpeg  # noqa: F401  (imageio's MP4 writer)
-    except ImportError:
-        raise ValueError(
-            '--video writes with imageio and imageio-ffmpeg: pip install "grasp-env[video]"'
-        ) from None
-    return imageio
-
-
-def write_video(
-    path: Path, scene: Scene, alphas: np.ndarray, report: RolloutReport, size: int = 480
-) -> int:
-    """Write ``report``'s rollout as an MP4 of ``size`` x ``size`` pixels: FRAMES_PER_POSE
-    frames per pose, evenly spaced in simulated time after the settle, at FPS frames per
-    second, each with alpha, the largest friction angle and the margin. Returns the frame
-    count."""
-    imageio = _imageio()
-    motion, qpos, n = report.motion, report.trace.qpos, scene.n_contacts
-    limit = float(np.degrees(scene.friction_limit))
-    angles = np.degrees(motion.friction_angles(scene).max(axis=-1))
-    count = FRAMES_PER_POSE * len(alphas)
-    steps = np.linspace(motion.settle_steps, len(motion) - 1, count).round().astype(int)
-    # A run that diverged stands at its last finite state.
-    finite = np.all(np.isfinite(qpos), axis=1)
-    last_finite = np.maximum.accumulate(np.where(finite, np.arange(len(qpos)), 0))
-    view = GraspView(scene, width=size, height=size)
-    # Written beside it and renamed when complete: an interrupted run leaves no short video.
-    partial = path.with_name(f"{path.stem}.partial.mp4")
-    try:
-        with imageio.get_writer(partial, format="FFMPEG", fps=FPS, macro_block_size=16) as writer:
-            for k in steps:
-                # MuJoCo turns the load about the object; the picture turns the object instead.
-                rotation, state = motion.rotations[k], qpos[last_finite[k]].copy()
-                state[:3] = rotation @ state[:3]
-                state[3:7] = matrix_quaternion(rotation @ quaternion_matrix(state[3:7]))
-                state[7:] = (state[7:].reshape(n, 3) @ rotation.T).ravel()
-                text = (
-                    f"alpha {pose_alpha(alphas, motion.pose[k]):+.2f} deg",
-                    f"largest friction angle {angles[k]:.2f} deg",
-                    f"margin {limit - angles[k]:+.2f} deg (atan mu {limit:.2f})",
-                )
-                forces = motion.forces[k] @ rotation.T
-                image = view.render_state(state, rotation, forces, motion.contact[k], text)
-                writer.append_data(image)
-        os.replace(partial, path)
-    finally:
-        view.close()
-        partial.unlink(missing_ok=True)
-    return count
-
-
-def plot_rollouts(
-    scene: Scene, alphas: np.ndarray, runs: list[tuple[str, RolloutReport]], title: str, path
-) -> None:
-    """Along the run (after the settle): each grip's largest friction angle of a finger in
-    contact, the friction limit, and its largest slide since placed against the threshold."""
-    plt = _matplotlib()
-    length = float(np.max(scene.size))
-    limit = float(np.degrees(scene.friction_limit))
-    fig, (top, bottom) = plt.subplots(2, 1, figsize=(7, 6), sharex=True)
-    floor = 1e-6  # um: smaller slides are drawn here
-    largest = []
-    for (label, report), colour in zip(
-        runs, ("tab:blue", "tab:orange", "tab:purple"), strict=False
-    ):
-        motion, trace = report.motion, report.trace
-        steps = slice(motion.settle_steps, None)
-        alpha = pose_alpha(alphas, motion.pose[steps])
-        angles = np.degrees(motion.friction_angles(scene)[steps].max(axis=-1))
-        largest.append(angles)
-        slide = np.maximum.accumulate(trace.slip[steps].max(axis=-1)) * length * 1e6
-        slide = np.minimum(slide, 1e6 * length)  # past L the finger has left its face
-        width = 3.0 if not largest[:-1] and len(runs) > 1 else 1.2  # the first beneath
-        top.plot(alpha, angles, color=colour, lw=width, label=label)
-        bottom.semilogy(alpha, np.maximum(slide, floor), color=colour, lw=width, label=label)
-        if report.first_failure is not None:
-            x = pose_alpha(alphas, report.first_failure)
-            top.axvline(x, color=colour, ls=":", lw=1)
-            bottom.axvline(x, color=colour, ls=":", lw=1)
-    _angle_axis(top, np.concatenate(largest), limit)
-    top.set_ylabel("largest friction angle, deg")
-    top.set_title(title, fontsize=10)
-    top.legend(fontsize=8, loc="lower left")
-    bottom.axhline(1e6 * SETTINGS["slip_threshold"] * length, color="k", ls="--", lw=1,
-                   label="slip threshold")  # fmt: skip
-    bottom.set_xlabel("alpha, deg (dotted: where MuJoCo first failed)")
-    bottom.set_ylabel(f"slide since placed, um (floor {floor:g}, top L)")
-    bottom.legend(fontsize=8, loc="upper left")
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-
-
 # ------------------------------------------------------------------------------ the agreement
 
 
@@ -756,52 +443,6 @@ def run_agreement(seed: int, out: Path) -> int:
     return _verdict(result)
 
 
-def _margin_ticks(ax, ticks: tuple[float, ...]) -> None:
-    """Plain tick labels on a symlog axis (its own crowd together around 0)."""
-    ax.set_xticks(ticks, [f"{t:g}" for t in ticks])
-
-
-def _plot_agreement(sets, reports: list[PhysicsReport], path: Path) -> None:
-    plt = _matplotlib()
-    excess = np.array([s.max_angle_deg - s.limit_deg for s in sets])
-    slip = np.array([max(r.slip.max(), 1e-12) for r in reports])
-    holds = np.array([r.holds for r in reports])
-    fig, ax = plt.subplots(figsize=(7, 4))
-    ax.scatter(excess[holds], 1e3 * slip[holds], s=6, c="tab:green", label="MuJoCo: holds")
-    ax.scatter(excess[~holds], 1e3 * slip[~holds], s=6, c="tab:red", label="MuJoCo: slips")
-    ax.set_xscale("symlog", linthresh=0.01)
-    _margin_ticks(ax, (-10, -1, -0.1, -0.01, 0, 0.01, 0.1, 1, 10))
-    ax.set_yscale("log")
-    ax.axvline(0.0, color="k", lw=1)
-    ax.set_xlabel("max friction angle - atan(mu), deg")
-    ax.set_ylabel("max slip, mm")
-    ax.set_title("analytic friction cone vs MuJoCo")
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-
-
-def learned_cases(cases: list[TrajectoryCase], model: SavedModel) -> list[TrajectoryCase]:
-    """A saved model's grips (kind "learned") on the scenes and trajectories of the study's
-    expert cases whose number of fingers is the model environment's (:func:`model_grips`)."""
-    fingers = model_fingers(model)
-    experts = [
-        c for c in cases
-        if c.kind == "expert" and c.trajectory is not None and c.scene.n_contacts == fingers
-    ]  # fmt: skip
-    if not experts:
-        raise ValueError(
-            f"--policy: no scene of the study has the model's {fingers} fingers (the scenes"
-            " alternate three and four fingers, and skip a few): give more --scenes"
-        )
-    grips = model_grips(model, [(c.scene, c.trajectory) for c in experts])
-    return [
-        TrajectoryCase("learned", scene, c.alphas_deg, c.rotations, forces, None, c.trajectory)
-        for c, (scene, forces) in zip(experts, grips, strict=True)
-    ]
-
-
 def run_trajectory_agreement(
     seed: int,
     scenes: int,
@@ -863,31 +504,3 @@ def run_trajectory_agreement(
     )
     print(result.line("trajectories"))
     return _verdict(result)
-
-
-def _plot_trajectory_agreement(cases, reports: list[RolloutReport], path: Path) -> None:
-    plt = _matplotlib()
-    margin = np.array([r.margin_deg for r in reports])
-    floor = 1e-12
-    slide = np.array(
-        [
-            max(r.slip.max() / np.max(c.scene.size), floor)
-            for c, r in zip(cases, reports, strict=True)
-        ]
-    )
-    holds = np.array([r.holds for r in reports])
-    fig, ax = plt.subplots(figsize=(7, 4))
-    ax.scatter(margin[holds], slide[holds], s=8, c="tab:green", label="MuJoCo: holds")
-    ax.scatter(margin[~holds], slide[~holds], s=8, c="tab:red", marker="x", label="MuJoCo: slips")
-    ax.set_xscale("symlog", linthresh=0.05)
-    _margin_ticks(ax, (-10, -1, -0.1, 0, 0.1, 1, 10))
-    ax.set_yscale("log")
-    ax.axvline(0.0, color="k", lw=1)
-    ax.axhline(SETTINGS["slip_threshold"], color="k", ls="--", lw=1, label="slip threshold")
-    ax.set_xlabel("analytic margin over the run: atan(mu) - largest friction angle, deg")
-    ax.set_ylabel(f"largest slide, units of L (floor {floor:g})")
-    ax.set_title(f"{len(reports)} trajectories, each one continuous MuJoCo rollout")
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
