@@ -1,0 +1,217 @@
+"""Finger frames, forces and angles, the coordinates y of the interaction forces, and the
+small dense solves of the conic solver."""
+
+from __future__ import annotations
+
+from math import atan2, inf, sqrt
+
+import numpy as np
+
+from .codes import BAD_NORMAL, UNIT_TOL, kernel
+
+
+@kernel
+def frames(F, E, N, a0, al, tau0, T):
+    """Finger frames of world-frame F (n, 3), E (m, n, 3), N (n, 3), in units of the load.
+
+    a_i = a0_i + al_i . k is finger i's normal force, tau_i = tau0_i + T_i k its tangential
+    one (two unit tangents b, c with n x b = c). Returns (scale, code): scale is the largest
+    |F_i| (0 for no load), code BAD_NORMAL for a normal not of unit length, else 0.
+    """
+    n, m = F.shape[0], E.shape[0]
+    for i in range(n):
+        length = sqrt(N[i, 0] ** 2 + N[i, 1] ** 2 + N[i, 2] ** 2)
+        if not abs(length - 1.0) <= UNIT_TOL:
+            return 0.0, BAD_NORMAL
+    big = 0.0  # |F_i| without squaring F (which under- or overflows beyond 1e+-154)
+    for i in range(n):
+        for c in range(3):
+            big = max(big, abs(F[i, c]))
+    if big == 0.0:
+        return 0.0, 0
+    scale = 0.0
+    for i in range(n):
+        s = big * sqrt((F[i, 0] / big) ** 2 + (F[i, 1] / big) ** 2 + (F[i, 2] / big) ** 2)
+        scale = max(scale, s)
+    for i in range(n):
+        length = sqrt(N[i, 0] ** 2 + N[i, 1] ** 2 + N[i, 2] ** 2)
+        nx, ny, nz = N[i, 0] / length, N[i, 1] / length, N[i, 2] / length
+        if abs(nx) <= abs(ny) and abs(nx) <= abs(nz):  # b = n x (the axis least along n)
+            bx, by, bz = 0.0, nz, -ny
+        elif abs(ny) <= abs(nz):
+            bx, by, bz = -nz, 0.0, nx
+        else:
+            bx, by, bz = ny, -nx, 0.0
+        bn = sqrt(bx * bx + by * by + bz * bz)
+        bx, by, bz = bx / bn, by / bn, bz / bn
+        cx, cy, cz = ny * bz - nz * by, nz * bx - nx * bz, nx * by - ny * bx
+        f0, f1, f2 = F[i, 0] / scale, F[i, 1] / scale, F[i, 2] / scale
+        a0[i] = nx * f0 + ny * f1 + nz * f2
+        tau0[i, 0] = bx * f0 + by * f1 + bz * f2
+        tau0[i, 1] = cx * f0 + cy * f1 + cz * f2
+        for j in range(m):
+            e0, e1, e2 = E[j, i, 0], E[j, i, 1], E[j, i, 2]
+            al[i, j] = nx * e0 + ny * e1 + nz * e2
+            T[i, 0, j] = bx * e0 + by * e1 + bz * e2
+            T[i, 1, j] = cx * e0 + cy * e1 + cz * e2
+    return scale, 0
+
+
+@kernel
+def force_coordinates(al, T):
+    """An orthonormal basis B (m, d) of the pair scalars that move a force: the row space
+    of the map k -> (a_i, tau_i) (d = 3n - 6 unless the contacts are coplanar). k = B y
+    is then the minimum-norm k of the interaction force y makes (for n <= 4, every k)."""
+    n, m = al.shape
+    M = np.empty((3 * n, m))
+    for i in range(n):
+        for j in range(m):
+            M[3 * i, j] = al[i, j]
+            M[3 * i + 1, j] = T[i, 0, j]
+            M[3 * i + 2, j] = T[i, 1, j]
+    _, s, vt = np.linalg.svd(M, full_matrices=False)
+    rank = 0
+    for value in s:
+        if value > 1e-10 * s[0]:
+            rank += 1
+    return np.ascontiguousarray(vt[:rank].T)
+
+
+@kernel
+def reduced(T, box):
+    """T (n, 2, m) in the coordinates y: T @ box, (n, 2, d)."""
+    n = T.shape[0]
+    out = np.empty((n, 2, box.shape[1]))
+    for i in range(n):
+        out[i] = T[i] @ box
+    return out
+
+
+@kernel
+def finger_forces(k, a0, al, tau0, T, P):
+    """P[i] = (a_i, tau_i1, tau_i2) at k: finger i's force in its frame (eq. 4)."""
+    n, m = al.shape
+    for i in range(n):
+        a, t1, t2 = a0[i], tau0[i, 0], tau0[i, 1]
+        for j in range(m):
+            a += al[i, j] * k[j]
+            t1 += T[i, 0, j] * k[j]
+            t2 += T[i, 1, j] * k[j]
+        P[i, 0], P[i, 1], P[i, 2] = a, t1, t2
+
+
+@kernel
+def largest_angle(P, f, theta):
+    """Friction angles (eq. 2) into theta; returns max_i theta_i, or inf where a force
+    exceeds its limit f (relative tolerance 1e-9: such a point is not a grip)."""
+    worst = 0.0
+    over = False
+    for i in range(P.shape[0]):
+        tangential = sqrt(P[i, 1] ** 2 + P[i, 2] ** 2)
+        theta[i] = atan2(tangential, P[i, 0])
+        worst = max(worst, theta[i])
+        if f < inf and sqrt(P[i, 0] ** 2 + tangential**2) > f * (1.0 + 1e-9):
+            over = True
+    return inf if over else worst
+
+
+@kernel
+def level_excess(P, f, ct, st, w):
+    """The least r that (k, r) needs in the cone problem at level t: an upper bound on v(t)."""
+    r = -inf
+    for i in range(P.shape[0]):
+        tangential = sqrt(P[i, 1] ** 2 + P[i, 2] ** 2)
+        r = max(r, (ct * tangential - st * P[i, 0]) / w[i])
+        if f < inf:
+            r = max(r, (sqrt(P[i, 0] ** 2 + tangential**2) - f) / f)
+    return r
+
+
+@kernel
+def weights(P, w):
+    """Crouzeix-Ferland-Schaible weights w_i = |P_i| (floored at 1e-6 of the load)."""
+    for i in range(P.shape[0]):
+        w[i] = max(sqrt(P[i, 0] ** 2 + P[i, 1] ** 2 + P[i, 2] ** 2), 1e-6)
+
+
+@kernel
+def start_at(y, a0, al, tau0, T, box, K, P, w, trial):
+    """A barrier method's start: y moved strictly inside the box, and the weights at y."""
+    finger_forces(y, a0, al, tau0, T, P)
+    weights(P, w)
+    largest = 0.0
+    for j in range(box.shape[0]):
+        v = 0.0
+        for p in range(y.shape[0]):
+            v += box[j, p] * y[p]
+        largest = max(largest, abs(v))
+    shrink = min(1.0, K * (1.0 - 1e-9) / largest) if largest > 0.0 else 1.0
+    for p in range(y.shape[0]):
+        trial[p] = y[p] * shrink
+
+
+@kernel
+def cholesky_solve(H, b):
+    """Solve H x = b in place (b becomes x) by Cholesky's factorisation, overwriting H's
+    lower triangle; False if H is not positive definite to working precision."""
+    d = b.shape[0]
+    for j in range(d):
+        s = H[j, j]
+        for p in range(j):
+            s -= H[j, p] * H[j, p]
+        if not s > 0.0:
+            return False
+        s = sqrt(s)
+        H[j, j] = s
+        for i in range(j + 1, d):
+            v = H[i, j]
+            for p in range(j):
+                v -= H[i, p] * H[j, p]
+            H[i, j] = v / s
+    for i in range(d):  # L y = b
+        v = b[i]
+        for p in range(i):
+            v -= H[i, p] * b[p]
+        b[i] = v / H[i, i]
+    for i in range(d - 1, -1, -1):  # L' x = y
+        v = b[i]
+        for p in range(i + 1, d):
+            v -= H[p, i] * b[p]
+        b[i] = v / H[i, i]
+    return True
+
+
+@kernel
+def lu_solve(A, b):
+    """Solve A x = b in place (b becomes x; A is overwritten) by Gaussian elimination with
+    partial pivoting; False if a pivot is below 1e-13 of A's largest entry."""
+    d = b.shape[0]
+    largest = 0.0
+    for p in range(d):
+        for q in range(d):
+            largest = max(largest, abs(A[p, q]))
+    if largest == 0.0:
+        return False
+    for j in range(d):
+        pivot, best = j, abs(A[j, j])
+        for i in range(j + 1, d):
+            if abs(A[i, j]) > best:
+                pivot, best = i, abs(A[i, j])
+        if best <= 1e-13 * largest:
+            return False
+        if pivot != j:
+            for q in range(d):
+                A[j, q], A[pivot, q] = A[pivot, q], A[j, q]
+            b[j], b[pivot] = b[pivot], b[j]
+        for i in range(j + 1, d):
+            factor = A[i, j] / A[j, j]
+            if factor != 0.0:
+                for q in range(j + 1, d):
+                    A[i, q] -= factor * A[j, q]
+                b[i] -= factor * b[j]
+    for i in range(d - 1, -1, -1):
+        v = b[i]
+        for q in range(i + 1, d):
+            v -= A[i, q] * b[q]
+        b[i] = v / A[i, i]
+    return True
