@@ -1,8 +1,10 @@
 """The ``grasp-env`` command line: one sub-command per module of ``grasp_env_agents``.
 
-Each command module defines ``HELP`` (one line), ``add_arguments(parser)`` and
-``run(args) -> int``. Only the chosen command's module is imported, so ``grasp-env reproduce``
-never pays for importing torch.
+Each command is a module of :mod:`grasp_env_agents.commands` defining
+``add_arguments(parser)`` and ``run(args) -> int``; its one-line summary is here, in
+:data:`SUMMARIES` (the only copy), so that the top-level ``--help`` imports no command module.
+Only the chosen command's module is imported, so ``grasp-env reproduce`` never pays for
+importing torch.
 """
 
 from __future__ import annotations
@@ -20,6 +22,8 @@ from grasp_env import __version__
 
 from .progress import status, watch_numba
 
+#: Each sub-command's one-line summary: ``grasp-env --help``'s list and the command's
+#: description.
 SUMMARIES = {
     "reproduce": "the paper's quasi-static sweep (or any object's, with --object): optimal k_ij"
     " and friction angles, plots",

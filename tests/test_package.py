@@ -265,3 +265,105 @@ def test_ctrl_c_while_a_command_loads_exits_130(monkeypatch, capsys):
     monkeypatch.setattr(cli.importlib, "import_module", interrupted)
     assert cli.main(["train"]) == 130
     assert capsys.readouterr().err.strip().endswith("interrupted")
+
+
+def agents_modules() -> dict[str, Path]:
+    """Every module of grasp_env_agents (the repository's agents/ folder), by import name."""
+    modules = {}
+    for path in sorted((ROOT / "agents").rglob("*.py")):
+        parts = path.relative_to(ROOT / "agents").with_suffix("").parts
+        if parts[-1] == "__init__":
+            parts = parts[:-1]
+        modules[".".join(("grasp_env_agents", *parts))] = path
+    return modules
+
+
+def agents_import_graph() -> dict[str, set[str]]:
+    """Which modules of grasp_env_agents each one imports, statically: imports inside
+    functions and under ``TYPE_CHECKING`` included, ``from package import module`` resolved
+    to the module."""
+    modules = agents_modules()
+    graph = {}
+    for name, path in modules.items():
+        package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+        found = set()
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Import):
+                found |= {alias.name for alias in node.names}
+            elif isinstance(node, ast.ImportFrom):
+                base = package.rsplit(".", node.level - 1)[0] if node.level else ""
+                target = ".".join(p for p in (base, node.module or "") if p)
+                for alias in node.names:
+                    member = f"{target}.{alias.name}"
+                    found.add(member if member in modules else target)
+        graph[name] = {other for other in found if other in modules and other != name}
+    return graph
+
+
+def import_cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The cycles a depth-first search meets in ``graph`` (empty when it is acyclic)."""
+    state: dict[str, int] = {}  # 1 while on the path, 2 when done
+    path: list[str] = []
+    cycles = []
+
+    def visit(node: str) -> None:
+        state[node] = 1
+        path.append(node)
+        for after in sorted(graph[node]):
+            if state.get(after) == 1:
+                cycles.append([*path[path.index(after) :], after])
+            elif after not in state:
+                visit(after)
+        path.pop()
+        state[node] = 2
+
+    for node in sorted(graph):
+        if node not in state:
+            visit(node)
+    return cycles
+
+
+@pytest.mark.fast
+def test_import_cycles_are_found():
+    """The search itself: a module importing one that imports it back is a cycle."""
+    assert import_cycles({"a": {"b"}, "b": {"c"}, "c": set()}) == []
+    assert import_cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == [["a", "b", "c", "a"]]
+
+
+@pytest.mark.fast
+def test_no_module_of_the_agents_imports_itself_back():
+    """No module of grasp_env_agents imports one that imports it back, not even lazily inside a
+    function (a cycle hidden that way still couples the two)."""
+    graph = agents_import_graph()
+    assert len(graph) > 30
+    assert graph["grasp_env_agents.studies.results"] >= {"grasp_env_agents.studies.evaluation"}
+    assert import_cycles(graph) == []
+
+
+@pytest.mark.fast
+def test_every_module_of_the_agents_imports_in_a_fresh_interpreter():
+    """Each module alone, first thing in a new process: an import that only works after another
+    module has loaded would fail here."""
+    names = sorted(agents_modules())
+    probe = (
+        "import importlib, sys\n"
+        "for name in sys.argv[1:]:\n"
+        "    importlib.import_module(name)\n"
+        "    for loaded in [m for m in sys.modules if m.startswith('grasp_env_agents')]:\n"
+        "        del sys.modules[loaded]\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", probe, *names], capture_output=True, text=True, timeout=600
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+
+
+@pytest.mark.fast
+def test_no_file_of_the_agents_is_past_600_lines():
+    """A file past 600 lines holds more than one role: split it."""
+    long = {
+        str(path.relative_to(ROOT)): lines
+        for path in agents_modules().values()
+        if (lines := len(path.read_text().splitlines())) > 600
+    }
+    assert long == {}

@@ -20,7 +20,6 @@ import tempfile
 from importlib import resources
 from pathlib import Path
 
-HELP = "run the speed benchmarks (ratios against references measured in the same run)"
 PACKAGE = "grasp_env_agents.benchmarks"
 #: The file a benchmark run by ``grasp-env bench`` appends its missed targets to, one a line.
 MISSED_FILE = "GRASP_ENV_BENCH_MISSED"

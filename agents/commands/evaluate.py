@@ -30,8 +30,6 @@ from ..studies.evaluation import (
     evaluate_run,
 )
 
-HELP = "compare a trained agent with the minimax expert and baselines"
-
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     # dest "run" would shadow the CLI's args.run (the command's entry point)

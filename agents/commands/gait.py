@@ -44,7 +44,6 @@ from ..cli import folder_argument, path_argument
 from ..progress import console, status
 from .scene_args import floats, friction, weight
 
-HELP = "when to phase fingers out and in: the certified optimal gait along a long rotation"
 #: Fingers a gait may have, the thumb included (grasp_env.mechanics.gait's state tables).
 FINGERS = (3, _MAX_FINGERS)
 #: The hand's fields, by the options that set them (their errors name the option).

@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import csv
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -42,14 +43,9 @@ from .reproduce_object import (
     finger_contacts,
     object_argument,
     object_scene,
-    print_object_tables,
+    shape_name,
 )
 from .scene_args import add_scene_arguments, floats, scene_from_arguments
-
-HELP = (
-    "the paper's quasi-static sweep (or any object's, with --object): optimal k_ij and"
-    " friction angles, table and plots"
-)
 
 
 def newtons_argument(text: str) -> float:
@@ -185,6 +181,55 @@ def print_table(sweep: Sweep) -> None:
             *(f"{a:.4f}" for a in angles),
             f"{angles.max():.4f}",
             "yes" if angles.max() <= limit else "NO",
+        )
+    console().print(table)
+
+
+def print_object_tables(sweep: Sweep, items: Sequence[str]) -> None:
+    """The optimum at every pose (max theta_i, the contact attaining it, status, certificate
+    gap, all angles in degrees; 8 decimals, the certificate's 1e-9 rad being 5.7e-8 deg), then
+    each contact at the worst pose (its friction angle theta_i, force |P_i| and margin
+    theta_lim - theta_i) and its least margin along the trajectory."""
+    from rich.table import Table
+
+    scene, optimum, alphas_deg = sweep.scene, sweep.optimum, sweep.trajectory.alphas_deg
+    limit = np.rad2deg(scene.friction_limit)
+    angles = np.rad2deg(optimum.angles)
+    gaps = np.rad2deg(optimum.gap)
+    title = (
+        f"Minimax grip of the {shape_name(scene.shape)} along the trajectory ({scene.n_contacts}"
+        f" contacts, w = {scene.weight:g} N, mu = {scene.mu:g}, theta_lim = {limit:.2f} deg)"
+    )
+    table = Table(title=title)
+    for name in ("alpha", "max theta (deg)", "at contact", "status", "gap (deg)", "holds"):
+        table.add_column(name, justify="right")
+    for t, alpha in enumerate(alphas_deg):
+        table.add_row(
+            f"{alpha:g}",
+            f"{angles[t].max():.8f}",
+            str(int(np.argmax(angles[t])) + 1),
+            Status(int(optimum.status[t])).name.lower(),
+            f"{gaps[t]:.1e}",
+            "yes" if angles[t].max() <= limit else "NO",
+        )
+    console().print(table)
+    worst = int(np.argmax(angles.max(axis=1)))
+    table = Table(title=f"The contacts at the worst pose, alpha = {alphas_deg[worst]:g} deg")
+    columns = ("contact", "spec", "point (m)", "theta (deg)", "|P| (N)", "margin (deg)")
+    for name in (*columns, "least margin along the trajectory (deg)"):
+        table.add_column(name, justify="left" if name == "spec" else "right")
+    norms = np.linalg.norm(sweep.grasp.forces(optimum.k)[worst], axis=-1)
+    tiny = np.abs(scene.contacts) <= 1e-12 * scene.shape.extent  # a mesh's rounding: 0
+    point = np.where(tiny, 0.0, scene.contacts)
+    for i, item in enumerate(items):
+        table.add_row(
+            str(i + 1),
+            item,
+            ", ".join(f"{c:.4g}" for c in point[i]),
+            f"{angles[worst, i]:.8f}",
+            newtons(norms[i]),
+            f"{limit - angles[worst, i]:.8f}",
+            f"{limit - angles[:, i].max():.8f}",
         )
     console().print(table)
 

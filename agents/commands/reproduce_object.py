@@ -4,9 +4,10 @@ The object (:func:`object_argument`: a :func:`~grasp_env.mechanics.objects.parse
 spec, or ``mesh:FILE``) is held by contacts given in its own surface coordinates
 (:func:`parse_contacts`, or :func:`finger_contacts` for ``--fingers N``), turns along the
 paper's quasi-static trajectory (§II), and at every pose the minimax problem
-min_k max_i theta_i(k) (eqs. 2 and 4) is solved anew. The tables printed here
-(:func:`print_object_tables`) give the optimum per pose with its status and certificate gap,
-and each contact's friction angle theta_i, force |P_i| and margin theta_lim - theta_i.
+min_k max_i theta_i(k) (eqs. 2 and 4) is solved anew. The tables that ``grasp-env reproduce``
+prints (:func:`~grasp_env_agents.commands.reproduce.print_object_tables`) give the optimum per
+pose with its status and certificate gap, and each contact's friction angle theta_i, force
+|P_i| and margin theta_lim - theta_i.
 """
 
 from __future__ import annotations
@@ -15,11 +16,10 @@ import argparse
 import re
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
-from grasp_env.mechanics import Scene, Status
+from grasp_env.mechanics import Scene
 from grasp_env.mechanics.objects import (
     FACES,
     Box,
@@ -31,10 +31,6 @@ from grasp_env.mechanics.objects import (
 )
 
 from ..cli import shown_text
-from ..progress import console
-
-if TYPE_CHECKING:
-    from .reproduce import Sweep
 
 #: The accepted form of one contact, by shape (for the messages and ``--help``).
 CONTACT_FORMS: dict[type[Shape], str] = {
@@ -307,54 +303,3 @@ def shape_name(shape: Shape) -> str:
         return shape.spec()
     except ValueError:  # a convex mesh has none
         return shape.kind
-
-
-def print_object_tables(sweep: Sweep, items: Sequence[str]) -> None:
-    """The optimum at every pose (max theta_i, the contact attaining it, status, certificate
-    gap, all angles in degrees; 8 decimals, the certificate's 1e-9 rad being 5.7e-8 deg), then
-    each contact at the worst pose (its friction angle theta_i, force |P_i| and margin
-    theta_lim - theta_i) and its least margin along the trajectory."""
-    from rich.table import Table
-
-    from .reproduce import newtons
-
-    scene, optimum, alphas_deg = sweep.scene, sweep.optimum, sweep.trajectory.alphas_deg
-    limit = np.rad2deg(scene.friction_limit)
-    angles = np.rad2deg(optimum.angles)
-    gaps = np.rad2deg(optimum.gap)
-    title = (
-        f"Minimax grip of the {shape_name(scene.shape)} along the trajectory ({scene.n_contacts}"
-        f" contacts, w = {scene.weight:g} N, mu = {scene.mu:g}, theta_lim = {limit:.2f} deg)"
-    )
-    table = Table(title=title)
-    for name in ("alpha", "max theta (deg)", "at contact", "status", "gap (deg)", "holds"):
-        table.add_column(name, justify="right")
-    for t, alpha in enumerate(alphas_deg):
-        table.add_row(
-            f"{alpha:g}",
-            f"{angles[t].max():.8f}",
-            str(int(np.argmax(angles[t])) + 1),
-            Status(int(optimum.status[t])).name.lower(),
-            f"{gaps[t]:.1e}",
-            "yes" if angles[t].max() <= limit else "NO",
-        )
-    console().print(table)
-    worst = int(np.argmax(angles.max(axis=1)))
-    table = Table(title=f"The contacts at the worst pose, alpha = {alphas_deg[worst]:g} deg")
-    columns = ("contact", "spec", "point (m)", "theta (deg)", "|P| (N)", "margin (deg)")
-    for name in (*columns, "least margin along the trajectory (deg)"):
-        table.add_column(name, justify="left" if name == "spec" else "right")
-    norms = np.linalg.norm(sweep.grasp.forces(optimum.k)[worst], axis=-1)
-    tiny = np.abs(scene.contacts) <= 1e-12 * scene.shape.extent  # a mesh's rounding: 0
-    point = np.where(tiny, 0.0, scene.contacts)
-    for i, item in enumerate(items):
-        table.add_row(
-            str(i + 1),
-            item,
-            ", ".join(f"{c:.4g}" for c in point[i]),
-            f"{angles[worst, i]:.8f}",
-            newtons(norms[i]),
-            f"{limit - angles[worst, i]:.8f}",
-            f"{limit - angles[:, i].max():.8f}",
-        )
-    console().print(table)

@@ -45,17 +45,6 @@ from ..studies.results import (
     write_csv,
 )
 
-HELP = "aggregate runs: IQM and 95% bootstrap CIs over seeds, learning curves, the README table"
-
-
-# --- runs ------------------------------------------------------------------------------------
-
-
-# --- groups ----------------------------------------------------------------------------------
-
-
-# --- the command -----------------------------------------------------------------------------
-
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("spec", type=path_argument, metavar="SPEC", help="a results spec (YAML)")

@@ -49,14 +49,6 @@ from ..studies.sweep import (
     sweep,
 )
 
-HELP = "a hyperparameter sweep on Ray Tune (grid, random or Optuna) over config keys and seeds"
-
-
-# --- the sweep file --------------------------------------------------------------------------
-
-
-# --- Ray Tune --------------------------------------------------------------------------------
-
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(

@@ -70,7 +70,6 @@ from ..run.curve import Clock, LearningCurve, last_steps
 if TYPE_CHECKING:
     from ..learning.imitation import RoundResult
 
-HELP = "train an agent (PPO, TD3 or SAC) from a YAML config (default: the expert as teacher)"
 
 #: Held-out metrics logged to TensorBoard (``held_out/<name>``), from the learning curve's.
 LOGGED = ("mean_gap_deg", "p90_gap_deg", "worst_gap_deg", "success_rate", "mean_margin_deg")

@@ -100,7 +100,6 @@ from ..studies.physics_plots import (
 )
 from .scene_args import add_scene_arguments, floats, scene_from_arguments
 
-HELP = "check grip forces in MuJoCo physics along a trajectory (or --agreement)"
 #: Scenes of the trajectory study by default: about 70 trajectories and the 66 of the gaits
 #: (200 give 638 with the gaits, 732 with docs/physics.md's learned policy).
 DEFAULT_SCENES = 20
@@ -239,7 +238,7 @@ def run(args: argparse.Namespace) -> int:
     return run_poses(scene, trajectory, forces, label, args.out)
 
 
-# ------------------------------------------------------------------------------ the policies
+# ------------------------------------------------------------------------------ the tables
 
 
 VERDICT = {True: "[green]holds[/]", False: "[red]slips[/]"}

@@ -278,6 +278,3 @@ def summarise(sets: list[ForceSet], mujoco_holds: np.ndarray) -> Agreement:
         mujoco_holds,
         np.array([s.edge_distance_deg for s in sets]),
     )
-
-
-# ------------------------------------------------------------------------ trajectories
