@@ -147,17 +147,23 @@ def attained(grasp: Grasp, k: np.ndarray) -> float:
 
 
 def reference_grip_valid(
-    grasp: Grasp, k: np.ndarray, k_max: float, f_max: float | None, null: np.ndarray
+    grasp: Grasp,
+    k: np.ndarray,
+    k_max: float,
+    f_max: float | None,
+    null: np.ndarray,
+    released: float = RELEASED,
 ) -> bool:
     """Whether the reference's k is a grip the solver's problem admits: k and its
     minimum-norm representative in the box, the forces within f_max, no finger released
-    (|P_i| below 1e-9 of the load: its direction, and angle, would be rounding)."""
+    (|P_i| below ``released`` x the load, 1e-9: its direction, and angle, would be
+    rounding; 0 admits them)."""
     scale = float(np.linalg.norm(grasp.equilibrating, axis=-1).max())
     forces = np.linalg.norm(grasp.forces(k), axis=-1)
     bound = k_max * (1 + FORCE_TOL)
     inside = np.abs(k).max() <= bound and np.abs(minimum_norm(k, null)).max() <= bound
     limited = f_max is None or forces.max() <= f_max * (1 + FORCE_TOL)
-    return bool(inside and limited and forces.min() >= RELEASED * scale)
+    return bool(inside and limited and forces.min() >= released * scale)
 
 
 #: the columns of scenes.csv

@@ -10,7 +10,9 @@ is infeasible. Hence: the solver's grip is compared with the reference's last *f
 level to within WORSE_TOL = 1e-7 deg (1.7e-9 rad: the solver's own certified gap, 1e-9 rad,
 plus the reference's 1e-9 rad verdicts; observed up to 7e-10 rad), and the solver's
 certificates with the angle that the reference's k really attains (recomputed with numpy),
-never with the reference's claimed lower level.
+never with the reference's claimed lower level; both only where the reference's k is a
+valid grip (in the box, within f_max, no finger released) and, for the feasible level, where
+that k attains the level: most scenes.
 """
 
 from __future__ import annotations
@@ -31,7 +33,6 @@ from grasp_env_agents.benchmarks.general_scenes import (
 )
 from grasp_env_agents.benchmarks.study_general import (
     CERTIFICATE_TOL,
-    attained,
     grip_failures,
     null_space,
     reference_grip_valid,
@@ -68,12 +69,21 @@ def solved(n: int, force_limit: bool, count: int, seed: int) -> tuple:
     return scenes, result, references
 
 
+def held_angle(g, k: np.ndarray) -> float:  # type: ignore[no-untyped-def]
+    """The largest friction angle at k over the fingers whose force is at least 1e-9 of the
+    load (numpy)."""
+    load = np.linalg.norm(g.equilibrating, axis=-1).max()
+    force = np.linalg.norm(g.forces(k), axis=-1)
+    return float(np.where(force >= 1e-9 * load, g.angles(k), 0.0).max())
+
+
 def check_against_reference(scenes: GeneralScenes, result, references) -> None:
     failures = grip_failures(scenes, result)
     bad = {b: what for b, what in enumerate(failures) if what}
     assert not bad, f"invalid grips or certificates: {bad}"
     compared = [b for b, ref in enumerate(references) if ref is not None]
     assert len(compared) >= MOST * len(references), "the reference failed on most scenes"
+    valid = 0
     for b in compared:
         ref = references[b]
         g, k_max, f_max = scenes.one(b)
@@ -83,13 +93,26 @@ def check_against_reference(scenes: GeneralScenes, result, references) -> None:
         if ref.not_pushing:
             continue
         null = null_space(g) if scenes.n >= 5 else np.zeros((len(ref.k), 0))
-        if reference_grip_valid(g, ref.k, k_max, f_max, null):
-            # no false certificate: no k does better than lower_bound, the reference's neither
-            assert result.lower_bound[b] <= attained(g, ref.k) + CERTIFICATE_TOL, where
+        if not reference_grip_valid(g, ref.k, k_max, f_max, null, released=0.0):
+            continue  # k clipped to the box, or beyond f_max
+        # a finger released below 1e-9 of the load counts at the cone's apex (its angle is
+        # rounding; zeroing its force moves the others' angles by ~1e-9 rad at most)
+        reached = held_angle(g, ref.k)
+        # no false certificate: no k does better than lower_bound, the reference's neither
+        assert result.lower_bound[b] <= reached + CERTIFICATE_TOL, where
+        if reached > ref.feasible + WORSE_TOL:
+            # its feasible level is not backed by its grip: seen with a finger nearly
+            # released (2e-9 of the load, at 93 deg), the level 2.4e-8 rad below the solver's
+            # certified bound (a fresh ConeBisection found the level 5e-10 rad below the
+            # solver's grip: its Clarabel solves depend on the scenes solved before)
+            continue
         if status == Status.UNCERTIFIED:  # its grip may be worse by up to its gap
             assert result.lower_bound[b] <= ref.feasible + WORSE_TOL, where
         else:
             assert result.max_angle[b] <= ref.feasible + WORSE_TOL, where
+        valid += 1
+    pushing = sum(not references[b].not_pushing for b in compared)
+    assert valid >= MOST * pushing, f"the reference's grip backs only {valid} of {pushing}"
 
 
 @pytest.mark.parametrize("force_limit", [False, True], ids=["free", "f_max"])
