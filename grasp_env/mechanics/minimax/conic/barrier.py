@@ -7,7 +7,7 @@ from math import inf, log, pi, sqrt
 
 import numpy as np
 
-from .codes import GROWTH, LEVEL_GAP, NEWTON_STEPS, POLISH_FROM, STAGES, kernel
+from .codes import CENTRED, GROWTH, LEVEL_GAP, NEWTON_STEPS, POLISH_FROM, STAGES, kernel
 from .frames import cholesky_solve, finger_forces, level_excess
 
 
@@ -132,7 +132,7 @@ def centre(x, a0, al, tau0, T, box, K, f, ct, st, w, tb):
         decrement = 0.0
         for p in range(d):
             decrement -= g[p] * dx[p]
-        if not decrement > 1e-9:
+        if not decrement > CENTRED:
             return step
         s = 1.0
         for _ in range(40):
@@ -244,7 +244,7 @@ def level(t, w, k, x, a0, al, tau0, T, box, K, f, decide):
     finger_forces(k, a0, al, tau0, T, P)
     x[:m] = k
     excess = level_excess(P, f, ct, st, w)
-    margin = max(1e-3, 0.1 * abs(excess))
+    margin = max(0.1, abs(excess))  # (the level's optimum is often O(1) away in r)
     x[m] = excess + margin
     nu = 2.0 * n * (2 if f < inf else 1) + 2.0 * m
     tb = nu / margin

@@ -17,6 +17,8 @@ BOUND_BELOW = (9e-10, 1e-8, 1e-7, 1e-6, 1e-5, 1e-4, 1e-3, 1e-2, 1e-1)
 GROWTH = 12.0
 STAGES = 40
 NEWTON_STEPS = 60
+#: A point is centred when its Newton decrement (squared) is below this.
+CENTRED = 1e-6
 DINKELBACH_STEPS = 40
 #: The barrier parameter (units of the load) past which polish() builds the certificate.
 POLISH_FROM = 1e9
