@@ -244,7 +244,7 @@ def level(t, w, k, x, a0, al, tau0, T, box, K, f, decide):
     finger_forces(k, a0, al, tau0, T, P)
     x[:m] = k
     excess = level_excess(P, f, ct, st, w)
-    margin = max(0.1, abs(excess))  # (the level's optimum is often O(1) away in r)
+    margin = max(1e-3, 0.1 * abs(excess))
     x[m] = excess + margin
     nu = 2.0 * n * (2 if f < inf else 1) + 2.0 * m
     tb = nu / margin

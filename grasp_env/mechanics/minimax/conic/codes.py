@@ -18,7 +18,7 @@ GROWTH = 12.0
 STAGES = 40
 NEWTON_STEPS = 60
 #: A point is centred when its Newton decrement (squared) is below this.
-CENTRED = 1e-6
+CENTRED = 1e-9
 DINKELBACH_STEPS = 40
 #: The barrier parameter (units of the load) past which polish() builds the certificate.
 POLISH_FROM = 1e9
