@@ -26,8 +26,9 @@ from grasp_env.physics import (
     check_poses,
     check_trajectories,
 )
+from grasp_env.physics.batch import _tip_inertia
 from grasp_env.physics.motion import path_settings, plan_motion, plan_poses
-from grasp_env.physics.simulation import PhysicsModel, _tip_inertia, simulate
+from grasp_env.physics.simulation import PhysicsModel, simulate
 from grasp_env_agents.studies.trajectory_agreement import (
     check_cases,
     gait_window_case,
@@ -112,7 +113,7 @@ def test_runs_of_different_lengths_share_a_batch_unchanged(paper):
 
 def test_measured_rotations_are_quaternion_matrix_bit_for_bit():
     from grasp_env.mechanics import quaternion_matrix
-    from grasp_env.physics.simulation import _rotations
+    from grasp_env.physics.batch import _rotations
 
     rng = np.random.default_rng(3)
     quaternions = rng.normal(size=(4, 50, 4))
