@@ -24,6 +24,7 @@ from pathlib import Path
 
 from ..cli import folder_argument, integer_argument, path_argument
 from ..run.config import load_config
+from ..run.folder import RunFolder
 from ..studies.evaluation import (
     PHYSICS_EPISODES,
     check_episodes,
@@ -70,7 +71,7 @@ def run(args: argparse.Namespace) -> int:
         if first is not run_dir:  # the same directory again, maybe by another path
             same = "twice" if first == run_dir else f"twice (as {first} and {run_dir})"
             raise ValueError(f"RUN {first} is given {same}: give each run once")
-        if not (run_dir / "config.yaml").is_file():  # before evaluating any
+        if not RunFolder(run_dir).is_run():  # before evaluating any
             raise ValueError(
                 f"RUN {run_dir} is not a grasp-env train run directory (it has no config.yaml)"
             )
@@ -82,15 +83,15 @@ def run(args: argparse.Namespace) -> int:
     for run_dir in runs:
         out = args.out if len(runs) == 1 else None
         if out is None:
-            episodes = args.episodes or load_config(run_dir / "config.yaml").eval_episodes
-            out = run_dir / f"evaluation-{episodes}-scenes"
+            episodes = args.episodes or load_config(RunFolder(run_dir).config).eval_episodes
+            out = RunFolder(run_dir).evaluation(episodes).path
         comparison = evaluate_run(run_dir, args.episodes, args.physics_episodes, out)
         print(comparison.markdown)
         print(f"\nreport: {comparison.report}\n")
     if len(runs) > 1:
         from ..studies.results import group_runs, plot_curves, table, write_csv
 
-        episodes = args.episodes or load_config(runs[0] / "config.yaml").eval_episodes
+        episodes = args.episodes or load_config(RunFolder(runs[0]).config).eval_episodes
         groups = group_runs(runs, episodes)
         markdown = table(groups, episodes)
         print(markdown)

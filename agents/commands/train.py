@@ -66,6 +66,7 @@ from ..learning.models import load_vecnormalize
 from ..progress import say, status
 from ..run.config import TrainConfig, config_path, load_config, save_config, shipped_configs
 from ..run.curve import Clock, LearningCurve, last_steps
+from ..run.folder import RunFolder
 
 if TYPE_CHECKING:
     from ..learning.imitation import RoundResult
@@ -114,9 +115,9 @@ def run(args: argparse.Namespace) -> int:
                 " give it without --config and --run-dir"
             )
         run_dir = args.resume
-        if not (run_dir / "config.yaml").is_file():
+        if not RunFolder(run_dir).is_run():
             raise ValueError(f"--resume {str(run_dir)!r}: not a run directory (no config.yaml)")
-        config = load_config(run_dir / "config.yaml", overrides)
+        config = load_config(RunFolder(run_dir).config, overrides)
     else:
         path = config_path(args.config or "default")
         config = load_config(path, overrides)
@@ -156,11 +157,12 @@ def train(
     run is not bit-for-bit an uninterrupted one.
     """
     run_dir = Path(run_dir)
-    if not resume and (run_dir / "config.yaml").exists():
+    folder = RunFolder(run_dir)
+    if not resume and folder.config.exists():
         raise ValueError(f"run directory {str(run_dir)!r} already holds a run; use --resume")
     start = Start()
     if resume:
-        imitation_steps = last_steps(run_dir / "learning_curve.csv", "imitation")
+        imitation_steps = last_steps(folder.curve, "imitation")
         start = find_start(run_dir, config.normalize, imitation_steps, config.algo)
         if config.total_timesteps < start.model_steps:
             raise ValueError(
@@ -183,14 +185,12 @@ def train(
             shutil.rmtree(run_dir, ignore_errors=True)
         raise
     # written once the run can start: a config that fails to build leaves no run to --resume
-    save_config(config, run_dir / "config.yaml")
+    save_config(config, folder.config)
     held_out = find_held_out(eval_env)
     # a resumed run drops what the killed one logged after its checkpoint
     kept = start.env_steps if start.checkpoint is not None else None
-    curve = LearningCurve(
-        run_dir / "learning_curve.csv", keep_until=kept, expert=config.expert_teaches
-    )
-    trim_tensorboard(run_dir / "tb", -1 if kept is None else kept)
+    curve = LearningCurve(folder.curve, keep_until=kept, expert=config.expert_teaches)
+    trim_tensorboard(folder.tensorboard, -1 if kept is None else kept)
     clock = Clock(curve.last("wall_seconds"), curve.last("cpu_seconds"))
     imitation_steps = int(curve.last("env_steps", phase="imitation"))
 
@@ -213,14 +213,16 @@ def train(
         if config.imitation is not None and not learning:
             imitation_steps = teach(model, config, env, evaluate_now, run_dir, start)
             save_model(model, model_checkpoint(run_dir, algo, 0))
-            for data in run_dir.glob("checkpoints/*.npz"):  # only an unfinished phase needs them
+            for data in folder.all_round_data():  # only an unfinished phase needs them
                 data.unlink()
         learning = True
 
         # 5. The algorithm, with SB3's callbacks: evaluations, and checkpoints of our own.
         remaining = config.total_timesteps - model.num_timesteps
         if remaining > 0 or config.imitation is None:
-            model.set_logger(tensorboard_logger(run_dir / "tb" / algo, offset=imitation_steps))
+            model.set_logger(
+                tensorboard_logger(folder.tensorboard_of(algo), offset=imitation_steps)
+            )
         if start.checkpoint is None and config.imitation is None:
             evaluate_now("initial", 0, model.logger, 0)
         if remaining > 0:
@@ -271,7 +273,7 @@ def build(config: TrainConfig, start: Start, run_dir: Path) -> tuple[VecEnv, Vec
         try:
             restore(model, start)
         except Exception as error:  # intact, but another network than the config's
-            config_file = run_dir / "config.yaml"
+            config_file = RunFolder(run_dir).config
             raise ValueError(
                 f"{start.checkpoint} does not fit {config_file}'s network ({error})"
             ) from None
@@ -299,7 +301,7 @@ def teach(
     from ..learning.imitation import imitate
 
     assert config.imitation is not None
-    logger = tensorboard_logger(run_dir / "tb" / "imitation")
+    logger = tensorboard_logger(RunFolder(run_dir).tensorboard_of("imitation"))
     if start.checkpoint is None:
         evaluate_now("initial", 0, logger, 0)
     done = [load_round_data(path)[:2] for path in start.data]
@@ -381,7 +383,7 @@ def learn(
         trained,
         callback_after_eval=RecordEvaluation(record),
         n_eval_episodes=config.eval_episodes,
-        log_path=str(run_dir / "eval"),
+        log_path=str(RunFolder(run_dir).eval_log),
         verbose=0,
         warn=False,
     )
@@ -413,8 +415,8 @@ def continue_evaluation_log(evaluation: EvalCallback, until: int) -> None:
 def finish(model: BaseAlgorithm, run_dir: Path, curve: LearningCurve) -> None:
     """The run's final files: model.zip, vecnormalize.pkl (if used), learning_curve.png."""
     with status("saving the model and drawing learning_curve.png"):
-        save_model(model, run_dir / "model.zip")
-        curve.plot(run_dir / "learning_curve.png")
+        save_model(model, RunFolder(run_dir).model)
+        curve.plot(RunFolder(run_dir).curve_plot)
 
 
 # --- callbacks -----------------------------------------------------------------------------

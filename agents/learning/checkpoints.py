@@ -41,6 +41,7 @@ from stable_baselines3.common.logger import Logger, TensorBoardOutputFormat
 from torch.utils.tensorboard import SummaryWriter
 
 from ..progress import say
+from ..run.folder import IMITATION_PREFIX, RunFolder
 from ..safe_files import ROUND_DATA, check_zip_directory
 from .models import (
     ALGORITHMS,
@@ -51,7 +52,6 @@ from .models import (
     read_archive,
 )
 
-IMITATION_PREFIX = "imitation_round"
 #: A checkpoint of an algorithm's model: ``<algo>_<N>_steps.zip``.
 CHECKPOINT_NAME = re.compile(rf"({'|'.join(ALGORITHMS)})_(\d+)_steps\.zip")
 
@@ -88,11 +88,11 @@ class Start:
 
 
 def model_checkpoint(run_dir: Path, algo: str, steps: int) -> Path:
-    return run_dir / "checkpoints" / f"{algo}_{steps}_steps.zip"
+    return RunFolder(run_dir).checkpoint(algo, steps)
 
 
 def imitation_checkpoint(run_dir: Path, round_: int) -> Path:
-    return run_dir / "checkpoints" / f"{IMITATION_PREFIX}_{round_}.zip"
+    return RunFolder(run_dir).imitation_checkpoint(round_)
 
 
 def _name(path: Path) -> tuple[str, int]:
@@ -140,8 +140,9 @@ def save_model(model: BaseAlgorithm, path: Path) -> None:
     model.save(buffer)
     normalizer = model.get_vec_normalize_env()
     if normalizer is not None:  # the statistics first: a model never lacks its own
-        statistics = path.with_name("vecnormalize.pkl") if path.name == "model.zip" else None
-        write_atomically(statistics or statistics_path(path), _pickled(normalizer))
+        run = RunFolder.of_model(path)  # the final model's, else a checkpoint's
+        statistics = statistics_path(path) if run is None else run.vecnormalize
+        write_atomically(statistics, _pickled(normalizer))
     write_atomically(path, buffer.getvalue())
 
 
@@ -170,7 +171,7 @@ def save_round_data(
     """The states an imitation round labelled, for a resumed run to refit on."""
     buffer = io.BytesIO()
     np.savez(buffer, observations=obs, labels=labels, env_steps=env_steps)
-    write_atomically(imitation_checkpoint(run_dir, round_).with_suffix(".npz"), buffer.getvalue())
+    write_atomically(RunFolder(run_dir).round_data(round_), buffer.getvalue())
 
 
 def load_round_data(path: Path) -> tuple[np.ndarray, np.ndarray, int]:
@@ -215,7 +216,7 @@ def find_start(run_dir: Path, normalize: bool, imitation_steps: int, algo: str =
     ``imitation_steps`` is the environment steps of the run's imitation phase (from its
     learning curve), which the algorithm's steps follow; ``algo`` the run's algorithm.
     """
-    folder = run_dir / "checkpoints"
+    folder = RunFolder(run_dir)
 
     def intact(path: Path, data: list[Path] = ()) -> bool:
         try:
@@ -227,18 +228,18 @@ def find_start(run_dir: Path, normalize: bool, imitation_steps: int, algo: str =
             return False
         return True
 
-    models = sorted(folder.glob(f"{algo}_*_steps.zip"), key=checkpoint_steps, reverse=True)
+    models = sorted(folder.checkpoints_of(algo), key=checkpoint_steps, reverse=True)
     for path in models:
         if intact(path):
             steps = checkpoint_steps(path)
             return Start(path, round=-1, model_steps=steps, env_steps=imitation_steps + steps)
     rounds = sorted(
-        (int(p.stem.rsplit("_", 1)[1]) for p in folder.glob(f"{IMITATION_PREFIX}_*.zip")),
+        (int(p.stem.rsplit("_", 1)[1]) for p in folder.imitation_checkpoints()),
         reverse=True,
     )
     for round_ in rounds:
-        path = imitation_checkpoint(run_dir, round_)
-        data = [imitation_checkpoint(run_dir, r).with_suffix(".npz") for r in range(round_ + 1)]
+        path = folder.imitation_checkpoint(round_)
+        data = [folder.round_data(r) for r in range(round_ + 1)]
         if intact(path, data):
             steps = load_round_data(data[-1])[2]
             return Start(path, round=round_, env_steps=steps, data=tuple(data))

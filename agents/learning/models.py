@@ -58,6 +58,8 @@ from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.running_mean_std import RunningMeanStd
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
+from ..run.folder import RunFolder
+from ..run.folder import model_file as named_model
 from ..safe_files import (
     MODEL_ZIP,
     NestedTooDeep,
@@ -415,13 +417,13 @@ def load_agent(path: str | Path, algo: str | None = None) -> TrainedAgent:
     that file is refused: its model would see observations it was never trained on.
     """
     path = Path(path)
-    model_file = path / "model.zip" if path.is_dir() else path
+    model_file = named_model(path)
     with warnings.catch_warnings():
         # an agent only predicts: schedules skipped as code (rl-zoo3's lin_3e-4, say) do not matter
         warnings.filterwarnings("ignore", "(?s).*are code in the file and were not loaded")
         model = load_model(model_file, algo)
     normalizer = None
-    statistics = model_file.parent / "vecnormalize.pkl"
+    statistics = RunFolder(model_file.parent).vecnormalize  # beside any model file
     if not statistics.is_file() and _normalized_run(model_file.parent):
         raise ValueError(
             f"{model_file}: its run's config.yaml says normalize: true, but the observation"
@@ -453,6 +455,6 @@ def _normalized_run(folder: Path) -> bool:
     from ..run.config import load_config
 
     try:
-        return load_config(folder / "config.yaml").normalize
+        return load_config(RunFolder(folder).config).normalize
     except ValueError:  # none, or not a run's
         return False

@@ -190,8 +190,9 @@ if __name__ == "__main__":  # redraw a run's curve: python -m grasp_env_agents.r
     import sys
 
     from .config import load_config
+    from .folder import RunFolder
 
-    run = Path(sys.argv[1])
-    expert = load_config(run / "config.yaml").expert_teaches
-    with (run / "learning_curve.csv").open() as file:
-        plot_curve(list(csv.DictReader(file)), run / "learning_curve.png", expert)
+    run = RunFolder(Path(sys.argv[1]))
+    expert = load_config(run.config).expert_teaches
+    with run.curve.open() as file:
+        plot_curve(list(csv.DictReader(file)), run.curve_plot, expert)

@@ -23,6 +23,7 @@ from ..learning.envs import HELD_OUT_SEED, Episode, find_held_out, make_held_out
 from ..learning.models import load_agent, misfit
 from ..progress import status
 from ..run.config import load_config
+from ..run.folder import EvaluationFolder, RunFolder
 from .plotting import plot_series
 
 #: Default number of held-out scenes also checked in MuJoCo physics.
@@ -76,10 +77,11 @@ def evaluate_run(
     them MuJoCo also checks) to :data:`PHYSICS_EPISODES` or all if fewer.
     """
     run_dir = Path(run_dir)
+    run = RunFolder(run_dir)
     out = run_dir if out is None else Path(out)
-    if not (run_dir / "config.yaml").is_file():
+    if not run.is_run():
         raise ValueError(f"{str(run_dir)!r} is not a run directory (no config.yaml)")
-    config = load_config(run_dir / "config.yaml")
+    config = load_config(run.config)
     check_episodes(episodes)
     episodes = config.eval_episodes if episodes is None else episodes
     if physics_episodes is None:
@@ -87,7 +89,7 @@ def evaluate_run(
     if not 0 <= physics_episodes <= episodes:
         raise ValueError(f"--physics-episodes must be in [0, {episodes}], got {physics_episodes}")
 
-    if not (run_dir / "model.zip").is_file():
+    if not run.is_finished():
         raise ValueError(f"{str(run_dir)!r} holds no model.zip: not a finished training run")
     with status(f"evaluate: loading the agent and {episodes} held-out scenes"):
         env = make_held_out_env(config.env_id, config.env_kwargs, episodes)
@@ -97,8 +99,7 @@ def evaluate_run(
         problem = misfit(agent.model, env, config.env_id)
         if problem:
             raise ValueError(
-                f"{run_dir / 'model.zip'} does not fit its run's environment (config.yaml):"
-                f" {problem}"
+                f"{run.model} does not fit its run's environment (config.yaml): {problem}"
             )
         policies: dict[str, Any] = {
             "trained agent": agent,
@@ -123,16 +124,17 @@ def evaluate_run(
         row["force_ratio"] = row["mean_force"] / expert_force
 
     out.mkdir(parents=True, exist_ok=True)
+    written = EvaluationFolder(out)
     with status("evaluate: drawing grip_along_alpha.png"):
-        plot_grip(played["trained agent"][:3], out / "grip_along_alpha.png")
-    with (out / "comparison.csv").open("w", newline="") as file:
+        plot_grip(played["trained agent"][:3], written.grip_plot)
+    with written.comparison.open("w", newline="") as file:
         fields = ["policy", *next(iter(metrics.values()))]
         writer = csv.DictWriter(file, fields)
         writer.writeheader()
         writer.writerows({"policy": name, **row} for name, row in metrics.items())
     markdown = report(run_dir, out, config.env_id, episodes, physics_episodes, metrics)
-    (out / "report.md").write_text(markdown)
-    return Comparison(metrics, markdown, out / "report.md")
+    written.report.write_text(markdown)
+    return Comparison(metrics, markdown, written.report)
 
 
 def physics_success(policy: Any, env_id: str, env_kwargs: dict[str, Any], episodes: int) -> float:
@@ -183,14 +185,14 @@ def report(
     for name, row in metrics.items():
         cells = [_cell(fmt, row[key]) for key, _, fmt in columns]
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
-    curve = run_dir / "learning_curve.csv"
+    curve = RunFolder(run_dir).curve
     if curve.is_file():
         with curve.open() as file:
             rows = list(csv.DictReader(file))
         if rows:
             last = rows[-1]
             minutes = float(last["wall_seconds"]) / 60
-            learning_curve = os.path.relpath(run_dir / "learning_curve.png", out)
+            learning_curve = os.path.relpath(RunFolder(run_dir).curve_plot, out)
             lines += [
                 "",
                 f"Training: {int(last['env_steps']):,} environment steps in {minutes:.1f} min "

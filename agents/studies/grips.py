@@ -22,6 +22,9 @@ from grasp_env.mechanics import (
 )
 from grasp_env_agents.studies.trajectory_agreement import TrajectoryCase
 
+from ..run.folder import RunFolder
+from ..run.folder import model_file as named_model
+
 #: The environments that can drive a saved model's grip (``--env``): grasp_env's but the gait
 #: ones, whose hand phases fingers in and out.
 MODEL_ENV_IDS = tuple(env_id for env_id in ENV_IDS if "Gait" not in env_id)
@@ -46,7 +49,8 @@ def model_name(path: Path) -> str:
     path = path.resolve()
     if path.is_dir():
         return path.name
-    return path.parent.name if path.name == "model.zip" else path.stem
+    run = RunFolder.of_model(path)
+    return path.stem if run is None else run.path.name
 
 
 class SavedModel(NamedTuple):
@@ -69,12 +73,13 @@ def model_setup(path: Path, algo: str | None, env_id: str | None) -> SavedModel:
     if algo is not None and algo not in ALGORITHMS:
         raise ValueError(f"--algo must be one of {', '.join(ALGORITHMS)}, got {algo!r}")
     path = Path(path)
-    run_dir = path if path.is_dir() else path.parent if path.name == "model.zip" else None
-    if run_dir is None or not (run_dir / "config.yaml").is_file():
+    run = RunFolder(path) if path.is_dir() else RunFolder.of_model(path)
+    if run is None or not run.is_run():
         return SavedModel(path, algo, check_model_env(env_id or DEFAULT_MODEL_ENV), {})
     from ..run.config import load_config
 
-    config = load_config(run_dir / "config.yaml")
+    run_dir = run.path
+    config = load_config(run.config)
     if algo is not None and algo != config.algo:
         raise ValueError(
             f"--algo {algo}: the run {run_dir} was trained with algo: {config.algo} (its"
@@ -134,7 +139,7 @@ def model_grips(
 ) -> list[tuple[Scene, np.ndarray]]:
     """:func:`model_forces` on several (scene, trajectory) problems, the model loaded once."""
     path, env_id = model.path, model.env_id
-    model_file = path / "model.zip" if path.is_dir() else path
+    model_file = named_model(path)
     if not model_file.is_file():
         raise ValueError(
             f"--policy must be 'expert', 'equal-k' or the path of a saved model; {model_file}"

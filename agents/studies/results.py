@@ -16,6 +16,8 @@ from typing import Any
 import numpy as np
 import yaml
 
+from ..run.folder import RunFolder
+
 #: Bootstrap resamples of every interval (rliable's stratified bootstrap).
 BOOTSTRAP_REPS = 20_000
 
@@ -144,7 +146,7 @@ def read_run(
     """
     run_dir = Path(run_dir)
     if final == "curve":
-        agent = {k: str(v) for k, v in read_curve(run_dir / "learning_curve.csv")[-1].items()}
+        agent = {k: str(v) for k, v in read_curve(RunFolder(run_dir).curve)[-1].items()}
     else:
         agent = find_evaluation(run_dir, episodes, policy)
     if agent is None:
@@ -155,8 +157,8 @@ def read_run(
         agent = find_evaluation(run_dir, episodes, policy)
     if agent is None:
         raise ValueError(f"{run_dir}: its evaluation has no row for the policy {policy!r}")
-    curve = read_curve(run_dir / "learning_curve.csv")
-    config = yaml.safe_load((run_dir / "config.yaml").read_text())
+    curve = read_curve(RunFolder(run_dir).curve)
+    config = yaml.safe_load(RunFolder(run_dir).config.read_text())
     # training time from the initial evaluation on: numba's one-off compilation of the
     # kernels (minutes on a cold cache) happens before it and is no cost of the recipe
     first, last = (curve[0], curve[-1]) if curve else ({}, {})
@@ -172,7 +174,7 @@ def read_run(
 
 def evaluation_dir(run_dir: Path, episodes: int) -> Path:
     """Where ``grasp-env evaluate RUN --episodes N`` writes its report."""
-    return Path(run_dir) / f"evaluation-{episodes}-scenes"
+    return RunFolder(run_dir).evaluation(episodes).path
 
 
 def find_evaluation(
@@ -180,9 +182,10 @@ def find_evaluation(
 ) -> dict[str, str] | None:
     """The ``policy``'s row of an evaluation of the run on ``episodes`` scenes (None: any, the
     run's own first), or None if it has none."""
-    candidates = [run_dir / "comparison.csv"]
+    run = RunFolder(run_dir)
+    candidates = [run.own_evaluation.comparison]
     if episodes is not None:
-        candidates.insert(0, evaluation_dir(run_dir, episodes) / "comparison.csv")
+        candidates.insert(0, run.evaluation(episodes).comparison)
     for path in candidates:
         row = _policy_row(path, policy) if path.is_file() else None
         if row is not None and (episodes is None or int(row["episodes"]) == episodes):
@@ -213,10 +216,8 @@ def expand_runs(runs: str | Sequence[str], base: Path, episodes: int | None = No
     scenes, all a results table needs)."""
 
     def usable(run: Path) -> bool:
-        if (run / "model.zip").is_file():
-            return True
-        evaluated = episodes is not None and (evaluation_dir(run, episodes) / "comparison.csv")
-        return bool(evaluated) and evaluated.is_file() and (run / "learning_curve.csv").is_file()
+        folder = RunFolder(run)
+        return folder.is_finished() or (episodes is not None and folder.is_record(episodes))
 
     patterns = [runs] if isinstance(runs, str) else list(runs)
     found: list[Path] = []
@@ -230,7 +231,7 @@ def expand_runs(runs: str | Sequence[str], base: Path, episodes: int | None = No
 
 def run_seed(run_dir: Path) -> int:
     """The seed in a run's config.yaml (its default 0 if the file has none)."""
-    path = Path(run_dir) / "config.yaml"
+    path = RunFolder(run_dir).config
     if not path.is_file():
         raise ValueError(f"{str(run_dir)!r} is not a run directory (no config.yaml)")
     return int((yaml.safe_load(path.read_text()) or {}).get("seed", 0))
@@ -267,7 +268,7 @@ def recipe(run_dir: Path) -> dict[str, Any]:
                 keys[f"{prefix}{key}"] = value
         return keys
 
-    config = yaml.safe_load((Path(run_dir) / "config.yaml").read_text()) or {}
+    config = yaml.safe_load(RunFolder(run_dir).config.read_text()) or {}
     config.pop("seed", None)
     return dotted(config)
 
@@ -478,7 +479,7 @@ def build_groups(spec: Path) -> tuple[int, list[Group]]:
         for entry, runs in zip(entries, found, strict=True)
     ]
     if final == "curve":
-        config = yaml.safe_load((groups[0].runs[0].run_dir / "config.yaml").read_text())
+        config = yaml.safe_load(RunFolder(groups[0].runs[0].run_dir).config.read_text())
         episodes = int(config["eval_episodes"])
     return episodes, groups
 
@@ -502,7 +503,9 @@ def group_runs(run_dirs: Sequence[Path], episodes: int | None = None) -> list[Gr
     :func:`group_names`, its config column the first run's ``config.yaml``."""
     grouped = group_dirs(run_dirs)
     return [
-        Group(name, [read_run(run_dir, episodes) for run_dir in dirs], str(dirs[0] / "config.yaml"))
+        Group(
+            name, [read_run(run_dir, episodes) for run_dir in dirs], str(RunFolder(dirs[0]).config)
+        )
         for name, dirs in zip(group_names(grouped), grouped, strict=True)
     ]
 

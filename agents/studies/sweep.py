@@ -16,6 +16,7 @@ from grasp_env.envs.validation import MAX_ENVS
 
 from ..cli import MAX_SEED
 from ..run.curve import last_steps
+from ..run.folder import RunFolder
 
 SEARCHES = ("grid", "random", "optuna")
 
@@ -315,20 +316,21 @@ def run_trial(params: dict[str, Any], sweep: dict[str, Any], out: str) -> None:
 
     from ..commands.train import train
     from .evaluation import evaluate_run
-    from .results import evaluation_dir, read_run
+    from .results import read_run
 
     config = trial_config(sweep, params)
     run_dir = Path(out) / "runs" / tune.get_context().get_trial_name()
     torch.set_num_threads(config.torch_threads)
-    started = (run_dir / "config.yaml").is_file()
-    trains = not (run_dir / "model.zip").is_file() or not _finished(run_dir, config)
+    run = RunFolder(run_dir)
+    started = run.is_run()
+    trains = not run.is_finished() or not _finished(run_dir, config)
     if trains:
         train(config, run_dir, resume=started, progress_bar=False)
     episodes = sweep["episodes"]
     # a trial Tune runs again after a killed driver keeps its evaluation (report.md is
     # written last)
-    if trains or not (evaluation_dir(run_dir, episodes) / "report.md").is_file():
-        evaluate_run(run_dir, episodes, 0, evaluation_dir(run_dir, episodes))
+    if trains or not run.evaluation(episodes).report.is_file():
+        evaluate_run(run_dir, episodes, 0, run.evaluation(episodes).path)
     result = read_run(run_dir, episodes)
     metrics = {**result.metrics, "wall_minutes": result.wall_minutes}
     tune.report({**metrics, "cpu_minutes": result.cpu_minutes, "run_dir": str(run_dir)})
@@ -337,8 +339,8 @@ def run_trial(params: dict[str, Any], sweep: dict[str, Any], out: str) -> None:
 def _finished(run_dir: Path, config: Any) -> bool:
     """Whether the run did all its imitation rounds and all its algorithm's steps (the curve's
     steps count the imitation's labelled states first, then the algorithm's)."""
-    path = run_dir / "learning_curve.csv"
-    if not ((run_dir / "model.zip").is_file() and path.is_file()):
+    path = RunFolder(run_dir).curve
+    if not (RunFolder(run_dir).is_finished() and path.is_file()):
         return False
     with path.open() as file:
         rows = list(csv.DictReader(file))
