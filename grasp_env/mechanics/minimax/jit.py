@@ -18,11 +18,19 @@ import os
 from numba import njit
 from numba.core import caching
 
-_PACKAGES: set[str] = set()
+#: Each registered package directory and the directories its kernels also link code from.
+_PACKAGES: dict[str, tuple[str, ...]] = {}
 
 
 def _package_stamp(directory: str) -> str:
-    """SHA-256 of the names and contents of the directory's ``.py`` files."""
+    """SHA-256 of the names and contents of the ``.py`` files of the directory and of those
+    it depends on (:func:`register_package`)."""
+    stamps = [_directory_stamp(directory)]
+    stamps += [_directory_stamp(other) for other in _PACKAGES.get(directory, ())]
+    return stamps[0] if len(stamps) == 1 else hashlib.sha256("".join(stamps).encode()).hexdigest()
+
+
+def _directory_stamp(directory: str) -> str:
     files = tuple(
         (name, os.stat(os.path.join(directory, name)).st_mtime_ns)
         for name in sorted(os.listdir(directory))
@@ -74,9 +82,10 @@ caching.CacheImpl._locator_classes[:0] = [
 ]
 
 
-def register_package(directory: str) -> None:
-    """Key the cache of every kernel defined in ``directory`` on all of its sources."""
-    _PACKAGES.add(os.path.abspath(directory))
+def register_package(directory: str, *depends: str) -> None:
+    """Key the cache of every kernel defined in ``directory`` on all of its sources, and on
+    those of the ``depends`` directories whose kernels it links."""
+    _PACKAGES[os.path.abspath(directory)] = tuple(os.path.abspath(other) for other in depends)
 
 
 register_package(os.path.dirname(__file__))

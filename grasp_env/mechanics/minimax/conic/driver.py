@@ -31,25 +31,23 @@ from math import inf, pi
 import numpy as np
 from numba import njit
 
-from .barrier import level
-from .codes import (
+from ..codes import (
     BAD_F_MAX,
     BAD_K_MAX,
     BAD_LOAD,
-    BOUND_BELOW,
     BOUNDARY,
-    DINKELBACH_STEPS,
     GAP_TOL,
     INTERIOR,
     INVALID,
     LOAD_RANGE,
     NOT_PUSHING,
-    POLISH_ROUNDS,
     RATIO_RANGE,
-    UNCERTIFIED,
-    kernel,
 )
-from .frames import finger_forces, force_coordinates, frames, largest_angle, reduced, start_at
+from ..codes import UNCERTIFIED_STATUS as UNCERTIFIED
+from ..fingers import setup
+from .barrier import level
+from .codes import BOUND_BELOW, DINKELBACH_STEPS, POLISH_ROUNDS, kernel
+from .frames import finger_forces, force_coordinates, largest_angle, reduced, start_at
 from .polish import active_sets, polish
 
 
@@ -71,7 +69,7 @@ def solve_one(F, E, N, K_in, f_in, k, theta):
             return 0.0, INVALID
     a0, al = np.empty(n), np.empty((n, m))
     tau0, T = np.empty((n, 2)), np.empty((n, 2, m))
-    scale, code = frames(F, E, N, a0, al, tau0, T)
+    scale, code = setup(F, E, N, a0, al, tau0, T)  # the finger frames, in units of the load
     if code != 0:
         return 0.0, code
     if scale == 0.0:

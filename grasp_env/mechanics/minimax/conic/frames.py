@@ -7,54 +7,7 @@ from math import atan2, inf, sqrt
 
 import numpy as np
 
-from .codes import BAD_NORMAL, UNIT_TOL, kernel
-
-
-@kernel
-def frames(F, E, N, a0, al, tau0, T):
-    """Finger frames of world-frame F (n, 3), E (m, n, 3), N (n, 3), in units of the load.
-
-    a_i = a0_i + al_i . k is finger i's normal force, tau_i = tau0_i + T_i k its tangential
-    one (two unit tangents b, c with n x b = c). Returns (scale, code): scale is the largest
-    |F_i| (0 for no load), code BAD_NORMAL for a normal not of unit length, else 0.
-    """
-    n, m = F.shape[0], E.shape[0]
-    for i in range(n):
-        length = sqrt(N[i, 0] ** 2 + N[i, 1] ** 2 + N[i, 2] ** 2)
-        if not abs(length - 1.0) <= UNIT_TOL:
-            return 0.0, BAD_NORMAL
-    big = 0.0  # |F_i| without squaring F (which under- or overflows beyond 1e+-154)
-    for i in range(n):
-        for c in range(3):
-            big = max(big, abs(F[i, c]))
-    if big == 0.0:
-        return 0.0, 0
-    scale = 0.0
-    for i in range(n):
-        s = big * sqrt((F[i, 0] / big) ** 2 + (F[i, 1] / big) ** 2 + (F[i, 2] / big) ** 2)
-        scale = max(scale, s)
-    for i in range(n):
-        length = sqrt(N[i, 0] ** 2 + N[i, 1] ** 2 + N[i, 2] ** 2)
-        nx, ny, nz = N[i, 0] / length, N[i, 1] / length, N[i, 2] / length
-        if abs(nx) <= abs(ny) and abs(nx) <= abs(nz):  # b = n x (the axis least along n)
-            bx, by, bz = 0.0, nz, -ny
-        elif abs(ny) <= abs(nz):
-            bx, by, bz = -nz, 0.0, nx
-        else:
-            bx, by, bz = ny, -nx, 0.0
-        bn = sqrt(bx * bx + by * by + bz * bz)
-        bx, by, bz = bx / bn, by / bn, bz / bn
-        cx, cy, cz = ny * bz - nz * by, nz * bx - nx * bz, nx * by - ny * bx
-        f0, f1, f2 = F[i, 0] / scale, F[i, 1] / scale, F[i, 2] / scale
-        a0[i] = nx * f0 + ny * f1 + nz * f2
-        tau0[i, 0] = bx * f0 + by * f1 + bz * f2
-        tau0[i, 1] = cx * f0 + cy * f1 + cz * f2
-        for j in range(m):
-            e0, e1, e2 = E[j, i, 0], E[j, i, 1], E[j, i, 2]
-            al[i, j] = nx * e0 + ny * e1 + nz * e2
-            T[i, 0, j] = bx * e0 + by * e1 + bz * e2
-            T[i, 1, j] = cx * e0 + cy * e1 + cz * e2
-    return scale, 0
+from .codes import kernel
 
 
 @kernel
