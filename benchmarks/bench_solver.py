@@ -62,6 +62,7 @@ from grasp_env.mechanics import (
     scene_grasp,
     solve_minimax,
 )
+from grasp_env.mechanics.minimax import fingers
 from grasp_env.mechanics.minimax.conic import barrier, driver, frames, polish
 from grasp_env_agents.benchmarks.general_scenes import general_scenes
 from grasp_env_agents.benchmarks.limits import Limit, count_along
@@ -211,7 +212,7 @@ def conic_steps(grasp: Grasp, k_max: float) -> tuple[Counter, float]:
     solve (about 2 s at n = 5, 15 s at n = 8)."""
     calls: Counter = Counter()
     names: dict = {}  # the conic modules' names in one namespace, so calls between them count
-    for module in (frames, barrier, polish, driver):
+    for module in (fingers, frames, barrier, polish, driver):  # (fingers: setup)
         names.update(vars(module))
     for name, value in list(names.items()):
         if isinstance(value, Dispatcher):
