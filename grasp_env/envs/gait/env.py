@@ -18,6 +18,9 @@ from ..validation import (
 from .kernels import _buffers, _step_kernel, check_moves, optimal_actions
 from .tasks import _task
 
+#: Frames a second of rendered episodes (a pose a frame); grasp_env.envs.gait.render draws them.
+GAIT_RENDER_FPS = 20
+
 _SQRT3 = float(np.sqrt(3.0))
 
 
@@ -114,7 +117,8 @@ class CubeGaitEnv(gym.Env[np.ndarray, np.ndarray]):
     ## Arguments
     ```python
     gym.make("grasp_env/CubeGait-v0", trajectory=None, mu=0.5, cone_deg=60.0,
-             k_max_ratio=2.0, terminate_on_slip=True, start=None, optimal_grip=False)
+             k_max_ratio=2.0, terminate_on_slip=True, start=None, optimal_grip=False,
+             render_mode=None)
     ```
     - `trajectory`: a mapping with the keys `axis`, `alpha_start_deg`, `alpha_end_deg`,
       `alpha_step_deg` (missing keys: the paper's axis over [-90, 90] deg by 1 deg); e.g.
@@ -126,14 +130,28 @@ class CubeGaitEnv(gym.Env[np.ndarray, np.ndarray]):
       five fingers, 3 or 4 touching; default the optimal gait's.
     - `optimal_grip`: the action is the move only, the grip the certified optimum (see
       Action Space); `grasp_env/CubeGaitMoves-v0` sets it.
+    - `render_mode`: None, "rgb_array" or "human" (see Rendering).
     The configuration is solved when the first environment with it is made (about 3 s: the
     certified minimax of 35 site sets at 181 poses and the dynamic programme), then shared.
+
+    ## Rendering
+    `render_mode="rgb_array"`: `render()` returns an RGB frame (480, 480, 3) uint8, drawn
+    offscreen by MuJoCo (headless: `MUJOCO_GL=egl` or `osmesa`, which `grasp_env.physics`
+    picks when no display is set); `"human"` opens a MuJoCo window (without a display it
+    warns once and draws nothing). The frame shows the cube at the pose of the last step
+    (after `reset`, the first pose with the certified minimax grip of the start's fingers)
+    with the fingers on their sites after the step's move: each touching finger's push as an
+    arrow ending at its site, inside its friction cone, both coloured green to red as theta_i
+    nears theta_lim; free sites show a faint grey cone and a fingertip lifted off the face. With
+    Pillow installed a caption gives alpha, the step's margin and which finger is on which
+    face (`grasp_env.envs.gait.render`). `metadata["render_fps"]` is 20 (a pose a frame).
+    The view is built on the first `render()`, and `close()` frees it.
 
     ## Version History
     - v0: initial version.
     """
 
-    metadata = {"render_modes": []}  # noqa: RUF012
+    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": GAIT_RENDER_FPS}  # noqa: RUF012
 
     def __init__(
         self,
@@ -146,9 +164,10 @@ class CubeGaitEnv(gym.Env[np.ndarray, np.ndarray]):
         optimal_grip: bool = False,
         render_mode: str | None = None,
     ) -> None:
-        if render_mode is not None:  # a TypeError: SB3's make_vec_env then makes it without
-            raise TypeError(f"the gait environment has no render modes, got {render_mode!r}")
-        self.render_mode = None
+        modes = self.metadata["render_modes"]
+        if not (render_mode is None or (isinstance(render_mode, str) and render_mode in modes)):
+            raise ValueError(f"render_mode must be None or one of {modes}, got {render_mode!r}")
+        self.render_mode = render_mode
         self.task = _task(trajectory, mu, cone_deg, k_max_ratio, start)
         self.terminate_on_slip = check_bool("terminate_on_slip", terminate_on_slip)
         self.optimal_grip = check_bool("optimal_grip", optimal_grip)
@@ -176,6 +195,10 @@ class CubeGaitEnv(gym.Env[np.ndarray, np.ndarray]):
         self._done = True
         self._xs = np.zeros(1, np.int64)  # the kernel's inputs, reused
         self._ts = np.zeros(1, np.int64)
+        self._view: Any = None  # GaitView, built on the first render()
+        # what render() draws: None, the state and pose as they are (before the first step);
+        # else the last step's pose, contacts after its move, forces (F, 3) and reward
+        self._shown: tuple[int, np.ndarray, np.ndarray, float] | None = None
 
     def _observation(self, x: int, t: int) -> np.ndarray:
         task = self.task
@@ -190,6 +213,9 @@ class CubeGaitEnv(gym.Env[np.ndarray, np.ndarray]):
             raise ValueError(f"the gait environment takes no reset options, got {options!r}")
         super().reset(seed=seed)
         self._x, self._t, self._done = self.task.start, 0, False
+        self._shown = None
+        if self.render_mode == "human":
+            self.render()
         return self._observation(self._x, 0), {}
 
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
@@ -230,7 +256,41 @@ class CubeGaitEnv(gym.Env[np.ndarray, np.ndarray]):
             "alpha_deg": float(task.alphas[t]),
             "expert_reward": float(task.expert_margins[t]),
         }
+        if self.render_mode is not None:  # copies: info's arrays are the user's to change
+            self._shown = (t, i[2:].copy(), info["contact_forces"].copy(), float(f[0]))
+            if self.render_mode == "human":
+                self.render()
         return obs[0], float(f[0]), terminated, truncated, info
+
+    # -- rendering (grasp_env.envs.gait.render, which loads MuJoCo, imported only when asked) --
+
+    def render(self) -> np.ndarray | None:
+        """An RGB frame (H, W, 3) uint8 for ``render_mode="rgb_array"``; a window for "human"
+        (see Rendering in the class docstring)."""
+        if self.render_mode is None:
+            gym.logger.warn("render() called without a render_mode; pass render_mode to make()")
+            return None
+        from .render import GaitView, resting_grips
+
+        if self._view is None:
+            self._view = GaitView(self.task, render_mode=self.render_mode)
+        if self._shown is None:
+            t = min(self._t, self.task.n_poses - 1)
+            contacts, forces = resting_grips(self.task, [self._x], [t])
+            return self._view.render(t, contacts[0], forces[0])
+        return self._view.render(*self._shown)
+
+    def close(self) -> None:
+        if self._view is not None:
+            self._view.close()
+            self._view = None
+        super().close()
+
+    def __getstate__(self) -> dict[str, Any]:
+        # The view holds MuJoCo's native resources: not pickled, rebuilt by the next render().
+        state = self.__dict__.copy()
+        state["_view"] = None
+        return state
 
 
 __all__ = ["CubeGaitEnv"]

@@ -6,6 +6,7 @@ from collections.abc import Sequence
 from numbers import Integral
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
@@ -22,7 +23,7 @@ from ..validation import (
     refuse_ended,
     split_reset_mask,
 )
-from .env import CubeGaitEnv
+from .env import GAIT_RENDER_FPS, CubeGaitEnv
 from .kernels import _INFO, _step, check_moves, optimal_actions
 
 
@@ -44,6 +45,10 @@ class CubeGaitVectorEnv(VectorEnv):
             at that step even if the episode terminated there too; at the trajectory's end
             the gait itself truncates only episodes that did not terminate).
             ``gym.make_vec(id, ..., max_episode_steps=k)`` passes it.
+        render_mode: None or ``"rgb_array"``: :meth:`render` returns a tuple of ``num_envs``
+            frames, each the single environment's (one view draws them all, built on the
+            first call; ``close()`` frees it). For ``"human"`` use
+            ``gym.make_vec(..., vectorization_mode="sync")``.
         **kwargs: the single environment's keywords.
 
     ``reset(options={"reset_mask": mask})`` (a numpy bool array of shape ``(num_envs,)``), in
@@ -51,21 +56,31 @@ class CubeGaitVectorEnv(VectorEnv):
     random) and the observations of all, as Gymnasium's ``SyncVectorEnv``.
     """
 
-    metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP, "render_modes": []}  # noqa: RUF012
+    metadata = {  # noqa: RUF012
+        "autoreset_mode": AutoresetMode.NEXT_STEP,
+        "render_modes": ["rgb_array"],
+        "render_fps": GAIT_RENDER_FPS,
+    }
 
     def __init__(
         self,
         num_envs: int = 1,
         autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
         max_episode_steps: int | None = None,
+        render_mode: str | None = None,
         **kwargs: Any,
     ) -> None:
+        if not (render_mode is None or render_mode == "rgb_array"):
+            raise ValueError(
+                "render_mode must be None or 'rgb_array' (for 'human' use"
+                f' gym.make_vec(..., vectorization_mode="sync")), got {render_mode!r}'
+            )
         self.num_envs = check_integer("num_envs", num_envs, 1, MAX_ENVS)
         mode = check_autoreset_mode(autoreset_mode)
         self.max_episode_steps = check_max_episode_steps(max_episode_steps)
         self.autoreset_mode = mode
         self.metadata = {**self.metadata, "autoreset_mode": mode}
-        self.render_mode = None
+        self.render_mode = render_mode
         self.template = CubeGaitEnv(**kwargs)
         self.task = self.template.task
         self.terminate_on_slip = self.template.terminate_on_slip
@@ -86,6 +101,16 @@ class CubeGaitVectorEnv(VectorEnv):
         self._autoreset = np.zeros(self.num_envs, bool)
         self._dropped = np.zeros(self.num_envs, bool)  # ended with the cube dropped
         self._started = False
+        # What render() draws (kept only with a render_mode): the last step's pose, contacts
+        # after its move, forces and reward, or, where _resting, the state as it is (a new
+        # episode before its first step).
+        F = self.task.n_fingers
+        self._view: Any = None
+        self._resting = np.ones(self.num_envs, bool)
+        self._shown_t = np.zeros(self.num_envs, np.int64)
+        self._shown_contacts = np.full((self.num_envs, F), -1, np.int64)
+        self._shown_forces = np.zeros((self.num_envs, F, 3))
+        self._shown_reward = np.zeros(self.num_envs)
 
     def _observations(self, x: np.ndarray, t: np.ndarray) -> np.ndarray:
         task = self.task
@@ -125,6 +150,7 @@ class CubeGaitVectorEnv(VectorEnv):
         self._t[mask] = 0
         self._autoreset[mask] = False
         self._dropped[mask] = False
+        self._resting[mask] = True
         self._started = True
         observations = self._observations(self._x, self._t)
         # a dropped cube's last observation shows no contacts (the state is kept)
@@ -136,6 +162,7 @@ class CubeGaitVectorEnv(VectorEnv):
         self._x[envs] = self.task.start
         self._t[envs] = 0
         self._dropped[envs] = False
+        self._resting[envs] = True
         return self._observations(self._x[envs], self._t[envs])
 
     def step(
@@ -181,10 +208,48 @@ class CubeGaitVectorEnv(VectorEnv):
             truncated[restarting] = False
             mask[restarting] = False
         self._dropped = dropped & terminated  # not the restarted ones
+        if self.render_mode is not None:  # the restarted ones: at their start, as after reset
+            self._resting[:] = ~mask
+            self._shown_t[:] = t
+            self._shown_contacts[:] = out["contacts"]
+            self._shown_forces[:] = out["contact_forces"]
+            self._shown_reward[:] = reward
         self._autoreset = end_step(
             self.autoreset_mode, observations, info, terminated | truncated, mask, self._restart
         )
         return observations, reward, terminated, truncated, info
+
+    def render(self) -> tuple[np.ndarray, ...] | None:
+        """The ``num_envs`` sub-environments' frames, each an RGB image (H, W, 3) uint8, as
+        the single environment draws it (see its Rendering section)."""
+        if self.render_mode is None:
+            gym.logger.warn("render() called without a render_mode; pass render_mode to make_vec()")
+            return None
+        from .render import GaitView, resting_grips
+
+        if self._view is None:
+            self._view = GaitView(self.task, render_mode=self.render_mode)
+        resting = np.flatnonzero(self._resting)
+        contacts, forces = self._shown_contacts.copy(), self._shown_forces.copy()
+        poses = self._shown_t.copy()
+        if resting.size:
+            poses[resting] = np.minimum(self._t[resting], self.task.n_poses - 1)
+            contacts[resting], forces[resting] = resting_grips(
+                self.task, self._x[resting], poses[resting]
+            )
+        return tuple(
+            self._view.render(
+                int(poses[e]), contacts[e], forces[e],
+                None if self._resting[e] else float(self._shown_reward[e]),
+            )
+            for e in range(self.num_envs)
+        )  # fmt: skip
+
+    def close_extras(self, **kwargs: Any) -> None:
+        """Free the view's renderer (``close()`` calls this)."""
+        if self._view is not None:
+            self._view.close()
+            self._view = None
 
 
 __all__ = ["CubeGaitVectorEnv"]
