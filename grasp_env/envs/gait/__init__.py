@@ -12,8 +12,8 @@ very same numbers.
 
 Modules by concern: ``tasks`` (one configuration's tables, :func:`gait_task`), ``kernels``
 (the compiled step and the certified grip of a move), ``experts`` (:class:`GaitExpert`,
-:class:`GreedyGait`), ``env`` (:class:`CubeGaitEnv`) and ``vector``
-(:class:`CubeGaitVectorEnv`).
+:class:`GreedyGait`), ``env`` (:class:`CubeGaitEnv`), ``vector`` (:class:`CubeGaitVectorEnv`)
+and ``render`` (``GaitView``: the frames of ``render_mode="rgb_array"``).
 """
 
 from .env import CubeGaitEnv
