@@ -116,7 +116,8 @@ def check_against_reference(scenes: GeneralScenes, result, references) -> None:
 
 
 @pytest.mark.parametrize("force_limit", [False, True], ids=["free", "f_max"])
-@pytest.mark.parametrize("n", CONTACTS)
+@pytest.mark.parametrize("n", [pytest.param(n, marks=pytest.mark.fast) if n == 5 else n
+                               for n in CONTACTS])  # fmt: skip
 def test_random_scenes_agree_with_the_reference(n, force_limit):
     scenes, result, references = solved(n, force_limit, SCENES, seed=1)
     assert set(scenes.shapes) == set(SHAPES)
@@ -142,7 +143,7 @@ def downward_grasp(n: int, tilt: float, seed: int):  # type: ignore[no-untyped-d
     return g, float(np.linalg.norm(normals + np.array([0.0, 0.0, 1.0]), axis=-1).sum())
 
 
-@pytest.mark.parametrize("n", [pytest.param(n, marks=pytest.mark.fast) if n <= 4 else n
+@pytest.mark.parametrize("n", [pytest.param(n, marks=pytest.mark.fast) if n <= 5 else n
                                for n in CONTACTS])  # fmt: skip
 def test_normals_in_one_half_space_give_not_pushing(n):
     """Every inward normal exactly -z: sum_i n_i . P_i = -z . sum_i P_i = -w < 0 for every k
