@@ -132,39 +132,3 @@ def cholesky_solve(H, b):
             v -= H[p, i] * b[p]
         b[i] = v / H[i, i]
     return True
-
-
-@kernel
-def lu_solve(A, b):
-    """Solve A x = b in place (b becomes x; A is overwritten) by Gaussian elimination with
-    partial pivoting; False if a pivot is below 1e-13 of A's largest entry."""
-    d = b.shape[0]
-    largest = 0.0
-    for p in range(d):
-        for q in range(d):
-            largest = max(largest, abs(A[p, q]))
-    if largest == 0.0:
-        return False
-    for j in range(d):
-        pivot, best = j, abs(A[j, j])
-        for i in range(j + 1, d):
-            if abs(A[i, j]) > best:
-                pivot, best = i, abs(A[i, j])
-        if best <= 1e-13 * largest:
-            return False
-        if pivot != j:
-            for q in range(d):
-                A[j, q], A[pivot, q] = A[pivot, q], A[j, q]
-            b[j], b[pivot] = b[pivot], b[j]
-        for i in range(j + 1, d):
-            factor = A[i, j] / A[j, j]
-            if factor != 0.0:
-                for q in range(j + 1, d):
-                    A[i, q] -= factor * A[j, q]
-                b[i] -= factor * b[j]
-    for i in range(d - 1, -1, -1):
-        v = b[i]
-        for q in range(i + 1, d):
-            v -= A[i, q] * b[q]
-        b[i] = v / A[i, i]
-    return True

@@ -7,9 +7,10 @@ from math import inf, sqrt
 
 import numpy as np
 
+from ..linalg import lu_solve
 from .barrier import dual_bound
 from .codes import kernel
-from .frames import finger_forces, level_excess, lu_solve
+from .frames import finger_forces, level_excess
 
 
 @kernel
@@ -202,7 +203,7 @@ def polish(t, w, y, a0, al, tau0, T, box, K, f, cone, ball, fixed):
         for p in range(size):
             step[p] = -R[p]
         J_copy = J.copy()
-        if not lu_solve(J_copy, step):  # singular: degenerate sets, the least-squares step
+        if not lu_solve(J_copy, step, size):  # singular: degenerate sets, the least-squares step
             step = np.linalg.lstsq(J, -R)[0]
         s = 1.0
         R_new = np.empty(size)
