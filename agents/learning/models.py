@@ -357,20 +357,26 @@ def load_model(
 # --- vecnormalize.pkl ----------------------------------------------------------------------
 
 
-def load_vecnormalize(path: str | Path, venv: VecEnv | None = None) -> VecNormalize:
-    """SB3's ``VecNormalize.load(path, venv)``, without running code from the file.
-
-    Without ``venv`` the statistics only normalise (``normalize_obs``), as an agent needs.
-    """
-    path = Path(path)
+def _read_pickle(path: Path) -> Any:
+    """The pickle file at ``path``, read without running code from it; a one-line error for a
+    forbidden name or damaged data."""
     try:
-        normalizer = safe_loads(path.read_bytes(), str(path))
+        return safe_loads(path.read_bytes(), str(path))
     except NestedTooDeep:
         raise
     except ForbiddenName as error:
         raise _refusal(path, "the pickle", str(error)) from None
     except Exception as error:  # damaged data fails in many ways, none of them runs code
         raise _damaged(path, "the file", error) from None
+
+
+def load_vecnormalize(path: str | Path, venv: VecEnv | None = None) -> VecNormalize:
+    """SB3's ``VecNormalize.load(path, venv)``, without running code from the file.
+
+    Without ``venv`` the statistics only normalise (``normalize_obs``), as an agent needs.
+    """
+    path = Path(path)
+    normalizer = _read_pickle(path)
     if not isinstance(normalizer, VecNormalize) or not all(
         isinstance(getattr(normalizer, name, None), RunningMeanStd)
         for name in ("obs_rms", "ret_rms")
@@ -392,14 +398,7 @@ def load_vecnormalize(path: str | Path, venv: VecEnv | None = None) -> VecNormal
 def load_replay_buffer(path: str | Path) -> ReplayBuffer:
     """SB3's ``model.load_replay_buffer(path)``'s buffer, without running code from the file."""
     path = Path(path)
-    try:
-        buffer = safe_loads(path.read_bytes(), str(path))
-    except NestedTooDeep:
-        raise
-    except ForbiddenName as error:
-        raise _refusal(path, "the pickle", str(error)) from None
-    except Exception as error:  # damaged data fails in many ways, none of them runs code
-        raise _damaged(path, "the file", error) from None
+    buffer = _read_pickle(path)
     if not isinstance(buffer, ReplayBuffer):
         raise ValueError(f"{path}: not a replay buffer (SB3's save_replay_buffer)")
     return buffer
