@@ -30,7 +30,7 @@ an edge) are skipped and drawn again; the scenes are the same for the same seed.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -40,13 +40,13 @@ from grasp_env.mechanics import (
     Box,
     ConvexMesh,
     Cylinder,
-    Grasp,
     Scene,
     Sphere,
     scene_grasp,
 )
 from grasp_env.mechanics.objects import CAPS, FACES
 from grasp_env.mechanics.rotations import quaternion_matrix
+from grasp_env_agents.benchmarks.study_solver import Scenes, stacked
 
 #: The shapes, in the order the scenes cycle through them.
 SHAPES: tuple[str, ...] = ("box", "cylinder", "sphere", "mesh")
@@ -63,8 +63,9 @@ MAX_DRAWS = 1000
 
 
 @dataclass(frozen=True)
-class GeneralScenes:
-    """A batch of random grasps (leading axis: scene) with their limits and their kinds.
+class GeneralScenes(Scenes):
+    """A batch of random grasps (leading axis: scene) with their limits and their kinds
+    (:class:`~.study_solver.Scenes` with the scenes' metadata).
 
     Attributes:
         grasp: the grasps, one pose each, stacked along the first axis.
@@ -74,9 +75,6 @@ class GeneralScenes:
         scenes: the :class:`Scene` of each grasp, and ``rotations`` (count, 3, 3) its pose.
     """
 
-    grasp: Grasp
-    k_max: np.ndarray
-    f_max: np.ndarray | None
     shapes: tuple[str, ...]
     scenes: tuple[Scene, ...]
     rotations: np.ndarray
@@ -89,19 +87,6 @@ class GeneralScenes:
     @property
     def force_limit(self) -> bool:
         return self.f_max is not None
-
-    def __len__(self) -> int:
-        return len(self.k_max)
-
-    def one(self, b: int) -> tuple[Grasp, float, float | None]:
-        """Scene ``b``: its unbatched grasp, k_max and f_max (None without a limit)."""
-        g = Grasp(*(getattr(self.grasp, f.name)[b] for f in fields(Grasp)))
-        return g, float(self.k_max[b]), None if self.f_max is None else float(self.f_max[b])
-
-
-def stacked(grasps: list[Grasp]) -> Grasp:
-    """One Grasp whose leading axis runs over ``grasps`` (one pose each)."""
-    return Grasp(*(np.stack([getattr(g, f.name) for g in grasps]) for f in fields(Grasp)))
 
 
 def random_rotation(rng: np.random.Generator) -> np.ndarray:
