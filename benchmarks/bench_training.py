@@ -25,7 +25,7 @@ from stable_baselines3 import PPO
 from stable_baselines3.common.env_util import make_vec_env as sb3_make_vec_env
 
 from grasp_env_agents.learning.algorithms import new_model
-from grasp_env_agents.learning.envs import make_vec_env
+from grasp_env_agents.learning.envs import action_scale, make_vec_env
 from grasp_env_agents.learning.imitation import StateCollector, fit, grasp_of, make_teacher
 from grasp_env_agents.run.config import CONFIG_DIR, DEFAULT_CONFIG, load_config
 
@@ -81,8 +81,9 @@ def main() -> None:
     print(f"  CartPole-v1 (DummyVecEnv):  {cartpole:8.0f} steps/s   ratio {ours / cartpole:.2f}")
 
     kwargs = {"terminate_on_slip": False}
-    teacher = make_teacher(kwargs)
     collector = StateCollector("grasp_env/CubeGraspRandom-v0", kwargs, 256, seed=0)
+    teacher = make_teacher(collector.envs)
+    scale = action_scale(collector.envs)  # k_max / w, read back from the environment
     collector.collect(teacher.actions, CHUNK)  # warm-up
     labelled = rate(lambda: len(collector.collect(teacher.actions, CHUNK)[0]), seconds)
     rng = np.random.default_rng(0)
@@ -135,7 +136,7 @@ def main() -> None:
     for output in ("k", "force_directions"):
         env = make_vec_env(default.env_id, kwargs, default.n_envs, 0)
         model = new_model(default.replace(**{"policy.output": output}), env)
-        rates[output] = rate(lambda: epoch(model.policy, grasp, 1.0), seconds)  # noqa: B023
+        rates[output] = rate(lambda: epoch(model.policy, grasp, 1.0, scale), seconds)  # noqa: B023
     print(f"Supervised fit of the main job ({default.policy.net_arch} MLP, angle loss):")
     print(f"  output k:                {rates['k']:8.0f} samples/s")
     ratio = rates["force_directions"] / rates["k"]

@@ -40,7 +40,7 @@ from grasp_env.envs.validation import DEFAULT_K_MAX_RATIO
 
 if TYPE_CHECKING:
     from ..run.config import TrainConfig
-from .envs import sample_poses
+from .envs import action_scale, sample_poses
 from .features import GraspFeatures, grasp_tensors, max_friction_angle
 from .imitation import mean_action
 from .policy import ForceDirectionHead, ForceDirectionPolicy
@@ -254,6 +254,7 @@ def new_model(config: TrainConfig, env: VecEnv) -> BaseAlgorithm:
     policy = config.policy
     activation = ACTIVATIONS[policy.activation]
     directions = policy.output == "force_directions"
+    k_max_ratio = action_scale(env)  # the environment's own, read back from it
     if config.algo == "ppo":
         ppo = config.ppo
         model = WarmCriticPPO(
@@ -261,7 +262,7 @@ def new_model(config: TrainConfig, env: VecEnv) -> BaseAlgorithm:
             env,
             critic_warmup=ppo.critic_warmup,
             baseline=ppo.baseline,
-            k_max_ratio=config.k_max_ratio,
+            k_max_ratio=k_max_ratio,
             # SB3's own class, not a lambda: a model file then holds a reference, not code
             learning_rate=(
                 LinearSchedule(ppo.learning_rate, 0.0, 1.0)
@@ -289,7 +290,7 @@ def new_model(config: TrainConfig, env: VecEnv) -> BaseAlgorithm:
                     if policy.features == "grasp"
                     else {}
                 ),
-                **({"k_max_ratio": config.k_max_ratio} if directions else {}),
+                **({"k_max_ratio": k_max_ratio} if directions else {}),
                 **({"normalize_features": True} if policy.normalize_features else {}),
             },
             seed=config.seed,
@@ -303,7 +304,7 @@ def new_model(config: TrainConfig, env: VecEnv) -> BaseAlgorithm:
     assert off is not None  # an off-policy config always has the section (config.py)
     policy_kwargs: dict[str, Any] = {"net_arch": list(policy.net_arch), "activation_fn": activation}
     if directions:
-        policy_kwargs["k_max_ratio"] = config.k_max_ratio
+        policy_kwargs["k_max_ratio"] = k_max_ratio
     elif policy.features == "grasp":
         policy_kwargs["features_extractor_class"] = GraspFeatures
     common = {

@@ -142,6 +142,15 @@ def summarise(episodes: list[Episode]) -> dict[str, float]:
     }
 
 
+def action_scale(envs: VecEnv | gym.vector.VectorEnv) -> float:
+    """k_max / w of ``envs``' environments (their ``k_max_ratio``), read back from them: an
+    action a is the interaction scalar k = a k_max. ``envs`` is an SB3 ``VecEnv`` or one of
+    grasp_env's batched Gymnasium vector environments."""
+    if isinstance(envs, VecEnv):
+        return float(envs.get_attr("k_max_ratio")[0])
+    return float(envs.unwrapped.template.k_max_ratio)
+
+
 def make_held_out_env(
     env_id: str, env_kwargs: dict[str, Any], episodes: int, seed: int = HELD_OUT_SEED
 ) -> VecEnv:

@@ -59,10 +59,10 @@ from stable_baselines3.common.vec_env import VecNormalize
 
 from grasp_env import MinimaxExpert
 from grasp_env.envs.observation import ObservationLayout
-from grasp_env.envs.validation import DEFAULT_K_MAX_RATIO
 
 from ..progress import say, status
 from ..run.config import ImitationConfig
+from .envs import action_scale
 from .features import grasp_tensors, max_friction_angle
 
 #: Final learning rate of each round's cosine decay, as a fraction of the initial one.
@@ -115,14 +115,9 @@ def grasp_of(obs: np.ndarray) -> tuple[torch.Tensor, ...]:
     return tuple(torch.cat(p) for p in zip(*parts, strict=True))
 
 
-def k_max_ratio_of(env_kwargs: dict[str, Any]) -> float:
-    """The k_max / w of environments built with ``env_kwargs``."""
-    return env_kwargs.get("k_max_ratio", DEFAULT_K_MAX_RATIO)
-
-
-def make_teacher(env_kwargs: dict[str, Any]) -> MinimaxExpert:
-    """The expert for environments built with ``env_kwargs`` (it needs their k_max / w)."""
-    return MinimaxExpert(k_max_ratio_of(env_kwargs))
+def make_teacher(envs: gym.vector.VectorEnv) -> MinimaxExpert:
+    """The expert for ``envs``' environments (it needs their k_max / w, read from them)."""
+    return MinimaxExpert(action_scale(envs))
 
 
 class Validation:
@@ -141,10 +136,10 @@ class Validation:
             self.obs, _ = collector.collect(
                 lambda obs: np.zeros((len(obs), *shape), dtype=np.float32), VALIDATION_STATES
             )
+            self.k_max_ratio = action_scale(collector.envs)
         finally:
             collector.close()
         self.grasp = grasp_of(self.obs)
-        self.k_max_ratio = k_max_ratio_of(env_kwargs)
 
     def angle_deg(self, policy: ActorCriticPolicy, normalise: Callable[[Any], Any]) -> float:
         """The mean over the set of the largest friction angle of the policy's grip (deg)."""
@@ -211,17 +206,21 @@ def fit(
     generator: torch.Generator,
     grasp: tuple[torch.Tensor, ...] | None = None,
     gap_weight: float = 0.0,
-    k_max_ratio: float = 2.0,
+    k_max_ratio: float | None = None,
     label_weight: float = 1.0,
 ) -> float:
     """Fit the policy's mean action on ``obs``; returns the last epoch's mean loss.
 
     The loss is ``label_weight`` x the mean squared error to ``labels``, plus ``gap_weight`` x
     the mean max friction angle (radians) if ``grasp`` (from :func:`grasp_of`) is given. With
-    ``label_weight`` 0 the labels are not read (they may have no columns).
+    ``label_weight`` 0 the labels are not read (they may have no columns). ``k_max_ratio``
+    (the environment's k_max / w, :func:`~.envs.action_scale`) scales the actions of the gap
+    term.
     """
     if label_weight == 0 and (grasp is None or gap_weight == 0):
         raise ValueError("fit has nothing to fit: label_weight and gap_weight are both 0")
+    if grasp is not None and gap_weight > 0 and k_max_ratio is None:
+        raise ValueError("fit with a gap term needs k_max_ratio, the environment's k_max / w")
     extractor = policy.pi_features_extractor
     if any(True for _ in extractor.parameters()):
         raise ValueError("fit needs a parameter-free features extractor (flatten or grasp)")
@@ -320,9 +319,9 @@ def imitate(
     """
     done = done or []
     # with label_weight 0 the fit learns from the reward alone: no expert is made or called
-    teacher = make_teacher(env_kwargs) if config.label_weight > 0 else None
-    k_max_ratio = k_max_ratio_of(env_kwargs)
     collector = StateCollector(env_id, env_kwargs, config.n_envs, seed + len(done) * config.n_envs)
+    teacher = make_teacher(collector.envs) if config.label_weight > 0 else None
+    k_max_ratio = action_scale(collector.envs)
     collector.env_steps = env_steps
     generator = torch.Generator().manual_seed(seed + len(done))
 

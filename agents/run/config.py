@@ -38,7 +38,7 @@ from pydantic import (
 )
 
 from grasp_env import ENV_IDS
-from grasp_env.envs.validation import DEFAULT_K_MAX_RATIO
+from grasp_env.envs.spec import check_keywords
 
 from ..cli import MAX_SEED
 from ..safe_files import MAX_NESTING
@@ -349,6 +349,7 @@ class TrainConfig(_Section):
                 f"env_id: {self.env_id} trains with rl-zoo3 (docs/gait.md) and is evaluated by"
                 " grasp-env gait --models; grasp-env train trains the grasp environments"
             )
+        check_keywords(self.env_kwargs)  # the keywords' ranges (spec.py), before any env is built
         if self.total_timesteps == 0 and self.imitation is None:
             raise ValueError(
                 "nothing to train: total_timesteps is 0 and there is no imitation section;"
@@ -411,11 +412,6 @@ class TrainConfig(_Section):
     def expert_teaches(self) -> bool:
         """Whether an imitation phase learns from the expert (not the reward alone)."""
         return self.imitation is not None and self.imitation.label_weight > 0
-
-    @property
-    def k_max_ratio(self) -> float:
-        """k_max / w of the config's environment: the scale of its actions."""
-        return self.env_kwargs.get("k_max_ratio", DEFAULT_K_MAX_RATIO)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain data (the YAML written into the run directory): the sections of the config's

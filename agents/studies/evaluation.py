@@ -19,7 +19,14 @@ from grasp_env.envs.validation import MAX_ENVS
 from grasp_env.mechanics import contact_pairs
 
 from ..learning.baselines import ConstantPolicy, RandomPolicy, equal_k_policy
-from ..learning.envs import HELD_OUT_SEED, Episode, find_held_out, make_held_out_env, summarise
+from ..learning.envs import (
+    HELD_OUT_SEED,
+    Episode,
+    action_scale,
+    find_held_out,
+    make_held_out_env,
+    summarise,
+)
 from ..learning.models import load_agent, misfit
 from ..progress import status
 from ..run.config import load_config
@@ -94,7 +101,7 @@ def evaluate_run(
     with status(f"evaluate: loading the agent and {episodes} held-out scenes"):
         env = make_held_out_env(config.env_id, config.env_kwargs, episodes)
         m = env.action_space.shape[0]
-        k_max_ratio = config.k_max_ratio
+        k_max_ratio = action_scale(env)
         agent = load_agent(run_dir, config.algo)
         problem = misfit(agent.model, env, config.env_id)
         if problem:

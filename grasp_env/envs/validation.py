@@ -21,21 +21,17 @@ from ..mechanics.checks import real_number as check_number
 # re-exported: the environments' pose cap is the trajectories' (each pose a solve at a reset)
 from ..mechanics.trajectory import MAX_POSES as MAX_POSES
 from ..mechanics.trajectory import Trajectory
+from .spec import ALPHA, K_MAX_RATIO, K_MAX_RATIO_MUJOCO, MIN_EXPERT_MARGIN, MU, WEIGHT
 
-#: Default action scale of the environments: k_max = 2 w.
-DEFAULT_K_MAX_RATIO = 2.0
-
-# The accepted ranges (closed). The mechanics are computed in units of w, so rewards do not
-# depend on the weight at all; the weight range keeps the forces reported in newtons (and the
-# MuJoCo model's masses) far from overflow and underflow.
-WEIGHT_RANGE = (1e-6, 1e6)  # N
-MU_RANGE = (1e-3, 1e3)  # theta_lim from 0.057 deg to 89.94 deg
-K_MAX_RATIO_RANGE = (1e-3, 1e3)  # k_max / w
-#: k_max / w with physics="mujoco": a finger's force is at most |F_i| + 3 k_max (four fingers),
-#: which leaves room below the MuJoCo contact's grasp_env.physics.model.MAX_FORCE (150 w) for
-#: the equilibrating forces F_i; scenes that overstep it are refused (scenes.check_mujoco_scene).
-MUJOCO_K_MAX_RATIO_RANGE = (1e-3, 40.0)
-ALPHA_RANGE_DEG = (-180.0, 180.0)
+# The accepted ranges (closed), from the keywords' records (spec.py). The mechanics are
+# computed in units of w, so rewards do not depend on the weight at all; the weight range
+# keeps the forces reported in newtons (and the MuJoCo model's masses) far from overflow.
+DEFAULT_K_MAX_RATIO = K_MAX_RATIO.default
+WEIGHT_RANGE = WEIGHT.range  # N
+MU_RANGE = MU.range  # theta_lim from 0.057 deg to 89.94 deg
+K_MAX_RATIO_RANGE = K_MAX_RATIO.range  # k_max / w
+MUJOCO_K_MAX_RATIO_RANGE = K_MAX_RATIO_MUJOCO.range  # (spec.K_MAX_RATIO_MUJOCO: why)
+ALPHA_RANGE_DEG = ALPHA.range
 #: The most sub-environments a vector environment may have.
 MAX_ENVS = 1 << 20
 
@@ -84,18 +80,17 @@ def check_fraction(name: str, value: Any, high: float = 1.0, *, closed: bool = F
 
 def check_margin(value: Any) -> float:
     """``min_expert_margin_deg`` in [0, 45) degrees, returned in radians."""
-    return float(np.deg2rad(check_fraction("min_expert_margin_deg", value, 45.0)))
+    return float(np.deg2rad(MIN_EXPERT_MARGIN.check(value)))
 
 
 def check_k_max_ratio(value: Any) -> float:
     """``k_max_ratio`` = k_max / w in :data:`K_MAX_RATIO_RANGE`."""
-    return check_number("k_max_ratio", value, *K_MAX_RATIO_RANGE)
+    return K_MAX_RATIO.check(value)
 
 
 def check_mujoco_k_max_ratio(value: Any) -> float:
     """``k_max_ratio`` of an environment checked in MuJoCo, in :data:`MUJOCO_K_MAX_RATIO_RANGE`."""
-    low, high = MUJOCO_K_MAX_RATIO_RANGE
-    return check_number("k_max_ratio (with physics='mujoco')", value, low, high)
+    return K_MAX_RATIO_MUJOCO.check(value, "k_max_ratio (with physics='mujoco')")
 
 
 def check_array(name: str, value: Any, shape: tuple[int, ...]) -> np.ndarray:

@@ -10,6 +10,7 @@ import numpy as np
 from gymnasium import spaces
 
 from ...mechanics import FOUR_FINGER_FACES, PAPER_FACES, Scene, contact_pairs, n_pairs
+from .. import spec
 from ..kernels import step_grip
 from ..observation import ObservationLayout
 from ..validation import (
@@ -480,16 +481,16 @@ class CubeGraspRandomEnv(_CubeGraspEnv):
     def __init__(
         self,
         faces: Sequence[str] = PAPER_FACES,
-        contact_offset: float = 0.5,
-        cg_offset: float = 0.2,
-        weight_range: tuple[float, float] = (1.0, 10.0),
-        mu_range: tuple[float, float] = (0.3, 1.0),
-        alpha_start_range_deg: tuple[float, float] = (-30.0, -10.0),
-        alpha_end_range_deg: tuple[float, float] = (10.0, 30.0),
-        alpha_step_deg: float = 1.0,
-        extra_force: float = 0.0,
-        extra_torque: float = 0.0,
-        min_expert_margin_deg: float = 1.0,
+        contact_offset: float = spec.CONTACT_OFFSET.default,
+        cg_offset: float = spec.CG_OFFSET.default,
+        weight_range: tuple[float, float] = spec.WEIGHT_DRAWS.default,
+        mu_range: tuple[float, float] = spec.MU_DRAWS.default,
+        alpha_start_range_deg: tuple[float, float] = spec.ALPHA_START_DRAWS.default,
+        alpha_end_range_deg: tuple[float, float] = spec.ALPHA_END_DRAWS.default,
+        alpha_step_deg: float = spec.ALPHA_STEP.default,
+        extra_force: float = spec.EXTRA_FORCE.default,
+        extra_torque: float = spec.EXTRA_TORQUE.default,
+        min_expert_margin_deg: float = spec.MIN_EXPERT_MARGIN.default,
         k_max_ratio: float = DEFAULT_K_MAX_RATIO,
         terminate_on_slip: bool = True,
         physics: str | None = None,

@@ -21,18 +21,16 @@ from ...mechanics import (
     contact_pairs,
     face_point,
 )
+from .. import spec
 from ..kernels import evaluate_grips, pose_geometry
 from ..observation import ObservationLayout
 from ..validation import (
-    ALPHA_RANGE_DEG,
     MU_RANGE,
     TRAJECTORY_KEYS,
     WEIGHT_RANGE,
     check_array,
-    check_fraction,
     check_number,
     check_pose_count,
-    check_range,
     check_trajectory,
 )
 
@@ -340,36 +338,38 @@ class SceneSampler:
     """Ranges of the random scenes (see :class:`~grasp_env.envs.CubeGraspRandomEnv`)."""
 
     faces: tuple[str, ...] = PAPER_FACES
-    contact_offset: float = 0.5
-    cg_offset: float = 0.2
-    weight_range: tuple[float, float] = (1.0, 10.0)
-    mu_range: tuple[float, float] = (0.3, 1.0)
-    alpha_start_range_deg: tuple[float, float] = (-30.0, -10.0)
-    alpha_end_range_deg: tuple[float, float] = (10.0, 30.0)
-    alpha_step_deg: float = 1.0
-    extra_force: float = 0.0
-    extra_torque: float = 0.0
+    contact_offset: float = spec.CONTACT_OFFSET.default
+    cg_offset: float = spec.CG_OFFSET.default
+    weight_range: tuple[float, float] = spec.WEIGHT_DRAWS.default
+    mu_range: tuple[float, float] = spec.MU_DRAWS.default
+    alpha_start_range_deg: tuple[float, float] = spec.ALPHA_START_DRAWS.default
+    alpha_end_range_deg: tuple[float, float] = spec.ALPHA_END_DRAWS.default
+    alpha_step_deg: float = spec.ALPHA_STEP.default
+    extra_force: float = spec.EXTRA_FORCE.default
+    extra_torque: float = spec.EXTRA_TORQUE.default
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
         set_(self, "faces", check_faces(self.faces))
-        set_(self, "contact_offset", check_fraction("contact_offset", self.contact_offset))
-        set_(self, "cg_offset", check_fraction("cg_offset", self.cg_offset))
-        set_(self, "weight_range", check_range("weight_range", self.weight_range, *WEIGHT_RANGE))
-        set_(self, "mu_range", check_range("mu_range", self.mu_range, *MU_RANGE))
-        for name in ("alpha_start_range_deg", "alpha_end_range_deg"):
-            set_(self, name, check_range(name, getattr(self, name), *ALPHA_RANGE_DEG))
+        for parameter in (
+            spec.CONTACT_OFFSET,
+            spec.CG_OFFSET,
+            spec.WEIGHT_DRAWS,
+            spec.MU_DRAWS,
+            spec.ALPHA_START_DRAWS,
+            spec.ALPHA_END_DRAWS,
+            spec.ALPHA_STEP,
+            spec.EXTRA_FORCE,
+            spec.EXTRA_TORQUE,
+        ):
+            set_(self, parameter.name, parameter.check(getattr(self, parameter.name)))
         if self.alpha_start_range_deg[1] > self.alpha_end_range_deg[0]:
             raise ValueError(
                 "alpha_start_range_deg must lie below alpha_end_range_deg, got"
                 f" {self.alpha_start_range_deg} and {self.alpha_end_range_deg}"
             )
-        step = check_number("alpha_step_deg", self.alpha_step_deg, 0.0, 360.0, open_low=True)
-        set_(self, "alpha_step_deg", step)
         span = self.alpha_end_range_deg[1] - self.alpha_start_range_deg[0]
-        check_pose_count("alpha_step_deg", span, step)
-        set_(self, "extra_force", check_fraction("extra_force", self.extra_force, closed=True))
-        set_(self, "extra_torque", check_fraction("extra_torque", self.extra_torque, closed=True))
+        check_pose_count("alpha_step_deg", span, self.alpha_step_deg)
 
     @property
     def max_length(self) -> int:
