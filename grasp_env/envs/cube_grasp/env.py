@@ -22,7 +22,7 @@ from ..validation import (
     check_mujoco_k_max_ratio,
     check_seed,
 )
-from .episodes import Episode, build_episodes, cached_episode, sample_episodes
+from .episodes import Episode, EpisodeStream, build_episodes, cached_episode
 from .scenes import (
     SceneBatch,
     SceneSampler,
@@ -518,6 +518,8 @@ class CubeGraspRandomEnv(_CubeGraspEnv):
             )
         super().__init__(self.sampler.faces, k_max_ratio, terminate_on_slip, physics, render_mode)
         self._defaults = default_scene(self.faces)
+        # the episodes of np_random, drawn ahead (a new np_random, as a reseed makes, restarts it)
+        self._stream = EpisodeStream(self.sampler, self.k_max_ratio, self.min_expert_margin)
 
     def _next_episode(self, scene: SceneBatch | None) -> Episode:
         if scene is not None:
@@ -525,11 +527,9 @@ class CubeGraspRandomEnv(_CubeGraspEnv):
         # With physics a drawn scene must fit the MuJoCo contact as an explicit one must; the
         # vector env draws again from the same generator, so it gets the same episodes.
         for _ in range(MUJOCO_DRAWS):
-            batch = sample_episodes(
-                [self.np_random], self.sampler, self.k_max_ratio, self.min_expert_margin
-            )
-            if self.physics is None or mujoco_fits(batch.scenes, self.k_max_ratio)[0]:
-                return batch.episode(0)
+            episode = self._stream.next(self.np_random)
+            if self.physics is None or mujoco_fits(episode.scenes, self.k_max_ratio)[0]:
+                return episode
         raise mujoco_draws_error(self.k_max_ratio)
 
 

@@ -10,6 +10,7 @@ P = F + sum k_ij e_ij (eq. 4) and the friction angles (eq. 2) with
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, fields
 
@@ -294,6 +295,117 @@ DRAWS_PER_ROUND = 2
 #: Give up (the ranges admit almost no holdable scene) when fewer than one candidate in this
 #: many holds.
 MAX_DRAWS = 2000
+#: The most rounds of candidates a single environment draws ahead at once (EpisodeStream).
+AHEAD_ROUNDS = 32
+
+
+def draws_error(min_margin: float) -> ValueError:
+    """The error of ranges that let fewer than 1 candidate in :data:`MAX_DRAWS` hold."""
+    return ValueError(
+        f"fewer than 1 in {MAX_DRAWS} random scenes lets the expert keep a margin of"
+        f" {np.rad2deg(min_margin):g} deg along the whole trajectory; widen mu_range,"
+        " lower min_expert_margin_deg or narrow the offset and trajectory ranges"
+    )
+
+
+def first_holders(
+    drafts: SceneBatch, k_max_ratio: float, min_margin: float
+) -> tuple[list[EpisodeBatch], list[np.ndarray]]:
+    """The episode of each round of candidates that has one: ``drafts`` holds R rounds of
+    :data:`DRAWS_PER_ROUND` candidates, round after round. A round's episode is its first
+    candidate (in draw order) whose expert keeps every margin >= ``min_margin``.
+
+    Candidates whose contacts are (nearly) collinear or coplanar (the rule of
+    :class:`~grasp_env.mechanics.Scene`) or whose load nearly cancels the weight
+    (:func:`~grasp_env.envs.cube_grasp.scenes.load_ok`) are dropped, a cheap screen solves the
+    expert at the trajectory's two ends and middle, then candidates that pass are solved along
+    the whole trajectory, draw position by draw position, all rounds at once. Returns the
+    episodes as batches and, for each batch, the rounds its episodes come from.
+    """
+    rounds = len(drafts) // DRAWS_PER_ROUND
+    usable = np.flatnonzero(
+        layout_ok(drafts.contacts) & load_ok(drafts.weight, drafts.extra_force, drafts.extra_torque)
+    )
+    last = drafts.length - 1
+    picks = np.stack([np.zeros_like(last), last // 2 + last % 2, last], axis=1)
+    screen = build_poses(drafts, np.repeat(usable, 3), picks[usable].ravel(), k_max_ratio)
+    worst = np.full(len(drafts), -np.inf)
+    worst[usable] = screen.expert_reward.reshape(-1, 3).min(-1)
+    passed = (worst >= min_margin).reshape(rounds, DRAWS_PER_ROUND)
+    open_ = np.ones(rounds, bool)
+    chosen: list[EpisodeBatch] = []
+    held: list[np.ndarray] = []
+    for d in range(DRAWS_PER_ROUND):  # candidates in their draw order
+        slots = np.flatnonzero(open_ & passed[:, d])
+        if len(slots) == 0:
+            continue
+        candidates = slots * DRAWS_PER_ROUND + d
+        scenes = drafts.take(candidates)
+        # The screened poses are solved already (the optimum ignores the phase).
+        starts = np.cumsum(scenes.length) - scenes.length
+        screened = np.searchsorted(usable, candidates)
+        known = screen.take((screened[:, None] * 3 + np.arange(3)).ravel())
+        rows = (starts[:, None] + picks[candidates]).ravel()
+        full = build_episodes(scenes, k_max_ratio, known, rows)
+        holds = full.worst_expert_reward() >= min_margin
+        chosen.append(full if holds.all() else full.take(np.flatnonzero(holds)))
+        held.append(slots[holds])
+        open_[slots[holds]] = False
+    return chosen, held
+
+
+class EpisodeStream:
+    """The random episodes of one generator, drawn ahead: what a single environment's resets
+    read, so that a reset costs a pop, not a batch of solves of its own.
+
+    The episodes are those :func:`sample_episodes` gives, in the same order: rounds of
+    candidates are drawn from the generator one after the other as there, only several rounds
+    at a time, their solves batched, and the episodes of the rounds that hold queued in round
+    order. After a new generator (a reseed) the first batch is one round and batches double
+    up to :data:`AHEAD_ROUNDS`: a seeded reset costs what it did, a long run a fraction. Past
+    :data:`MAX_DRAWS` candidates without an episode, the next reset raises ValueError (as
+    :func:`sample_episodes`), and the one after carries on drawing.
+    """
+
+    def __init__(self, sampler: SceneSampler, k_max_ratio: float, min_margin: float) -> None:
+        self.sampler, self.k_max_ratio, self.min_margin = sampler, k_max_ratio, min_margin
+        self._rng: np.random.Generator | None = None
+        self._queue: deque[Episode | None] = deque()  # None: MAX_DRAWS failed, raise
+        self._rounds = 1
+        self._streak = 0  # candidates drawn since the last episode
+
+    def next(self, rng: np.random.Generator) -> Episode:
+        """The generator's next episode (a new generator restarts the stream)."""
+        if rng is not self._rng:
+            self._rng, self._rounds, self._streak = rng, 1, 0
+            self._queue.clear()
+        while not self._queue:
+            self._draw(rng)
+        episode = self._queue.popleft()
+        if episode is None:
+            raise draws_error(self.min_margin)
+        return episode
+
+    def _draw(self, rng: np.random.Generator) -> None:
+        drafts = self.sampler.scenes(
+            np.concatenate([self.sampler.raw(rng, DRAWS_PER_ROUND) for _ in range(self._rounds)])
+        )
+        batches, held = first_holders(drafts, self.k_max_ratio, self.min_margin)
+        episodes = {
+            int(r): b.episode(j)
+            for b, rs in zip(batches, held, strict=True)
+            for j, r in enumerate(rs)
+        }
+        for round_ in range(self._rounds):
+            if round_ in episodes:
+                self._queue.append(episodes[round_])
+                self._streak = 0
+                continue
+            self._streak += DRAWS_PER_ROUND
+            if self._streak >= MAX_DRAWS:
+                self._queue.append(None)
+                self._streak = 0
+        self._rounds = min(2 * self._rounds, AHEAD_ROUNDS)
 
 
 def sample_episodes(
@@ -304,15 +416,11 @@ def sample_episodes(
 ) -> EpisodeBatch:
     """One random episode per generator whose expert keeps every margin >= ``min_margin``.
 
-    Each generator draws :data:`DRAWS_PER_ROUND` candidates per round; candidates whose
-    contacts are (nearly) collinear or coplanar (the rule of
-    :class:`~grasp_env.mechanics.Scene`) or whose load nearly cancels the weight
-    (:func:`~grasp_env.envs.cube_grasp.scenes.load_ok`) are dropped, a cheap screen solves the
-    expert at the trajectory's two ends and middle, then candidates that pass are solved along
-    the whole trajectory in order, the first that holds being the episode. Which scene a
-    generator yields depends on that generator alone, so a vector of environments gets the same
-    episodes as single environments with the same seeds; all solves are batched. Raises
-    ValueError once fewer than one candidate in :data:`MAX_DRAWS` has held.
+    Each generator draws rounds of :data:`DRAWS_PER_ROUND` candidates until a round holds one
+    (:func:`first_holders`). Which scene a generator yields depends on that generator alone,
+    so a vector of environments gets the same episodes as single environments with the same
+    seeds; all solves are batched. Raises ValueError once fewer than one candidate in
+    :data:`MAX_DRAWS` has held.
     """
     chosen: list[EpisodeBatch] = []
     owners: list[np.ndarray] = []
@@ -320,44 +428,16 @@ def sample_episodes(
     drawn = 0
     while len(pending):
         if drawn >= MAX_DRAWS * (len(rngs) - len(pending) + 1):
-            raise ValueError(
-                f"fewer than 1 in {MAX_DRAWS} random scenes lets the expert keep a margin of"
-                f" {np.rad2deg(min_margin):g} deg along the whole trajectory; widen mu_range,"
-                " lower min_expert_margin_deg or narrow the offset and trajectory ranges"
-            )
+            raise draws_error(min_margin)
         drafts = sampler.scenes(
             np.concatenate([sampler.raw(rngs[e], DRAWS_PER_ROUND) for e in pending])
         )
         drawn += len(drafts)
-        # Screen the usable candidates (a grasp, a load): the two ends and the middle of
-        # every trajectory.
-        usable = np.flatnonzero(
-            layout_ok(drafts.contacts)
-            & load_ok(drafts.weight, drafts.extra_force, drafts.extra_torque)
-        )
-        last = drafts.length - 1
-        picks = np.stack([np.zeros_like(last), last // 2 + last % 2, last], axis=1)
-        screen = build_poses(drafts, np.repeat(usable, 3), picks[usable].ravel(), k_max_ratio)
-        worst = np.full(len(drafts), -np.inf)
-        worst[usable] = screen.expert_reward.reshape(-1, 3).min(-1)
-        passed = (worst >= min_margin).reshape(len(pending), DRAWS_PER_ROUND)
+        batches, held = first_holders(drafts, k_max_ratio, min_margin)
+        chosen += batches
+        owners += [pending[rounds] for rounds in held]
         open_ = np.ones(len(pending), bool)
-        for d in range(DRAWS_PER_ROUND):  # candidates in their draw order
-            slots = np.flatnonzero(open_ & passed[:, d])
-            if len(slots) == 0:
-                continue
-            candidates = slots * DRAWS_PER_ROUND + d
-            scenes = drafts.take(candidates)
-            # The screened poses are solved already (the optimum ignores the phase).
-            starts = np.cumsum(scenes.length) - scenes.length
-            screened = np.searchsorted(usable, candidates)
-            known = screen.take((screened[:, None] * 3 + np.arange(3)).ravel())
-            rows = (starts[:, None] + picks[candidates]).ravel()
-            full = build_episodes(scenes, k_max_ratio, known, rows)
-            holds = full.worst_expert_reward() >= min_margin
-            chosen.append(full if holds.all() else full.take(np.flatnonzero(holds)))
-            owners.append(pending[slots[holds]])
-            open_[slots[holds]] = False
+        open_[np.concatenate(held or [np.zeros(0, np.intp)])] = False
         pending = pending[open_]
     batch = chosen[0] if len(chosen) == 1 else EpisodeBatch.concatenate(chosen)
     order = np.argsort(np.concatenate(owners))
