@@ -80,8 +80,8 @@ def test_a_fit_whose_loss_spikes_goes_back_to_its_best_epoch(tmp_path, monkeypat
 
     config = tiny(total_timesteps=0, imitation={"rounds": 1, "n_envs": 4})
     _, _, model = build(config, Start(), tmp_path)
-    policy, teacher = model.policy, imitation.make_teacher({})
     collector = imitation.StateCollector(config.env_id, {}, 4, 0)
+    policy, teacher = model.policy, imitation.make_teacher(collector.envs)
     obs, labels = collector.collect(teacher.actions, 256)
     collector.close()
     grasp = imitation.grasp_of(obs)
@@ -275,7 +275,7 @@ def test_reward_gradient_fit_learns_with_no_expert(tmp_path, monkeypatch):
     imitation never makes an expert (the environment's own screening and info keep theirs)."""
     import grasp_env_agents.learning.imitation as imitation
 
-    def no_teacher(env_kwargs):
+    def no_teacher(envs):
         raise AssertionError("label_weight 0 made an expert")
 
     monkeypatch.setattr(imitation, "make_teacher", no_teacher)
@@ -315,7 +315,7 @@ def test_validation_poses_are_the_experts_states_without_an_expert(monkeypatch):
     env_id = "grasp_env/CubeGraspRandom-v0"
     validation = imitation.Validation(env_id, {}, 16)
     collector = imitation.StateCollector(env_id, {}, 16, imitation.VALIDATION_SEED)
-    expert = imitation.make_teacher({})
+    expert = imitation.make_teacher(collector.envs)
     try:
         obs, _ = collector.collect(expert.actions, 3_000)
     finally:
