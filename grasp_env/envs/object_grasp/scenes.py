@@ -1,0 +1,431 @@
+"""Scenes of any object: the shape, its contacts from surface coordinates, the load and the
+motion, explicit (:func:`parse_scene`) or drawn (:class:`ObjectSampler`).
+
+**Surface coordinates.** A contact is a sequence naming a point of the shape's surface
+(object frame, :mod:`grasp_env.mechanics.objects`):
+
+==============  ===========================================  ==================================
+shape           coordinates                                  the point
+==============  ===========================================  ==================================
+box             ``(face, u, v)``, face "-x" ... "+z"         ``Box.face_point(face, (u, v))``
+cylinder        ``("side", angle, height)``                  ``Cylinder.side_point(angle, height)``
+cylinder        ``("-z" or "+z", x, y)``                     ``Cylinder.cap_point(cap, (x, y))``
+sphere          ``("sphere", azimuth, elevation)``, radians  ``Sphere.point(direction)``
+convex mesh     ``(face, *weights)``, face an index           ``ConvexMesh.face_point(face, w)``
+any             ``(x, y, z)``, three numbers, metres          that point (on the surface)
+==============  ===========================================  ==================================
+
+Fractions (u, v, height, x, y) are of the half-widths, half-height and radius, each in
+(-1, 1), so a point is never on an edge or rim.
+
+**Units.** The scene's length L is the largest edge of the shape's bounding box
+(``Scene.size.max()``; the unit cube's edge, 1 m): contacts, the centre of gravity and the
+extra torque enter the episodes' arithmetic in units of L (and w L), forces in units of w,
+so the mechanics of a scene do not depend on its scale.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ...mechanics import (
+    MAX_SCENE_CONTACTS,
+    MIN_SCENE_CONTACTS,
+    Box,
+    ConvexMesh,
+    Cylinder,
+    Scene,
+    Shape,
+    Sphere,
+    Trajectory,
+    parse_object,
+)
+from ...mechanics.checks import is_integer
+from ...mechanics.objects import FACES
+from .. import spec
+from ..validation import (
+    MU_RANGE,
+    TRAJECTORY_KEYS,
+    WEIGHT_RANGE,
+    check_array,
+    check_integer,
+    check_number,
+    check_pose_count,
+    check_trajectory,
+)
+
+SCENE_KEYS = ("contacts", "cg", "weight", "mu", "extra_force", "extra_torque", "trajectory")
+#: The shapes a random scene may be, by their :func:`parse_object` names.
+SHAPE_KINDS = ("box", "cylinder", "sphere")
+#: The smallest net load besides none, in units of w (w L for the torque), as the cube's.
+MIN_LOAD = 1e-6
+
+
+def object_shape(value: Any) -> Shape:
+    """The shape ``value`` names: a :func:`~grasp_env.mechanics.parse_object` spec string
+    (``"cube"``, ``"cylinder:r=0.033,h=0.115"``, ...) or a shape instance."""
+    if isinstance(value, Shape):
+        return value
+    if isinstance(value, str):
+        return parse_object(value)
+    raise ValueError(
+        "object must be an object spec string such as 'cylinder:r=0.033,h=0.115' or a Box,"
+        f" Cylinder, Sphere or ConvexMesh (grasp_env.mechanics.objects), got {value!r}"
+    )
+
+
+def _numbers(name: str, values: Sequence[Any]) -> list[float]:
+    return [check_number(name, v, -np.inf, np.inf) for v in values]
+
+
+def surface_point(shape: Shape, coordinates: Any, index: int = 0) -> np.ndarray:
+    """The object-frame point that surface ``coordinates`` name on ``shape`` (the module's
+    table); a ValueError names contact ``index`` and the accepted forms."""
+    name = f"contact {index}"
+    if isinstance(coordinates, str) or not isinstance(coordinates, Sequence | np.ndarray):
+        raise ValueError(f"{name} must be a sequence of surface coordinates, got {coordinates!r}")
+    items = list(coordinates)
+    head = items[0] if items else None
+    try:
+        if len(items) == 3 and not any(isinstance(v, str) for v in items):
+            return check_array(name, items, (3,))
+        if isinstance(shape, Box) and isinstance(head, str) and len(items) == 3:
+            return shape.face_point(head, _numbers(name, items[1:]))
+        if isinstance(shape, Cylinder) and isinstance(head, str) and len(items) == 3:
+            if head == "side":
+                angle, height = _numbers(name, items[1:])
+                return shape.side_point(angle, height)
+            return shape.cap_point(head, _numbers(name, items[1:]))
+        if isinstance(shape, Sphere) and head == "sphere" and len(items) == 3:
+            azimuth, elevation = _numbers(name, items[1:])
+            direction = [
+                np.cos(elevation) * np.cos(azimuth),
+                np.cos(elevation) * np.sin(azimuth),
+                np.sin(elevation),
+            ]
+            return shape.point(direction)
+        if isinstance(shape, ConvexMesh) and is_integer(head):
+            weights = _numbers(name, items[1:]) if len(items) > 1 else None
+            return shape.face_point(int(head), weights)
+    except ValueError as error:
+        raise ValueError(f"{name} {items!r}: {error}") from None
+    raise ValueError(
+        f"{name} {items!r} names no point of the {shape.kind}: use (face, u, v) on a box,"
+        " ('side', angle, height) or ('-z' | '+z', x, y) on a cylinder, ('sphere', azimuth,"
+        " elevation) on a sphere, (face index, *weights) on a convex mesh, or (x, y, z) metres"
+    )
+
+
+def default_contacts(shape: Shape) -> list[tuple[Any, ...]]:
+    """Three contacts whose normals meet at the shape's centre (the paper's corner grip on a
+    box: the optimum is 0 deg with the centre of gravity there)."""
+    if isinstance(shape, Box):
+        return [("-x", 0.0, 0.0), ("-y", 0.0, 0.0), ("-z", 0.0, 0.0)]
+    if isinstance(shape, Cylinder):
+        return [("side", np.pi, 0.0), ("side", -np.pi / 2, 0.0), ("-z", 0.0, 0.0)]
+    if isinstance(shape, Sphere):
+        return [("sphere", np.pi, 0.0), ("sphere", -np.pi / 2, 0.0), ("sphere", 0.0, -np.pi / 2)]
+    raise ValueError(f"a {shape.kind} has no default contacts: pass contacts")
+
+
+def default_trajectory() -> dict[str, Any]:
+    """The paper's motion: -15 to 15 deg by 1 deg about (1, -1, 0) / sqrt(2) from R0."""
+    trajectory = Trajectory()
+    return {key: getattr(trajectory, key) for key in TRAJECTORY_KEYS}
+
+
+def load_ok(weight: float, extra_force: np.ndarray, extra_torque_l: np.ndarray) -> bool:
+    """The net load (0, 0, -w) + f_d, tau_d is zero or at least :data:`MIN_LOAD` (largest
+    component, units of w and w L; ``extra_torque_l`` is tau_d / L)."""
+    force = np.asarray(extra_force, dtype=float) / weight
+    force[2] -= 1.0
+    size = max(np.abs(force).max(), np.abs(extra_torque_l).max() / weight)
+    return bool(size == 0.0 or size >= MIN_LOAD)
+
+
+@dataclass(frozen=True)
+class ObjectScene:
+    """A scene and its motion: the mechanics :class:`~grasp_env.mechanics.Scene` (shape,
+    contacts, load) and the :class:`~grasp_env.mechanics.Trajectory` it is held along."""
+
+    scene: Scene
+    trajectory: Trajectory
+
+    @property
+    def n_contacts(self) -> int:
+        return self.scene.n_contacts
+
+    @property
+    def length(self) -> float:
+        """L, metres: the largest edge of the shape's bounding box."""
+        return float(self.scene.size.max())
+
+
+def make_scene(
+    shape: Shape,
+    contacts: Any,
+    weight: Any,
+    mu: Any,
+    cg: Any,
+    extra_force: Any,
+    extra_torque: Any,
+    trajectory: Mapping[str, Any],
+    label: str = "scene",
+) -> ObjectScene:
+    """A validated :class:`ObjectScene` (ValueErrors name ``label``'s key and its range)."""
+    if isinstance(contacts, str) or not isinstance(contacts, Sequence | np.ndarray):
+        raise ValueError(f"{label} 'contacts' must be a sequence of surface coordinates")
+    low, high = MIN_SCENE_CONTACTS, MAX_SCENE_CONTACTS
+    if not low <= len(contacts) <= high:
+        raise ValueError(f"{label} 'contacts' must list {low} to {high}, got {len(contacts)}")
+    points = np.array([surface_point(shape, c, i) for i, c in enumerate(contacts)])
+    weight = check_number(f"{label} 'weight'", weight, *WEIGHT_RANGE)
+    length = float(shape.bounding_size.max())
+    force = check_array(f"{label} 'extra_force'", extra_force, (3,))
+    torque = check_array(f"{label} 'extra_torque'", extra_torque, (3,))
+    if np.any(np.abs(force) > weight) or np.any(np.abs(torque) > weight * length):
+        raise ValueError(
+            f"{label} 'extra_force' and 'extra_torque' must be at most w ({weight:g} N) and"
+            f" w L ({weight * length:g} N m) per component, got {force.tolist()} and"
+            f" {torque.tolist()}"
+        )
+    if not load_ok(weight, force, torque / length):
+        raise ValueError(
+            f"{label} 'extra_force' and 'extra_torque' nearly cancel the weight: the net load"
+            f" must be zero or at least {MIN_LOAD:g} w (w L) in some component"
+        )
+    scene = Scene(
+        shape=shape,
+        contacts=points,
+        weight=weight,
+        mu=check_number(f"{label} 'mu'", mu, *MU_RANGE),
+        cg_offset=check_array(f"{label} 'cg'", cg, (3,)),
+        extra_force=force,
+        extra_torque=torque,
+    )
+    if not isinstance(trajectory, Mapping):
+        raise ValueError(f"{label} 'trajectory' must be a mapping with keys {TRAJECTORY_KEYS}")
+    full = {**default_trajectory(), **trajectory}
+    return ObjectScene(scene, check_trajectory(full))
+
+
+def parse_scene(values: Mapping[str, Any] | None, defaults: Mapping[str, Any], shape: Shape):
+    """:func:`make_scene` from a mapping with :data:`SCENE_KEYS`, missing keys from
+    ``defaults`` (a reset option's ``{"scene": {...}}``)."""
+    values = {} if values is None else values
+    if not isinstance(values, Mapping):
+        raise ValueError(f"a scene must be a mapping with keys {SCENE_KEYS}, got {values!r}")
+    for key in values:
+        if key not in SCENE_KEYS:
+            raise ValueError(f"unknown scene key {key!r}; the scene keys are {SCENE_KEYS}")
+    merged = {**defaults, **values}
+    trajectory = merged["trajectory"]
+    if isinstance(trajectory, Mapping):
+        trajectory = {**defaults["trajectory"], **trajectory}
+    keys = ("contacts", "weight", "mu", "cg", "extra_force", "extra_torque")
+    return make_scene(shape, *(merged[k] for k in keys), trajectory, "reset option 'scene'")
+
+
+def parse_options(options: Mapping[str, Any] | None) -> Mapping[str, Any] | None:
+    """The scene mapping of ``reset(options=...)``; the only option is ``"scene"``."""
+    if options is None:
+        return None
+    if not isinstance(options, Mapping):
+        raise ValueError(f"options must be a mapping, got {options!r}")
+    for key in options:
+        if key != "scene":
+            raise ValueError(f"unknown option {key!r}; the only option is 'scene'")
+    return options.get("scene")
+
+
+# ------------------------------------------------------------------------------ random scenes
+
+#: Random numbers per contact of a candidate: the surface (face, cap or side), two
+#: coordinates, and two for a sphere's direction.
+_PER_CONTACT = 4
+#: Random numbers per candidate besides its contacts: shape kind, 3 sizes, contact count, cg
+#: (3), weight, mu, alpha start and end, extra force (3) and torque (3), the axis (2).
+_PER_SCENE = 20
+
+
+@dataclass(frozen=True)
+class ObjectSampler:
+    """Ranges of the random scenes (see :class:`~.env.ObjectGraspRandomEnv`).
+
+    Each candidate is drawn from a fixed count of uniform numbers (:meth:`raw`, one call of
+    the generator), so that a generator's candidates are the same however many are drawn at a
+    time, and :meth:`scene` maps them to a scene (None where the draw makes no valid scene:
+    coinciding, collinear or coplanar contacts, a load that nearly cancels the weight).
+    """
+
+    shapes: tuple[str, ...] = SHAPE_KINDS
+    size_range: tuple[float, float] = (0.05, 0.3)
+    contact_counts: tuple[int, ...] = (3, 4, 5, 6)
+    contact_offset: float = 0.6
+    cg_offset: float = spec.CG_OFFSET.default
+    weight_range: tuple[float, float] = spec.WEIGHT_DRAWS.default
+    mu_range: tuple[float, float] = (0.4, 1.0)
+    alpha_start_range_deg: tuple[float, float] = (-20.0, -5.0)
+    alpha_end_range_deg: tuple[float, float] = (5.0, 20.0)
+    alpha_step_deg: float = 2.5
+    extra_force: float = spec.EXTRA_FORCE.default
+    extra_torque: float = spec.EXTRA_TORQUE.default
+
+    def __post_init__(self) -> None:
+        set_ = object.__setattr__
+        shapes = self.shapes
+        if isinstance(shapes, str) or not isinstance(shapes, Sequence) or not shapes:
+            raise ValueError(
+                f"shapes must be a non-empty sequence of {SHAPE_KINDS}, got {shapes!r}"
+            )
+        for kind in shapes:
+            if kind not in SHAPE_KINDS:
+                raise ValueError(f"unknown shape {kind!r} in shapes; the shapes are {SHAPE_KINDS}")
+        set_(self, "shapes", tuple(shapes))
+        counts = self.contact_counts
+        if isinstance(counts, str) or not isinstance(counts, Sequence) or not counts:
+            raise ValueError(f"contact_counts must be a non-empty sequence, got {counts!r}")
+        set_(
+            self,
+            "contact_counts",
+            tuple(
+                sorted(
+                    {
+                        check_integer("contact_counts", c, MIN_SCENE_CONTACTS, MAX_SCENE_CONTACTS)
+                        for c in counts
+                    }
+                )
+            ),
+        )
+        from ..validation import check_range
+
+        set_(self, "size_range", check_range("size_range", self.size_range, 1e-6, 1e6))
+        for parameter in (
+            spec.CG_OFFSET,
+            spec.WEIGHT_DRAWS,
+            spec.ALPHA_START_DRAWS,
+            spec.ALPHA_END_DRAWS,
+            spec.ALPHA_STEP,
+            spec.EXTRA_FORCE,
+            spec.EXTRA_TORQUE,
+        ):
+            set_(self, parameter.name, parameter.check(getattr(self, parameter.name)))
+        set_(self, "mu_range", spec.MU_DRAWS.check(self.mu_range))
+        set_(self, "contact_offset", spec.CONTACT_OFFSET.check(self.contact_offset))
+        if self.alpha_start_range_deg[1] > self.alpha_end_range_deg[0]:
+            raise ValueError(
+                "alpha_start_range_deg must lie below alpha_end_range_deg, got"
+                f" {self.alpha_start_range_deg} and {self.alpha_end_range_deg}"
+            )
+        check_pose_count("alpha_step_deg", self._span, self.alpha_step_deg)
+
+    @property
+    def _span(self) -> float:
+        return self.alpha_end_range_deg[1] - self.alpha_start_range_deg[0]
+
+    @property
+    def max_contacts(self) -> int:
+        return self.contact_counts[-1]
+
+    @property
+    def max_length(self) -> int:
+        """The longest trajectory the ranges allow, in poses."""
+        return check_pose_count("alpha_step_deg", self._span, self.alpha_step_deg)
+
+    @property
+    def width(self) -> int:
+        """Uniform numbers per candidate."""
+        return _PER_SCENE + _PER_CONTACT * MAX_SCENE_CONTACTS
+
+    def raw(self, rng: np.random.Generator, count: int) -> np.ndarray:
+        """The uniform numbers of ``count`` candidates, (count, :attr:`width`): one call."""
+        return rng.random((count, self.width))
+
+    def shape(self, u: np.ndarray) -> Shape:
+        """The shape of a candidate's numbers ``u[0:4]``."""
+        kind = self.shapes[min(int(u[0] * len(self.shapes)), len(self.shapes) - 1)]
+        low, high = self.size_range
+        sizes = low + (high - low) * u[1:4]
+        if kind == "box":
+            return Box(size=sizes)
+        if kind == "cylinder":
+            return Cylinder(radius=sizes[0] / 2, height=sizes[1])
+        return Sphere(radius=sizes[0] / 2)
+
+    def scene(self, u: np.ndarray) -> ObjectScene | None:
+        """The candidate of one row of :meth:`raw`, or None where it is no valid scene."""
+        shape = self.shape(u)
+        counts = self.contact_counts
+        n = counts[min(int(u[4] * len(counts)), len(counts) - 1)]
+        c = self.contact_offset
+        contacts = u[_PER_SCENE:].reshape(MAX_SCENE_CONTACTS, _PER_CONTACT)[:n]
+        if isinstance(shape, Box):
+            faces = tuple(FACES)
+            points = [
+                shape.face_point(faces[int(p[0] * 6) % 6], (2 * p[1:3] - 1) * c) for p in contacts
+            ]
+        elif isinstance(shape, Cylinder):
+            points = []
+            for p in contacts:
+                if p[0] < 0.7:  # the side, about its share of a can's area
+                    points.append(shape.side_point(2 * np.pi * p[1], (2 * p[2] - 1) * c))
+                else:
+                    cap = "-z" if p[0] < 0.85 else "+z"
+                    radius, angle = c * np.sqrt(p[1]), 2 * np.pi * p[2]
+                    points.append(
+                        shape.cap_point(cap, radius * np.array([np.cos(angle), np.sin(angle)]))
+                    )
+        else:  # uniform on the sphere
+            z, angle = 2 * contacts[:, 2] - 1, 2 * np.pi * contacts[:, 3]
+            rho = np.sqrt(np.maximum(1 - z * z, 0.0))
+            points = [
+                shape.point(d)
+                for d in np.column_stack([rho * np.cos(angle), rho * np.sin(angle), z])
+            ]
+        half = shape.bounding_size / 2
+        cg = (2 * u[5:8] - 1) * self.cg_offset * half
+        (w0, w1), (m0, m1) = self.weight_range, self.mu_range
+        weight = w0 + (w1 - w0) * u[8]
+        mu = m0 + (m1 - m0) * u[9]
+        (s0, s1), (e0, e1) = self.alpha_start_range_deg, self.alpha_end_range_deg
+        start, end = s0 + (s1 - s0) * u[10], e0 + (e1 - e0) * u[11]
+        length = float(shape.bounding_size.max())
+        force = (2 * u[12:15] - 1) * self.extra_force * weight
+        torque = (2 * u[15:18] - 1) * self.extra_torque * weight * length
+        z, angle = 2 * u[18] - 1, 2 * np.pi * u[19]  # uniform on the sphere
+        rho = np.sqrt(max(1 - z * z, 0.0))
+        axis = np.array([rho * np.cos(angle), rho * np.sin(angle), z])
+        if not load_ok(weight, force, torque / length):
+            return None
+        try:
+            scene = Scene(
+                shape=shape,
+                contacts=np.array(points),
+                weight=weight,
+                mu=mu,
+                cg_offset=cg,
+                extra_force=force,
+                extra_torque=torque,
+            )
+        except ValueError:  # coinciding, collinear or coplanar contacts, a cg outside
+            return None
+        return ObjectScene(scene, Trajectory(tuple(axis), start, end, self.alpha_step_deg))
+
+
+__all__ = [
+    "SCENE_KEYS",
+    "SHAPE_KINDS",
+    "ObjectSampler",
+    "ObjectScene",
+    "default_contacts",
+    "default_trajectory",
+    "make_scene",
+    "object_shape",
+    "parse_options",
+    "parse_scene",
+    "surface_point",
+]
