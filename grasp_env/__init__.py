@@ -57,6 +57,18 @@ _ENVS = {
         "gait.vector:CubeGaitVectorEnv",
         {"optimal_grip": True},
     ),
+    # any object (box, cylinder, sphere, convex mesh) by 3 to 8 contacts, padded with a mask
+    # (envs/object_grasp/): one scene from keywords, and random shapes, sizes and counts
+    "ObjectGrasp-v0": (
+        "object_grasp.env:ObjectGraspEnv",
+        "object_grasp.vector:ObjectGraspVectorEnv",
+        {},
+    ),
+    "ObjectGraspRandom-v0": (
+        "object_grasp.env:ObjectGraspRandomEnv",
+        "object_grasp.vector:ObjectGraspRandomVectorEnv",
+        {},
+    ),
 }
 ENV_IDS = tuple(f"grasp_env/{name}" for name in _ENVS)
 #: The modules in grasp_env.envs of the bare class names above: the cube grasp family's.
