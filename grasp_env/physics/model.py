@@ -28,7 +28,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike
 
-from grasp_env.mechanics import Scene, matrix_quaternion
+from grasp_env.mechanics import Box, Scene, matrix_quaternion
 from grasp_env.mechanics.checks import real_array
 from grasp_env.mechanics.rotations import check_rotations as check_rotations  # re-exported
 
@@ -72,6 +72,20 @@ SOLIMP = "0.95 0.99 0.001 0.5 2"
 #: 0.02 to 0.05 none (217 poses, 32 trajectories); below about 1e-4 MuJoCo refuses the tips'
 #: inertia. The limit keeps a factor 2.5 from the thinnest clean ratio.
 MIN_ASPECT = 0.05
+#: Torsional and rolling friction of a fingertip on a curved object (a cylinder or a sphere),
+#: as a length in tip radii: 0.3 tip radii is 0.40 mm on the can (tip radius 1.32 mm). With
+#: fixed world-frame finger forces a curved object *rolls* under its fingertips (a sphere
+#: turned about its centre keeps every normal line through it: no stiffness at all), so with
+#: condim 3 every stable grasp falls; condim 6 with some torsional and rolling friction makes
+#: MuJoCo agree with the analytic verdict (docs/physics.md, "Curved objects"). Its price: the
+#: rolling friction holds a torque error of up to this length times the normal forces. Measured
+#: on 80 can trajectories (the contacts' lever arms restored, :func:`contact_shift`): 0.75 tip
+#: radii (1 mm) held 6 of 40 grips whose torque was off by 0.03 N m (squeezing grips of 4 to
+#: 6 fingers), 0.1 let 5 of 40 expert grips inside their cones roll loose, 0.3 did neither.
+SPIN_FRICTION = 0.3
+#: The shapes whose contact pairs get torsional and rolling friction (condim 6): the curved
+#: ones. A box and a convex mesh have flat faces and keep the cube's condim 3.
+CURVED = ("cylinder", "sphere")
 
 
 def _vec(values: ArrayLike) -> str:
@@ -86,6 +100,69 @@ def length_unit(scene: Scene) -> float:
 def model_size(scene: Scene) -> np.ndarray:
     """The box's edge lengths in the model, (3,): the largest is 1."""
     return np.asarray(scene.size, dtype=float) / length_unit(scene)
+
+
+def is_curved(scene: Scene) -> bool:
+    """Whether the scene's object is curved (:data:`CURVED`): its contacts get condim 6."""
+    return scene.shape.kind in CURVED
+
+
+def contact_friction(scene: Scene) -> tuple[int, str]:
+    """The contact pairs' ``condim`` and ``friction`` (sliding, sliding, torsional, rolling,
+    rolling; model units): the scene's mu and nothing else on flat faces (condim 3); on a
+    curved object (:func:`is_curved`) also :data:`SPIN_FRICTION` tip radii of torsional and
+    rolling friction (condim 6)."""
+    mu = f"{scene.mu:.17g} {scene.mu:.17g}"
+    if not is_curved(scene):
+        return 3, f"{mu} 0 0 0"
+    spin = f"{SPIN_FRICTION * tip_radius(scene):.17g}"
+    return 6, f"{mu} {spin} {spin} {spin}"
+
+
+def contact_shift(scene: Scene, inverse_inertia: float) -> float:
+    """How far inside the object MuJoCo's contact point lies, per unit of normal force (model
+    units: L per w), for a contact of inverse inertia A (MuJoCo's ``efc_diagApprox``).
+
+    MuJoCo puts a contact midway through the penetration d, so d / 2 inside the surface along
+    the inward normal nu_i, where the analytic contact c_i is on it; a finger force's tangential
+    part then turns the object by (d / 2) nu_i x P_i more than the analytic grasp says. The
+    soft contact (:data:`SOLREF`, :data:`SOLIMP`) holds a tip pushing with N at rest where its
+    stiffness K I d equals the regulariser's R N, R = (1 - I) / I A: d = (1 - I) A N / (I^2 K),
+    with K = 1 / (dmax^2 timeconst^2 dampratio^2) and I = dmax once d passes the impedance's
+    width (0.001 L, about 0.4 w). About 2.5e-3 L per w, so a grip's lever arms are off by
+    about 1e-2 L, and the torque by a few hundredths of w L: on a curved object the rolling
+    friction takes it up and eats the sliding friction's budget (MuJoCo's elliptic cone shares
+    it), making false slips near the cone's edge. The controls take it back off the load
+    (``batch._controls``): the returned d / (2 N)."""
+    del scene  # the same soft contact for every scene (the shapes differ in A only)
+    timeconst, dampratio = (float(v) for v in SOLREF.split())
+    dmax = float(SOLIMP.split()[1])
+    stiffness = 1.0 / (dmax**2 * timeconst**2 * dampratio**2)
+    return 0.5 * (1.0 - dmax) * inverse_inertia / (dmax**2 * stiffness)
+
+
+def object_geom(scene: Scene) -> tuple[str, str]:
+    """The object's geom (named ``"box"`` for a box, else ``"object"``) and the ``<mesh>``
+    asset it needs ("" for MuJoCo's primitives), in the model's units: MuJoCo's own box,
+    cylinder, sphere or mesh from the shape's :meth:`~grasp_env.mechanics.objects.Shape.mujoco_geom`
+    and :meth:`~grasp_env.mechanics.objects.Shape.mujoco_mesh`, every length divided by L."""
+    style = 'rgba="0.55 0.7 0.95 0.45" contype="0" conaffinity="0"'
+    if isinstance(scene.shape, Box):  # the cube's model, character for character
+        return f'<geom name="box" type="box" size="{_vec(model_size(scene) / 2)}" {style}/>', ""
+    geom = scene.shape.mujoco_geom()
+    mesh = scene.shape.mujoco_mesh()
+    scale = 1.0 / length_unit(scene)
+    if mesh is None:
+        size = np.array(geom["size"].split(), dtype=float) * scale
+        return f'<geom name="object" type="{geom["type"]}" size="{_vec(size)}" {style}/>', ""
+    vertices = np.array(mesh["vertex"].split(), dtype=float) * scale
+    asset = f'<mesh name="{mesh["name"]}" vertex="{_vec(vertices)}"/>'
+    return f'<geom name="object" type="mesh" mesh="{geom["mesh"]}" {style}/>', asset
+
+
+def object_geom_name(scene: Scene) -> str:
+    """The name of the object's geom in the model (see :func:`object_geom`)."""
+    return "box" if isinstance(scene.shape, Box) else "object"
 
 
 def check_aspect(scene: Scene) -> None:
@@ -207,6 +284,9 @@ def build_mjcf(scene: Scene, timestep: float = 2e-3, visual: bool = False) -> st
     tip_mass = TIP_MASS * mass
     tip_inertia = 0.4 * tip_mass * radius**2
     contacts = model_contacts(scene)
+    condim, friction = contact_friction(scene)
+    geom, mesh = object_geom(scene)
+    target = object_geom_name(scene)
     fingers, pairs, motors, cones = [], [], [], []
     for i, (contact, normal) in enumerate(zip(contacts, scene.normals, strict=True)):
         fingers.append(
@@ -222,8 +302,8 @@ def build_mjcf(scene: Scene, timestep: float = 2e-3, visual: bool = False) -> st
             "</body>"
         )
         pairs.append(
-            f'<pair name="contact{i}" geom1="tip{i}" geom2="box" condim="3"'
-            f' friction="{scene.mu:.17g} {scene.mu:.17g} 0 0 0"'
+            f'<pair name="contact{i}" geom1="tip{i}" geom2="{target}" condim="{condim}"'
+            f' friction="{friction}"'
             f' solref="{SOLREF}" solimp="{SOLIMP}"/>'
         )
         motors.extend(f'<motor name="finger{i}_{a}" joint="finger{i}_{a}"/>' for a in "xyz")
@@ -239,10 +319,12 @@ def build_mjcf(scene: Scene, timestep: float = 2e-3, visual: bool = False) -> st
             '<asset><texture name="sky" type="skybox" builtin="gradient" rgb1="0.85 0.9 0.95"'
             ' rgb2="0.35 0.45 0.55" width="64" height="256"/>'
             f'<mesh name="cone" vertex="{_vec(cone_vertices(scene.friction_limit, slant))}"/>'
-            "</asset>"
+            f"{mesh}</asset>"
         )
         visuals = "".join(cones)
         light = '<light pos="1 -1 3" dir="-1 1 -3" diffuse="0.5 0.5 0.5"/>'
+    elif mesh:
+        assets = f"<asset>{mesh}</asset>"
 
     return f"""<mujoco model="grasp">
   <compiler angle="radian" autolimits="true"/>
@@ -260,8 +342,7 @@ def build_mjcf(scene: Scene, timestep: float = 2e-3, visual: bool = False) -> st
     <body name="object">
       <freejoint name="object"/>
       <inertial pos="{_vec(model_cg(scene))}" mass="{mass:.17g}" diaginertia="{_vec(inertia)}"/>
-      <geom name="box" type="box" size="{_vec(size / 2)}" rgba="0.55 0.7 0.95 0.45"
-            contype="0" conaffinity="0"/>
+      {geom}
       {visuals}
     </body>
     {"".join(fingers)}

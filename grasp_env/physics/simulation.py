@@ -40,6 +40,8 @@ from .batch import Trace, _controls, _measure, _move_fingers, _moves
 from .model import (
     TIP_PENETRATION,
     build_mjcf,
+    contact_shift,
+    is_curved,
     model_cg,
     model_contacts,
     tip_positions,
@@ -137,6 +139,7 @@ class PhysicsModel:
         self._initial: dict[bytes, np.ndarray] = {}
         self._response = self._contact_response()
         self.rest_depth = TIP_PENETRATION * self.radius  # of a placed tip
+        self.lever = contact_shift(scene, self._response[3]) if is_curved(scene) else 0.0
 
     def _contact_response(self) -> tuple[float, float, float, float]:
         """A fingertip contact's stiffness K I, damping B, regulariser R and inverse inertia A
