@@ -9,10 +9,11 @@ two equations weighted by w_i. Its normal equations
     A k = b,  A = sum_i w_i^2 M_i + r I,  b = -sum_i w_i^2 L_i,
     M_i = B_i^T B_i - a_i a_i^T,  L_i = B_i^T F_i - a_i (d_i . F_i),  a_i = B_i^T d_i,
 
-with a ridge r = RIDGE tr(A - r I) / m so that k stays finite where the directions leave a
-squeeze free (two opposed fingers both along their line). The first solve weighs the fingers
-equally; each next one by w_i = 1 / |P_i| at the previous grip, so that a residual measures the
-angle between P_i and d_i and a finger that nearly lets go is matched as closely as the others.
+with a ridge r = RIDGE tr(A - r I) / m (m the pairs in use) so that k stays finite where the
+directions leave a squeeze free (two opposed fingers both along their line). The first solve
+weighs the fingers equally; each next one by w_i = 1 / |P_i| at the previous grip, so that a
+residual measures the angle between P_i and d_i and a finger that nearly lets go is matched as
+closely as the others.
 The residual is blind to a force's sign: where the directions are inconsistent, re-weighting can
 drive a nearly released finger through zero to a pull, so of the solves the grip returned is the
 one with the smallest largest friction angle (eq. 2) once clipped to the box |k_ij| <= k_max.
@@ -22,6 +23,10 @@ solve (its weights held fixed) with respect to the directions: with lambda = A^-
 
     dL/dd_i = w_i^2 [(d_i . P_i) B_i lambda + (lambda . a_i) P_i]
               + 2 (lambda . k) (RIDGE / m) w_i^2 B_i a_i.
+
+A grasp padded with absent contacts (zero forces, normals and pair columns) has the grip of
+the real contacts alone: their pairs add nothing to A but the ridge, and m counts the pairs in
+use.
 
 Compiled with numba: a learner calls them on every minibatch, where torch spent a few hundred
 small tensor operations per call (``agents/policy.py`` wraps them as a torch function).
@@ -98,9 +103,12 @@ def _projections(d, f, e, along, matrices, loads):
 
 @_kernel
 def _normal_matrix(squared, matrices, ridge, a):
-    """A = sum_i w_i^2 M_i + r I into ``a``."""
+    """A = sum_i w_i^2 M_i + r I into ``a``; returns the count of pairs in use (those with a
+    non-zero diagonal: a padded grasp's pairs of absent contacts have none), over which the
+    ridge's mean diagonal is taken, so that padding does not change the grip."""
     n, m = matrices.shape[0], matrices.shape[1]
     trace = 0.0
+    used = 0
     for q in range(m):
         for r in range(m):
             s = 0.0
@@ -108,8 +116,11 @@ def _normal_matrix(squared, matrices, ridge, a):
                 s += squared[i] * matrices[i, q, r]
             a[q, r] = s
         trace += a[q, q]
+        if a[q, q] > 0.0:
+            used += 1
     for q in range(m):
-        a[q, q] += ridge * trace / m
+        a[q, q] += ridge * trace / max(used, 1)
+    return max(used, 1)
 
 
 @_kernel
@@ -269,7 +280,7 @@ def _gradients(directions, forces, basis, weights, k, grad_k, ridge, out):
     for b in range(batch):
         d, f, e = directions[b], forces[b], basis[b]
         _projections(d, f, e, along, matrices, loads)
-        _normal_matrix(weights[b], matrices, ridge, a)
+        used = _normal_matrix(weights[b], matrices, ridge, a)
         for q in range(m):
             g[q] = grad_k[b, q]
         _solve(a, g, lam)  # A is symmetric: lambda = A^-T dL/dk = A^-1 dL/dk
@@ -290,7 +301,7 @@ def _gradients(directions, forces, basis, weights, k, grad_k, ridge, out):
                     b_lam += e[q, i, c] * lam[q]
                     b_a += e[q, i, c] * along[i, q]
                 out[b, i, c] = w2 * (
-                    d_dot_p * b_lam + lam_dot_a * net[i, c] + 2.0 * lam_dot_k * ridge / m * b_a
+                    d_dot_p * b_lam + lam_dot_a * net[i, c] + 2.0 * lam_dot_k * ridge / used * b_a
                 )
 
 
