@@ -20,7 +20,7 @@ from ..validation import (
     check_margin,
     check_seed,
 )
-from .episodes import EpisodeStream, ObjectEpisode, ObjectLayout, build_episodes
+from .episodes import EpisodeStream, ObjectEpisode, ObjectLayout, build_episodes, solve_pending
 from .kernels import object_row
 from .scenes import (
     ObjectSampler,
@@ -130,6 +130,8 @@ class _ObjectGraspEnv(gym.Env[np.ndarray, np.ndarray]):
         episode = self.episode
         a = action_array(action, self.action_space.shape)
         t = self._step
+        if not episode.solved[t]:  # a random episode's pose the expert has not solved yet
+            solve_pending([(episode, t)], self.k_max_ratio)
         big, m = self.max_contacts, len(self._pairs)
         k, forces = np.empty((1, m)), np.empty((1, big, 3))
         theta, margin = np.empty((1, big)), np.empty((1, big))

@@ -21,7 +21,7 @@ import numpy as np
 
 from ...mechanics import START_ROTATION, Grasp, Status, contact_pairs, solve_minimax
 from ..cube_grasp.episodes import interaction_basis
-from ..kernels import pose_geometry
+from ..kernels import evaluate_grips, pose_geometry
 from ..observation import ObservationLayout
 from .scenes import ObjectSampler, ObjectScene
 
@@ -122,6 +122,9 @@ def projection(scene: ObjectScene, max_contacts: int) -> np.ndarray:
     return out
 
 
+_EXPERT = ("expert_k_w", "expert_reward", "expert_gap", "solved")
+
+
 @dataclass(frozen=True)
 class ObjectEpisode:
     """One episode's arrays, padded to N contacts and M pairs (forces in units of w); T poses,
@@ -138,6 +141,7 @@ class ObjectEpisode:
     expert_reward: np.ndarray  # (T,) theta_lim - the optimum
     expert_gap: np.ndarray  # (T,) the optimum's certificate gap, radians
     projection: np.ndarray  # (M, M)
+    solved: np.ndarray  # (T,) bool: the expert's optimum is known (else solve_pending)
     limit: float
     weight: float
 
@@ -209,74 +213,141 @@ def _solve(geometry: dict, rows: np.ndarray, k_max_ratio: float, follows: np.nda
     return result.k, geometry["limit"][rows] - optimum, gap, ~pushing
 
 
+def _chains(episode: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """follows for solving ``rows`` (sorted) in one batch: a row follows the previous one
+    when it is the next pose of the same episode (the solver's warm start)."""
+    follows = np.zeros(len(rows), bool)
+    follows[1:] = (rows[1:] == rows[:-1] + 1) & (episode[rows[1:]] == episode[rows[:-1]])
+    return follows
+
+
 def build_episodes(
     scenes: Sequence[ObjectScene],
     k_max_ratio: float,
     max_contacts: int,
     min_margin: float | None = None,
 ) -> list[ObjectEpisode | None]:
-    """The episodes of ``scenes`` (any contact counts up to ``max_contacts``), every pose of
-    each contact count solved in one batch.
+    """The episodes of ``scenes`` (any contact counts up to ``max_contacts``), the poses of
+    each contact count in one batch. Each scene's result depends on that scene alone.
 
-    With ``min_margin`` (random scenes) a scene is kept (else None) when at every pose the
-    expert keeps every margin >= min_margin, every finger pushing, and its certificate gap is
-    at most :data:`MAX_EXPERT_GAP`; the trajectory's two ends and middle are solved first, as
-    a screen, and only the scenes that pass are solved along the whole trajectory (each pose
-    from the previous one's optimum). Each scene's result depends on that scene alone.
+    Without ``min_margin`` (explicit scenes) the expert is solved at every pose (each from the
+    previous pose's optimum). With it (random scenes) a scene is kept (else None) when the
+    expert's optimum keeps every margin >= min_margin at every pose, and only what decides
+    that is solved: the first pose (where a certificate gap above :data:`MAX_EXPERT_GAP` or
+    a finger not pushing also rejects the scene), then the first pose's optimal grip k*_0 is
+    evaluated at every pose (it lies in the box there too: the box is the same at every
+    pose, docs/solver.md), and the poses where it keeps a margin below min_margin are solved
+    (the optimum is at least as good as any grip, so where k*_0 holds the optimum does). The
+    other poses are solved when an episode reaches them (:func:`solve_pending`).
     """
     out: list[ObjectEpisode | None] = [None] * len(scenes)
     for n in sorted({s.n_contacts for s in scenes}):
         index = [i for i, s in enumerate(scenes) if s.n_contacts == n]
-        group = [scenes[i] for i in index]
-        lengths = np.array([len(s.trajectory) for s in group], dtype=np.int64)
-        keep = np.ones(len(group), bool)
-        known: dict[tuple[int, int], tuple] = {}
-        if min_margin is not None:
-            last = lengths - 1
-            picks = np.stack([np.zeros_like(last), (last + 1) // 2, last], axis=1)
-            episode = np.repeat(np.arange(len(group), dtype=np.int64), 3)
-            geometry = _geometry(group, episode, picks.ravel())
-            k, reward, gap, stuck = _solve(geometry, np.arange(len(episode)), k_max_ratio, None)
-            good = (reward >= min_margin) & (gap <= MAX_EXPERT_GAP) & ~stuck
-            keep = good.reshape(-1, 3).all(axis=1)
-            for row, (e, t) in enumerate(zip(episode, picks.ravel(), strict=True)):
-                known[(int(e), int(t))] = (k[row], reward[row], gap[row])
-        chosen = np.flatnonzero(keep)
-        if len(chosen) == 0:
-            continue
-        episode = np.repeat(chosen.astype(np.int64), lengths[chosen])
-        step = np.arange(len(episode)) - np.repeat(
-            np.cumsum(lengths[chosen]) - lengths[chosen], lengths[chosen]
-        )
-        geometry = _geometry(group, episode, step)
-        m = len(contact_pairs(n))
-        expert_k, reward, gap = (
-            np.empty((len(episode), m)),
-            np.empty(len(episode)),
-            np.empty(len(episode)),
-        )
-        stuck = np.zeros(len(episode), bool)
-        todo = np.array([(int(e), int(t)) not in known for e, t in zip(episode, step, strict=True)])
-        for row in np.flatnonzero(~todo):
-            expert_k[row], reward[row], gap[row] = known[(int(episode[row]), int(step[row]))]
-        follows = np.zeros(len(episode), bool)
-        follows[1:] = todo[1:] & todo[:-1] & (episode[1:] == episode[:-1])
-        if todo.any():
-            rows = np.flatnonzero(todo)
-            expert_k[rows], reward[rows], gap[rows], stuck[rows] = _solve(
-                geometry, rows, k_max_ratio, follows[rows]
-            )
-        starts = np.cumsum(lengths[chosen]) - lengths[chosen]
-        for j, e in enumerate(chosen):
-            rows = slice(int(starts[j]), int(starts[j] + lengths[e]))
-            if min_margin is not None and not (
-                reward[rows].min() >= min_margin
-                and gap[rows].max() <= MAX_EXPERT_GAP
-                and not stuck[rows].any()
-            ):
-                continue
-            out[index[e]] = _episode(group[e], geometry, rows, expert_k, reward, gap, max_contacts)
+        built = _build_group([scenes[i] for i in index], k_max_ratio, max_contacts, min_margin)
+        for i, episode in zip(index, built, strict=True):
+            out[i] = episode
     return out
+
+
+def _build_group(
+    group: Sequence[ObjectScene], k_max_ratio: float, max_contacts: int, min_margin: float | None
+) -> list[ObjectEpisode | None]:
+    """:func:`build_episodes` of scenes of one contact count."""
+    n = group[0].n_contacts
+    out: list[ObjectEpisode | None] = [None] * len(group)
+    lengths = np.array([len(s.trajectory) for s in group], dtype=np.int64)
+    starts = np.cumsum(lengths) - lengths
+    episode = np.repeat(np.arange(len(group), dtype=np.int64), lengths)
+    step = np.arange(len(episode)) - np.repeat(starts, lengths)
+    geometry = _geometry(group, episode, step)
+    m = len(contact_pairs(n))
+    count = len(episode)
+    expert_k, reward, gap = np.zeros((count, m)), np.zeros(count), np.zeros(count)
+    solved = np.zeros(count, bool)
+    keep = np.ones(len(group), bool)
+
+    def solve(rows: np.ndarray) -> np.ndarray:
+        """Solve ``rows``; whether each is good (margin, gap, pushing)."""
+        k, r, g, stuck = _solve(geometry, rows, k_max_ratio, _chains(episode, rows))
+        expert_k[rows], reward[rows], gap[rows] = k, r, g
+        solved[rows] = True
+        return (
+            (r >= (-np.inf if min_margin is None else min_margin)) & (g <= MAX_EXPERT_GAP) & ~stuck
+        )
+
+    if min_margin is None:
+        solve(np.arange(count))
+    else:
+        keep &= solve(starts)
+        rows = np.flatnonzero(keep[episode])
+        if len(rows):
+            _, _, _, _, _, held = evaluate_grips(
+                geometry["forces"], geometry["directions"], geometry["normals"],
+                contact_pairs(n), rows, expert_k[starts[episode[rows]]] / k_max_ratio,
+                k_max_ratio, np.array([group[e].scene.weight for e in episode[rows]]),
+                geometry["limit"][rows],
+            )  # fmt: skip
+            hard = rows[(held < min_margin) & ~solved[rows]]
+            if len(hard):
+                good = solve(hard)
+                keep[episode[hard[~good]]] = False
+    for e in np.flatnonzero(keep):
+        rows = slice(int(starts[e]), int(starts[e] + lengths[e]))
+        out[e] = _episode(group[e], geometry, rows, expert_k, reward, gap, solved, max_contacts)
+    return out
+
+
+#: A pose not solved yet is solved with up to this many poses after it, in one batch (each
+#: from the previous optimum), when an episode reaches it.
+PENDING_CHUNK = 8
+
+
+def solve_pending(items: Sequence[tuple[ObjectEpisode, int]], k_max_ratio: float) -> list[slice]:
+    """Solve, for each (episode, pose t) whose pose t is not solved, the poses from t up to
+    :data:`PENDING_CHUNK` on (up to the next solved pose), all in one batch per contact
+    count, and write the optimum into the episode. Returns each item's solved poses (an
+    empty slice where t was solved). The chunks depend on the episode and t alone, so a
+    single env and a vector env solve the same batches' poses."""
+    spans = []
+    for episode, t in items:
+        if episode.solved[t]:
+            spans.append(slice(t, t))
+            continue
+        end = t + 1
+        while end < min(len(episode), t + PENDING_CHUNK) and not episode.solved[end]:
+            end += 1
+        spans.append(slice(t, end))
+    for n in sorted(
+        {e.n_contacts for (e, _), s in zip(items, spans, strict=True) if s.stop > s.start}
+    ):
+        members = [
+            (e, s) for (e, _), s in zip(items, spans, strict=True)
+            if e.n_contacts == n and s.stop > s.start
+        ]  # fmt: skip
+        big = members[0][0].forces_w.shape[1]
+        slots = pair_slots(n, big)
+        pairs = contact_pairs(n)
+        forces = np.concatenate([e.forces_w[s, :n] for e, s in members])
+        normals = np.concatenate([e.normals[s, :n] for e, s in members])
+        directions = np.concatenate([e.directions[s][:, slots] for e, s in members])
+        limit = np.concatenate([np.full(s.stop - s.start, e.limit) for e, s in members])
+        follows = np.concatenate([np.arange(s.stop - s.start) > 0 for _, s in members])
+        grasp = Grasp(
+            np.zeros_like(forces), normals, forces, interaction_basis(directions, pairs, n), limit
+        )
+        result = solve_minimax(grasp, k_max_ratio, follows=follows)
+        pushing = result.status != Status.NOT_PUSHING
+        optimum = np.where(pushing, result.max_angle, result.lower_bound)
+        gap = np.where(pushing, result.max_angle - result.lower_bound, 0.0)
+        first = 0
+        for e, s in members:
+            rows = slice(first, first + s.stop - s.start)
+            e.expert_k_w[s.start : s.stop, slots] = result.k[rows]
+            e.expert_reward[s] = limit[rows] - optimum[rows]
+            e.expert_gap[s] = gap[rows]
+            e.solved[s] = True
+            first = rows.stop
+    return spans
 
 
 def _episode(
@@ -286,9 +357,11 @@ def _episode(
     expert_k: np.ndarray,
     reward: np.ndarray,
     gap: np.ndarray,
+    solved: np.ndarray,
     max_contacts: int,
 ) -> ObjectEpisode:
-    """One episode's padded, read-only arrays from the rows of its poses."""
+    """One episode's padded arrays from the rows of its poses: read-only but for the expert's
+    (``expert_k_w``, ``expert_reward``, ``expert_gap``, ``solved``) where poses are pending."""
     n, big = scene.n_contacts, max_contacts
     slots = pair_slots(n, big)
     count = rows.stop - rows.start
@@ -324,12 +397,14 @@ def _episode(
         reward[rows].copy(),
         gap[rows].copy(),
         projection(scene, big),
+        solved[rows].copy(),
         limit=float(geometry["limit"][rows.start]),
         weight=float(scene.scene.weight),
     )
+    pending = not episode.solved.all()
     for name in ObjectEpisode.__dataclass_fields__:
         value = getattr(episode, name)
-        if isinstance(value, np.ndarray):
+        if isinstance(value, np.ndarray) and not (pending and name in _EXPERT):
             value.flags.writeable = False
     return episode
 
@@ -417,4 +492,5 @@ __all__ = [
     "fill",
     "pair_slots",
     "projection",
+    "solve_pending",
 ]

@@ -31,7 +31,14 @@ from ..validation import (
     split_reset_mask,
 )
 from .env import ObjectGraspEnv, ObjectGraspRandomEnv, _ObjectGraspEnv
-from .episodes import EpisodeStream, ObjectEpisode, build_episodes, draws_error, fill
+from .episodes import (
+    EpisodeStream,
+    ObjectEpisode,
+    build_episodes,
+    draws_error,
+    fill,
+    solve_pending,
+)
 from .kernels import object_batch
 from .scenes import ObjectScene
 
@@ -251,6 +258,7 @@ class _ObjectGraspVectorEnv(_CubeGraspVectorEnv):
         if restarting.size:
             self._start(restarting, None)
             a = np.where(active[:, None], a, 0.0)
+        self._solve_pending()
         arrays = self._arrays
         rows = self._rows()
         big, m = self._big, self._m
@@ -295,6 +303,25 @@ class _ObjectGraspVectorEnv(_CubeGraspVectorEnv):
             self.autoreset_mode, observations, info, terminated | truncated, mask, self._restart
         )
         return observations, reward, terminated, truncated, info
+
+    def _solve_pending(self) -> None:
+        """Solve the expert at the poses the sub-environments reach unsolved (random episodes
+        solve what decides that they hold at reset, the rest on the way: ``solve_pending``),
+        all in one batch, and copy the optimum into the store."""
+        waiting = [
+            e
+            for e in range(self.num_envs)
+            if not self._episodes[e].solved[min(self._t[e], self._length[e] - 1)]
+        ]
+        if not waiting:
+            return
+        items = [(self._episodes[e], int(self._t[e])) for e in waiting]
+        spans = solve_pending(items, self.template.k_max_ratio)
+        for env, (episode, _), span in zip(waiting, items, spans, strict=True):
+            rows = slice(env * self._capacity + span.start, env * self._capacity + span.stop)
+            self._arrays["expert_k_w"][rows] = episode.expert_k_w[span]
+            self._arrays["expert_reward"][rows] = episode.expert_reward[span]
+            self._arrays["expert_gap"][rows] = episode.expert_gap[span]
 
     def _restart(self, envs: np.ndarray) -> np.ndarray:
         self._start(envs, None)
