@@ -91,10 +91,6 @@ class _ObjectGraspVectorEnv(_CubeGraspVectorEnv):
         self.metadata = {**self.metadata, "autoreset_mode": mode}
         self.render_mode = None
         self.template = self._single(**kwargs)
-        self.single_observation_space = self.template.observation_space
-        self.single_action_space = self.template.action_space
-        self.observation_space = batch_space(self.single_observation_space, num_envs)
-        self.action_space = batch_space(self.single_action_space, num_envs)
         self.terminate_on_slip = self.template.terminate_on_slip
         big = self.template.max_contacts
         self._pairs = contact_pairs(big)
@@ -108,6 +104,10 @@ class _ObjectGraspVectorEnv(_CubeGraspVectorEnv):
                 f" exceeds the vector env's {MAX_STORE_ROWS:,}: use fewer sub-environments or"
                 " a larger alpha_step_deg"
             )
+        self.single_observation_space = self.template.observation_space
+        self.single_action_space = self.template.action_space
+        self.observation_space = batch_space(self.single_observation_space, num_envs)
+        self.action_space = batch_space(self.single_action_space, num_envs)
         self._capacity = 0
         self._arrays: dict[str, np.ndarray] = {}
         self._grow(longest + 1)
