@@ -110,6 +110,17 @@ def pair_basis(positions: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     return basis
 
 
+def set_grasp(obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The object-frame F (B, N, 3), interaction basis (B, M, N, 3) and normals (B, N, 3) of
+    padded observations, for :func:`~.features.max_friction_angle` (the reward's friction
+    angle, differentiable): a padded contact gets the force and normal e_z and no pairs, so
+    its angle is 0 with a finite gradient (atan2 at (0, 0) has none)."""
+    big = max_contacts_of(obs.shape[-1])
+    positions, normals, forces, mask, _ = object_frame_set(obs, big)
+    absent = (1.0 - mask)[..., None] * normals.new_tensor([0.0, 0.0, 1.0])
+    return forces + absent, pair_basis(positions, mask), normals + absent
+
+
 class ContactSetFeatures(BaseFeaturesExtractor):
     """The set's tokens, flattened: (p_i, n_i, F_i, theta_lim) per contact in the object's
     frame (N x 10), then the mask (N): 11 N features, no parameters."""
@@ -171,6 +182,11 @@ class _SetExtractor(nn.Module):
         self.value = nn.Sequential(nn.Linear(width, width), nn.SiLU())
         self.latent_dim_pi = max_contacts * width + (TOKEN + 1) * max_contacts
         self.latent_dim_vf = width
+
+    @property
+    def policy_net(self) -> nn.Module:
+        """The actor's encoder (SB3's name for the actor's hidden layers)."""
+        return self.actor
 
     def forward(self, features: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         return self.forward_actor(features), self.forward_critic(features)
@@ -281,5 +297,6 @@ __all__ = [
     "max_contacts_of",
     "object_frame_set",
     "pair_basis",
+    "set_grasp",
     "transfer",
 ]
