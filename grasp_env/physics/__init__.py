@@ -48,17 +48,20 @@ def _choose_gl_backend() -> None:
 
 _choose_gl_backend()
 
+from .gait import GaitRollout, check_gait  # noqa: E402
 from .render import GraspView  # noqa: E402
 from .rollout import RolloutReport, TrajectoryChecker, check_trajectories  # noqa: E402
 from .stability import SETTINGS, PhysicsReport, StabilityChecker, check_poses  # noqa: E402
 
 __all__ = [
     "SETTINGS",
+    "GaitRollout",
     "GraspView",
     "PhysicsReport",
     "RolloutReport",
     "StabilityChecker",
     "TrajectoryChecker",
+    "check_gait",
     "check_poses",
     "check_trajectories",
 ]
