@@ -74,7 +74,6 @@ def test_the_vector_env_steps_as_single_envs(env_id: str, kwargs: dict) -> None:
                     np.testing.assert_array_equal(info[key][i], value, err_msg=f"{key}, step {t}")
         gap = info["optimality_gap"] + info["expert_gap"]
         assert gap[info["_optimality_gap"]].min(initial=0.0) >= -1e-12
-        assert info["expert_gap"].max() <= MAX_EXPERT_GAP
     vector.close()
 
 

@@ -241,8 +241,9 @@ _DOC_SPACES = """
     0 and theta_lim), `k` (M,) the grip applied, `contact_forces` and `equilibrating_forces`
     (N, 3) newtons, `expert_k` (M,) newtons and `expert_reward`, the minimax optimum of the
     exact pose (`solve_minimax`, solved when the episode starts), `expert_gap` its
-    certificate's gap (radians; 0 where certified to 1e-9 rad, up to 1e-5 rad with five or
-    more contacts; the true optimum lies within it), `optimality_gap` = expert_reward -
+    certificate's gap (radians; 0 where certified to 1e-9 rad; where the solver returns
+    UNCERTIFIED, mostly with five or more contacts, 1e-9 to 1e-5 rad: the optimum lies
+    within it), `optimality_gap` = expert_reward -
     reward (>= -expert_gap), `slip` (N,) bool and `n_contacts`. `reset` returns
     `{"n_contacts": n}`.
 """
