@@ -164,7 +164,9 @@ def test_random_draws_are_holdable_and_reproducible() -> None:
         obs2, _ = other.reset(seed=seed)
         np.testing.assert_array_equal(obs, obs2)
         episode = env.episode
-        kinds.add(episode.scene.scene.shape.kind)
+        kinds.add(episode.scene.shape.kind)
+        # the drawn arrays are a valid mechanics Scene's (built on demand)
+        np.testing.assert_allclose(episode.scene.scene.normals, episode.scene.normals, atol=1e-12)
         counts.add(info["n_contacts"])
         assert episode.solved[0]
         assert obs.shape == env.observation_space.shape == (56,)

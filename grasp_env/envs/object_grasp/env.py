@@ -438,7 +438,7 @@ class ObjectGraspRandomEnv(_ObjectGraspEnv):
         values = parse_options(options)
         if values is None:
             return None
-        shape = self._episode.scene.scene.shape if self._episode else object_shape("cube")
+        shape = self._episode.scene.shape if self._episode else object_shape("cube")
         self.shape = shape
         self._defaults = {
             "contacts": default_contacts(shape),

@@ -114,7 +114,7 @@ def projection(scene: ObjectScene, max_contacts: int) -> np.ndarray:
         out[slots, slots] = 1.0
         return out
     pairs = contact_pairs(n)
-    c = scene.scene.contacts
+    c = scene.contacts
     u = c[pairs[:, 1]] - c[pairs[:, 0]]
     u /= np.linalg.norm(u, axis=1, keepdims=True)
     e = interaction_basis(u, pairs, n).reshape(len(pairs), 3 * n).T
@@ -159,8 +159,8 @@ def _geometry(scenes: Sequence[ObjectScene], episode: np.ndarray, step: np.ndarr
     n = scenes[0].n_contacts
     pairs = contact_pairs(n)
     length = np.array([s.length for s in scenes])
-    relative = np.stack([s.scene.relative_contacts() for s in scenes]) / length[:, None, None]
-    torque = np.stack([s.scene.extra_torque for s in scenes]) / length[:, None]
+    relative = np.stack([s.relative_contacts() for s in scenes]) / length[:, None, None]
+    torque = np.stack([s.extra_torque for s in scenes]) / length[:, None]
     traj = [s.trajectory for s in scenes]
     count = len(episode)
     out = {
@@ -175,14 +175,14 @@ def _geometry(scenes: Sequence[ObjectScene], episode: np.ndarray, step: np.ndarr
     }
     pose_geometry(
         relative,
-        np.stack([s.scene.normals for s in scenes]),
+        np.stack([s.normals for s in scenes]),
         np.array([t.axis for t in traj]),
         np.array([t.alpha_start_deg for t in traj]),
         np.array([t.alpha_step_deg for t in traj]),
         np.array([len(t) for t in traj], dtype=np.int64),
-        np.array([s.scene.weight for s in scenes]),
-        np.array([s.scene.mu for s in scenes]),
-        np.stack([s.scene.extra_force for s in scenes]),
+        np.array([s.weight for s in scenes]),
+        np.array([s.mu for s in scenes]),
+        np.stack([s.extra_force for s in scenes]),
         torque,
         1.0,
         episode,
@@ -284,7 +284,7 @@ def _build_group(
             _, _, _, _, _, held = evaluate_grips(
                 geometry["forces"], geometry["directions"], geometry["normals"],
                 contact_pairs(n), rows, expert_k[starts[episode[rows]]] / k_max_ratio,
-                k_max_ratio, np.array([group[e].scene.weight for e in episode[rows]]),
+                k_max_ratio, np.array([group[e].weight for e in episode[rows]]),
                 geometry["limit"][rows],
             )  # fmt: skip
             hard = rows[(held < min_margin) & ~solved[rows]]
@@ -399,7 +399,7 @@ def _episode(
         projection(scene, big),
         solved[rows].copy(),
         limit=float(geometry["limit"][rows.start]),
-        weight=float(scene.scene.weight),
+        weight=float(scene.weight),
     )
     pending = not episode.solved.all()
     for name in ObjectEpisode.__dataclass_fields__:

@@ -28,6 +28,8 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from functools import cached_property
+from itertools import combinations
 from typing import Any
 
 import numpy as np
@@ -45,7 +47,6 @@ from ...mechanics import (
     parse_object,
 )
 from ...mechanics.checks import is_integer
-from ...mechanics.objects import FACES
 from .. import spec
 from ..validation import (
     MU_RANGE,
@@ -147,22 +148,58 @@ def load_ok(weight: float, extra_force: np.ndarray, extra_torque_l: np.ndarray) 
     return bool(size == 0.0 or size >= MIN_LOAD)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class ObjectScene:
-    """A scene and its motion: the mechanics :class:`~grasp_env.mechanics.Scene` (shape,
-    contacts, load) and the :class:`~grasp_env.mechanics.Trajectory` it is held along."""
+    """A scene and its motion, as the arrays the episodes read: the shape, the contacts c_i
+    and their inward normals nu_i (object frame, metres), the centre of gravity, the load and
+    the :class:`~grasp_env.mechanics.Trajectory` it is held along. :attr:`scene` is the
+    mechanics :class:`~grasp_env.mechanics.Scene` (built on first use for drawn scenes, whose
+    layout the sampler checks by the Scene's own rules)."""
 
-    scene: Scene
+    shape: Shape
+    contacts: np.ndarray  # (n, 3)
+    normals: np.ndarray  # (n, 3)
+    cg: np.ndarray  # (3,)
+    weight: float
+    mu: float
+    extra_force: np.ndarray  # (3,) world frame, newtons
+    extra_torque: np.ndarray  # (3,) world frame, N m about the cg
     trajectory: Trajectory
+
+    @classmethod
+    def of(cls, scene: Scene, trajectory: Trajectory) -> ObjectScene:
+        """The arrays of a checked mechanics ``scene``."""
+        made = cls(
+            scene.shape, scene.contacts, scene.normals, scene.cg_offset, scene.weight, scene.mu,
+            scene.extra_force, scene.extra_torque, trajectory,
+        )  # fmt: skip
+        made.__dict__["scene"] = scene
+        return made
+
+    @cached_property
+    def scene(self) -> Scene:
+        return Scene(
+            shape=self.shape,
+            contacts=self.contacts,
+            weight=self.weight,
+            mu=self.mu,
+            cg_offset=self.cg,
+            extra_force=self.extra_force,
+            extra_torque=self.extra_torque,
+        )
 
     @property
     def n_contacts(self) -> int:
-        return self.scene.n_contacts
+        return self.contacts.shape[0]
 
     @property
     def length(self) -> float:
         """L, metres: the largest edge of the shape's bounding box."""
-        return float(self.scene.size.max())
+        return float(self.shape.bounding_size.max())
+
+    def relative_contacts(self) -> np.ndarray:
+        """c_i - g (n, 3), object frame."""
+        return self.contacts - self.cg
 
 
 def make_scene(
@@ -210,7 +247,7 @@ def make_scene(
     if not isinstance(trajectory, Mapping):
         raise ValueError(f"{label} 'trajectory' must be a mapping with keys {TRAJECTORY_KEYS}")
     full = {**default_trajectory(), **trajectory}
-    return ObjectScene(scene, check_trajectory(full))
+    return ObjectScene.of(scene, check_trajectory(full))
 
 
 def parse_scene(values: Mapping[str, Any] | None, defaults: Mapping[str, Any], shape: Shape):
@@ -357,35 +394,60 @@ class ObjectSampler:
         return Sphere(radius=sizes[0] / 2)
 
     def scene(self, u: np.ndarray) -> ObjectScene | None:
-        """The candidate of one row of :meth:`raw`, or None where it is no valid scene."""
+        """The candidate of one row of :meth:`raw`, or None where it is no valid scene.
+
+        Contacts and normals are computed directly (the surface-coordinate maps of the
+        module's table) and checked by :class:`~grasp_env.mechanics.Scene`'s rules (no point
+        within its surface tolerance of an edge or rim; contacts apart, not collinear, not
+        coplanar; the centre of gravity inside), so that the Scene built from them on demand
+        is valid: building one per candidate cost more than the three-contact solves."""
         shape = self.shape(u)
         counts = self.contact_counts
         n = counts[min(int(u[4] * len(counts)), len(counts) - 1)]
         c = self.contact_offset
-        contacts = u[_PER_SCENE:].reshape(MAX_SCENE_CONTACTS, _PER_CONTACT)[:n]
+        p = u[_PER_SCENE:].reshape(MAX_SCENE_CONTACTS, _PER_CONTACT)[:n]
+        tol = shape.tolerance()
         if isinstance(shape, Box):
-            faces = tuple(FACES)
-            points = [
-                shape.face_point(faces[int(p[0] * 6) % 6], (2 * p[1:3] - 1) * c) for p in contacts
-            ]
+            half = shape.size / 2
+            axis = (p[:, 0] * 3).astype(np.int64) % 3
+            sign = np.where(p[:, 3] < 0.5, -1.0, 1.0)
+            rows = np.arange(n)
+            fractions = (2 * p[:, 1:3] - 1) * c
+            contacts = np.empty((n, 3))
+            normals = np.zeros((n, 3))
+            for i in range(n):
+                others = [a for a in range(3) if a != axis[i]]
+                contacts[i, axis[i]] = sign[i] * half[axis[i]]
+                contacts[i, others] = fractions[i] * half[others]
+                if np.any((1 - np.abs(fractions[i])) * half[others] <= tol):
+                    return None
+            normals[rows, axis] = -sign
         elif isinstance(shape, Cylinder):
-            points = []
-            for p in contacts:
-                if p[0] < 0.7:  # the side, about its share of a can's area
-                    points.append(shape.side_point(2 * np.pi * p[1], (2 * p[2] - 1) * c))
-                else:
-                    cap = "-z" if p[0] < 0.85 else "+z"
-                    radius, angle = c * np.sqrt(p[1]), 2 * np.pi * p[2]
-                    points.append(
-                        shape.cap_point(cap, radius * np.array([np.cos(angle), np.sin(angle)]))
-                    )
+            r, h = shape.radius, shape.height
+            side = p[:, 0] < 0.7  # the side, about its share of a can's area
+            angle = 2 * np.pi * np.where(side, p[:, 1], p[:, 2])
+            fraction = np.where(side, (2 * p[:, 2] - 1) * c, c * np.sqrt(p[:, 1]))
+            cap = np.where(p[:, 0] < 0.85, -1.0, 1.0)
+            cos, sin = np.cos(angle), np.sin(angle)
+            contacts = np.where(
+                side[:, None],
+                np.column_stack([r * cos, r * sin, fraction * h / 2]),
+                np.column_stack([fraction * r * cos, fraction * r * sin, cap * h / 2]),
+            )
+            normals = np.where(
+                side[:, None],
+                np.column_stack([-cos, -sin, np.zeros(n)]),
+                np.column_stack([np.zeros(n), np.zeros(n), -cap]),
+            )
+            room = np.where(side, (1 - np.abs(fraction)) * h / 2, (1 - fraction) * r)
+            if np.any(room <= tol):
+                return None
         else:  # uniform on the sphere
-            z, angle = 2 * contacts[:, 2] - 1, 2 * np.pi * contacts[:, 3]
+            z, angle = 2 * p[:, 2] - 1, 2 * np.pi * p[:, 3]
             rho = np.sqrt(np.maximum(1 - z * z, 0.0))
-            points = [
-                shape.point(d)
-                for d in np.column_stack([rho * np.cos(angle), rho * np.sin(angle), z])
-            ]
+            direction = np.column_stack([rho * np.cos(angle), rho * np.sin(angle), z])
+            direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+            contacts, normals = shape.radius * direction, -direction
         half = shape.bounding_size / 2
         cg = (2 * u[5:8] - 1) * self.cg_offset * half
         (w0, w1), (m0, m1) = self.weight_range, self.mu_range
@@ -398,22 +460,34 @@ class ObjectSampler:
         torque = (2 * u[15:18] - 1) * self.extra_torque * weight * length
         z, angle = 2 * u[18] - 1, 2 * np.pi * u[19]  # uniform on the sphere
         rho = np.sqrt(max(1 - z * z, 0.0))
-        axis = np.array([rho * np.cos(angle), rho * np.sin(angle), z])
-        if not load_ok(weight, force, torque / length):
+        axis_ = np.array([rho * np.cos(angle), rho * np.sin(angle), z])
+        if not (
+            load_ok(weight, force, torque / length)
+            and shape._contains(cg)
+            and layout_ok(contacts, length)
+        ):
             return None
-        try:
-            scene = Scene(
-                shape=shape,
-                contacts=np.array(points),
-                weight=weight,
-                mu=mu,
-                cg_offset=cg,
-                extra_force=force,
-                extra_torque=torque,
-            )
-        except ValueError:  # coinciding, collinear or coplanar contacts, a cg outside
-            return None
-        return ObjectScene(scene, Trajectory(tuple(axis), start, end, self.alpha_step_deg))
+        trajectory = Trajectory(tuple(axis_), start, end, self.alpha_step_deg)
+        return ObjectScene(shape, contacts, normals, cg, weight, mu, force, torque, trajectory)
+
+
+#: As :class:`~grasp_env.mechanics.Scene`'s layout rule: in units of the largest bounding edge.
+_DEGENERATE = 1e-6
+
+
+def layout_ok(contacts: np.ndarray, scale: float) -> bool:
+    """Whether :class:`~grasp_env.mechanics.Scene` accepts the layout of ``contacts`` (n, 3):
+    no two within 1e-6 ``scale``, three not collinear (1e-6 scale^2), four or more not all
+    coplanar (some tetrahedron of contact 0 and three others of volume > 1e-6 scale^3)."""
+    n = len(contacts)
+    i, j = np.triu_indices(n, 1)
+    if np.any(np.linalg.norm(contacts[i] - contacts[j], axis=1) <= _DEGENERATE * scale):
+        return False
+    d = contacts[1:] - contacts[0]
+    if n == 3:
+        return bool(np.linalg.norm(np.cross(d[0], d[1])) > _DEGENERATE * scale**2)
+    triples = np.array(list(combinations(range(n - 1), 3)))
+    return bool(np.any(np.abs(np.linalg.det(d[triples])) > _DEGENERATE * scale**3))
 
 
 __all__ = [
