@@ -6,6 +6,7 @@ torque is deliberately wrong, and a small version of the shapes' agreement study
 from __future__ import annotations
 
 import dataclasses
+import json
 
 import mujoco
 import numpy as np
@@ -41,6 +42,7 @@ from grasp_env_agents.benchmarks.study_physics_shapes import (
     check_cases,
     shape_cases,
 )
+from grasp_env_agents.cli import main
 
 CAN = Cylinder(radius=0.033, height=0.115)
 CAN_WEIGHT = 0.35 * 9.81
@@ -270,3 +272,43 @@ def test_a_box_shape_is_the_cubes_model():
     sized = Scene.on_faces(size=(0.4, 0.3, 0.2))
     shaped = Scene(shape=Box(size=(0.4, 0.3, 0.2)), contacts=sized.contacts)
     assert build_mjcf(shaped) == build_mjcf(sized)
+
+
+# ------------------------------------------------------------------- grasp-env verify --object
+
+
+def test_verify_checks_the_expert_grip_on_an_object_pose_by_pose_and_in_one_rollout(
+    tmp_path, capsys
+):
+    common = ["verify", "--object", "can", "--fingers", "4", "--mu", "1", "--alphas=-4,4,4"]
+    assert main([*common, "--out", str(tmp_path / "poses")]) == 0
+    printed = capsys.readouterr().out
+    assert "--fingers 4: --contacts=" in printed
+    assert "agree at 3/3" in printed and (tmp_path / "poses" / "verify.png").exists()
+    assert main([*common, "--trajectory", "--out", str(tmp_path / "rollout")]) == 0
+    printed = capsys.readouterr().out
+    assert "trajectory: analytic holds, MuJoCo holds (agree)" in printed
+    report = json.loads((tmp_path / "rollout" / "rollout.json").read_text())
+    assert report["holds"] and len(report["pose_holds"]) == 3
+
+
+def test_verify_with_an_objects_contacts_slips_where_its_cones_are_too_narrow(tmp_path, capsys):
+    # three fingers on the can's side at mu = 0.05 (2.9 deg): its weight needs more friction
+    args = ["verify", "--object", "can", "--contacts=side:0;side:120;side:240", "--mu", "0.05",
+            "--alphas=0,0,1", "--trajectory", "--out", str(tmp_path)]  # fmt: skip
+    assert main(args) == 0
+    assert "trajectory: analytic slips, MuJoCo slips (agree)" in capsys.readouterr().out
+
+
+def test_verify_names_what_an_object_cannot_take(tmp_path, capsys):
+    for args, message in (
+        (["--contacts=side:0;side:120;top"], "give --object too"),
+        (["--object", "can"], "--object needs its contacts"),
+        (["--object", "can", "--fingers", "3", "--policy", "equal-k"], "drop --policy"),
+        (["--object", "can", "--fingers", "3", "--agreement"], "study_physics_shapes"),
+    ):
+        assert main(["verify", *args, "--out", str(tmp_path)]) == 2
+        assert message in capsys.readouterr().err, args
+    with pytest.raises(SystemExit, match="2"):  # refused as it is parsed
+        main(["verify", "--object", "torus", "--fingers", "3"])
+    assert "argument --object: unknown object 'torus'" in capsys.readouterr().err

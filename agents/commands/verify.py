@@ -28,6 +28,12 @@ cube where MuJoCo has it, the fingertips, the force arrows and friction cones co
 nearness to slip, and alpha, the largest friction angle and the margin. ``--alphas`` sets the
 trajectory (default the paper's -15 to +15 deg by 1 deg).
 
+With ``--object SPEC`` and ``--contacts SPEC`` or ``--fingers N`` (the syntax of ``grasp-env
+reproduce --object``: e.g. ``--object can --fingers 4``): the expert's grip on that object,
+pose by pose or (``--trajectory``, ``--video``) in one rollout; MuJoCo's model is the object's
+own box, cylinder, sphere or mesh geom, with torsional and rolling friction on curved objects
+(docs/physics.md, "Any shape").
+
 With ``--agreement``: the pose agreement study of ``grasp_env_agents.studies.agreement`` (force sets
 from 0 to 40 deg max friction angle and within 0.01 to 1 deg of the cone's edge, mu = tan 10,
 20 and 30 deg, several poses and contact layouts; writes ``agreement.png``); with
@@ -98,6 +104,8 @@ from ..studies.physics_plots import (
     pose_alpha,
     write_video,
 )
+from .reproduce import scene_of_object
+from .reproduce_object import object_argument
 from .scene_args import add_scene_arguments, floats, scene_from_arguments
 
 #: Scenes of the trajectory study by default: about 70 trajectories and the 66 of the gaits
@@ -129,6 +137,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         f" (default: the run's, from its config.yaml; {DEFAULT_MODEL_ENV} for a model file)",
     )
     add_scene_arguments(parser)
+    parser.add_argument(
+        "--object", type=object_argument, default=None, metavar="SPEC",
+        help="the grasped object instead of the paper's cube, as `grasp-env reproduce"
+        " --object` takes it: cube, can, box:x=X,y=Y,z=Z, cylinder:r=R,h=H, sphere:r=R or"
+        " mesh:FILE (metres); needs --contacts or --fingers; the expert's grip",
+    )  # fmt: skip
+    place = parser.add_mutually_exclusive_group()
+    place.add_argument(
+        "--contacts", default=None, metavar="SPEC",
+        help="the object's 3 to 8 contacts, ';'-separated, in its surface coordinates (see"
+        " `grasp-env reproduce --help`)",
+    )  # fmt: skip
+    place.add_argument(
+        "--fingers", type=integer_argument(3, 8), default=None, metavar="N",
+        help="N (3 to 8) contacts placed evenly around the object",
+    )  # fmt: skip
     parser.add_argument(
         "--alphas",
         type=floats(3),
@@ -205,6 +229,11 @@ def run(args: argparse.Namespace) -> int:
             args.video.unlink()
         args.trajectory = True
     args.out.mkdir(parents=True, exist_ok=True)
+    if args.agreement and args.object is not None:
+        raise ValueError(
+            "--object checks one object's grip: the agreement study on every shape is"
+            " python -m grasp_env_agents.benchmarks.study_physics_shapes"
+        )
     if args.agreement:
         if args.trajectory:
             if args.policy == "equal-k":
@@ -217,7 +246,21 @@ def run(args: argparse.Namespace) -> int:
         if args.policy != "expert":
             raise ValueError("--policy with --agreement is for the trajectory study (--trajectory)")
         return run_agreement(seed, args.out)
-    scene = scene_from_arguments(args)
+    if args.object is None:
+        if args.contacts is not None or args.fingers is not None:
+            option = "--contacts" if args.contacts is not None else "--fingers"
+            raise ValueError(
+                f"{option} places contacts on --object's surface: give --object too"
+                " (e.g. --object can; without both, the paper's cube and contacts)"
+            )
+        scene = scene_from_arguments(args)
+    else:
+        if saved or args.policy == "equal-k":
+            raise ValueError(
+                "--object checks the expert's grip (the equal-k grip is the paper cube's, eq."
+                " 8, and a saved model grips its environment's cube): drop --policy"
+            )
+        scene, _ = scene_of_object(args)
     start, end, step = args.alphas
     trajectory = Trajectory(alpha_start_deg=start, alpha_end_deg=end, alpha_step_deg=step)
     if args.policy == "expert":
