@@ -17,7 +17,7 @@ import math
 import numba
 import numpy as np
 
-from ..kernels import released
+from ..kernels import RELEASE, released
 
 _kernel = numba.njit(cache=True, nogil=True, error_model="numpy")
 
@@ -64,7 +64,7 @@ def object_row(
             v = kq * directions[row, q, c]
             unit[i, c] += v
             unit[j, c] -= v
-    small = (2.01 * 1e-6 * (n - 1) * k_max_ratio) ** 2  # as grip_row: RELEASE, n - 1 pairs
+    small = (2.01 * RELEASE * (n - 1) * k_max_ratio) ** 2  # as grip_row's, n - 1 pairs a finger
     worst = np.inf
     for i in range(big):
         px, py, pz = unit[i, 0], unit[i, 1], unit[i, 2]

@@ -250,7 +250,9 @@ def make_scene(
     return ObjectScene.of(scene, check_trajectory(full))
 
 
-def parse_scene(values: Mapping[str, Any] | None, defaults: Mapping[str, Any], shape: Shape):
+def parse_scene(
+    values: Mapping[str, Any] | None, defaults: Mapping[str, Any], shape: Shape
+) -> ObjectScene:
     """:func:`make_scene` from a mapping with :data:`SCENE_KEYS`, missing keys from
     ``defaults`` (a reset option's ``{"scene": {...}}``)."""
     values = {} if values is None else values
