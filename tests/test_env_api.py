@@ -23,7 +23,8 @@ from grasp_env.mechanics import FOUR_FINGER_FACES
 @pytest.mark.fast
 def test_registration():
     gaits = {"grasp_env/CubeGait-v0", "grasp_env/CubeGaitMoves-v0"}
-    assert set(FAST_IDS) | set(MUJOCO_IDS) | gaits == set(grasp_env.ENV_IDS)
+    objects = {"grasp_env/ObjectGrasp-v0", "grasp_env/ObjectGraspRandom-v0"}
+    assert set(FAST_IDS) | set(MUJOCO_IDS) | gaits | objects == set(grasp_env.ENV_IDS)
     for env_id in grasp_env.ENV_IDS:
         assert env_id in gym.registry
     # Code that only takes an id string can import the package through the id.

@@ -20,7 +20,7 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
-from gymnasium.vector import AutoresetMode
+from gymnasium.vector import AutoresetMode, VectorEnv
 
 try:
     from stable_baselines3.common.vec_env.base_vec_env import (
@@ -36,9 +36,17 @@ except ModuleNotFoundError as missing:  # the library installs without the learn
         'they come with the agents extra, pip install "torch==2.13.0" "grasp-env[agents]"'
     ) from missing
 
-from .cube_grasp.vector import _CubeGraspVectorEnv
-from .gait.vector import CubeGaitVectorEnv
 from .validation import check_seed
+
+
+def _is_grasp_env_vector(env: Any) -> bool:
+    """Whether ``env`` is one of grasp_env's batched vector environments (every family's has
+    a ``template`` single environment that holds the shared configuration)."""
+    return (
+        isinstance(env, VectorEnv)
+        and type(env).__module__.startswith("grasp_env.envs.")
+        and hasattr(env, "template")
+    )
 
 
 class SB3VecEnv(VecEnv):
@@ -51,9 +59,7 @@ class SB3VecEnv(VecEnv):
         **kwargs: keywords of the environment (with an id).
     """
 
-    def __init__(
-        self, env: str | _CubeGraspVectorEnv | CubeGaitVectorEnv, num_envs: int = 1, **kwargs: Any
-    ) -> None:
+    def __init__(self, env: str | VectorEnv, num_envs: int = 1, **kwargs: Any) -> None:
         if isinstance(env, str):
             env = gym.make_vec(
                 env,
@@ -64,7 +70,7 @@ class SB3VecEnv(VecEnv):
             )
         elif kwargs:
             raise ValueError("keywords are for an environment id, not for an existing env")
-        if not isinstance(getattr(env, "unwrapped", None), _CubeGraspVectorEnv | CubeGaitVectorEnv):
+        if not _is_grasp_env_vector(getattr(env, "unwrapped", None)):
             raise ValueError(f"expected a grasp_env vector environment, got {env!r}")
         if env.metadata.get("autoreset_mode") != AutoresetMode.SAME_STEP:
             raise ValueError("the vector environment must use AutoresetMode.SAME_STEP")
