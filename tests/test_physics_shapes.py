@@ -219,6 +219,7 @@ def test_without_torsional_and_rolling_friction_the_can_rolls_under_its_fingerti
     held = TrajectoryChecker(inside).check(rotations, grip)
     assert held.holds and held.rotation_deg.max() < 1e-12
     monkeypatch.setattr(physics_model, "CURVED", ())
+    monkeypatch.setattr(physics_model, "FLAT_INERTIA_SCALE", physics_model.INERTIA_SCALE)
     rolled = TrajectoryChecker(inside).check(rotations, grip)
     assert rolled.rotation_deg.max() > 1e-4
     assert rolled.rotation_deg[-1] > 2 * rolled.rotation_deg[5]  # and it keeps turning
