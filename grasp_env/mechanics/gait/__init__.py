@@ -34,7 +34,15 @@ Modules: ``sites`` (the object's sites, :class:`GaitScene`, and the per-pose val
 baselines :func:`greedy_gait`, :func:`best_fixed`) and ``solution`` (:func:`solve_gait`).
 """
 
-from .programme import Gait, best_fixed, bottleneck_bound, greedy_gait, optimal_gait
+from .programme import (
+    MARGIN_TOL,
+    Gait,
+    best_fixed,
+    bottleneck_bound,
+    first_best,
+    greedy_gait,
+    optimal_gait,
+)
 
 # the state tables' size limits, for callers that check a hand's size first
 from .sites import _MAX_FINGERS as _MAX_FINGERS
@@ -45,12 +53,14 @@ from .sites import (
     MAX_TOUCHING,
     MIN_LOADED,
     PAPER_TURN,
+    REACH_TOL,
     SITE_FACES,
     SITE_OFFSETS,
     VERTICAL_TURN,
     GaitScene,
     SetGroup,
     SetValues,
+    cone_reach,
     set_values,
     site_reach,
     site_sets,
@@ -60,10 +70,12 @@ from .states import GaitStates, gait_states, move_name
 
 __all__ = [
     "GAIT_CG_OFFSET",
+    "MARGIN_TOL",
     "MAX_LOADED",
     "MAX_TOUCHING",
     "MIN_LOADED",
     "PAPER_TURN",
+    "REACH_TOL",
     "SITE_FACES",
     "SITE_OFFSETS",
     "VERTICAL_TURN",
@@ -75,6 +87,8 @@ __all__ = [
     "SetValues",
     "best_fixed",
     "bottleneck_bound",
+    "cone_reach",
+    "first_best",
     "gait_states",
     "greedy_gait",
     "move_name",

@@ -10,11 +10,23 @@ import numba
 import numpy as np
 from numpy.typing import ArrayLike
 
+from ..minimax.codes import GAP_TOL
 from ..scene import (
     ArrayRecord,
 )
 from .sites import _MAX_FINGERS, _MAX_SITES, site_sets
 from .states import GaitStates, _size_ok, gait_states, move_name
+
+#: Margins (radians) closer than this are tied: the programme and the greedy rule compare
+#: margins to within it, and break ties by fewer moves, then the larger sum of margins, then
+#: the tables' order (keep before any move, moves by code, states by index). It is the
+#: solver's certificate gap (:data:`~grasp_env.mechanics.minimax.codes.GAP_TOL`, 1e-9 rad,
+#: 5.7e-8 deg): each optimum is known only to within it, so a margin that is smaller by less
+#: is no evidence of a worse grip. Rounding noise in the solver's values is far smaller
+#: (about the vertical every set's margin is constant in exact arithmetic and varies by
+#: 8e-12 deg), and without the tolerance it decided choices: pass 2 discarded a gait 1e-14 deg
+#: below the bottleneck, and the greedy gait's 20 changes came from 1e-15 deg ties.
+MARGIN_TOL = GAP_TOL
 
 
 @numba.njit(cache=True)
@@ -51,11 +63,15 @@ def _pose_values(t, states, ptr, move, loaded, margin, reach, ok, out):
 
 
 @numba.njit(cache=True)
-def _programme(states, ptr, move, nxt, loaded, margin, reach, start):
+def _programme(states, ptr, move, nxt, loaded, margin, reach, start, tol):
     """Backward dynamic programme: bottleneck values, then fewest moves and the largest sum of
-    margins among the gaits that keep the best bottleneck; the policy and the start state.
+    margins among the gaits that keep the best bottleneck to within ``tol``; the policy and
+    the start state. Ties (within ``tol`` per margin, ``tol`` times the poses left for a sum)
+    go to the first candidate in the tables' order: keep before any move, moves by code,
+    start states by index.
 
-    ``start`` < 0: the best start. Returns (value (T + 1, X), policy (T, X), start, best).
+    ``start`` < 0: the best start. Returns (value (T + 1, X), policy (T, X), start, best),
+    ``best`` the exact best bottleneck (max over the starts of pass 1's value).
     """
     T = margin.shape[0]
     X = states.shape[0]
@@ -64,18 +80,20 @@ def _programme(states, ptr, move, nxt, loaded, margin, reach, start):
     value = np.empty((T + 1, X))
     value[T] = np.inf
     first = np.zeros((T, X), np.int64)
-    # pass 1: max over moves of min(margin now, value from the next pose)
+    # pass 1: max over moves of min(margin now, value from the next pose), exact (max and min
+    # of the inputs, no arithmetic); its move: the first within tol of the best
     for t in range(T - 1, -1, -1):
         _pose_values(t, states, ptr, move, loaded, margin, reach, ok, vals)
         for x in range(X):
             best = -np.inf
+            for k in range(ptr[x], ptr[x + 1]):
+                best = max(best, min(vals[k], value[t + 1, nxt[k]]))
+            value[t, x] = best
             arg = ptr[x]
             for k in range(ptr[x], ptr[x + 1]):
-                v = min(vals[k], value[t + 1, nxt[k]])
-                if v > best:
-                    best = v
+                if min(vals[k], value[t + 1, nxt[k]]) >= best - tol:
                     arg = k
-            value[t, x] = best
+                    break
             first[t, x] = arg
     if start < 0:
         bound = -np.inf
@@ -83,8 +101,9 @@ def _programme(states, ptr, move, nxt, loaded, margin, reach, start):
             bound = max(bound, value[0, x])
     else:
         bound = value[0, start]
-    # pass 2: among continuations that keep every margin >= bound, fewest moves, then the
-    # largest sum of margins (both additive: exact)
+    keep = bound - tol  # the margins a gait must keep: the bottleneck, to within tol
+    # pass 2: among continuations that keep every margin >= keep, fewest moves, then the
+    # largest sum of margins (both additive: exact), ties to the first
     moves = np.empty((T + 1, X))
     total = np.empty((T + 1, X))
     moves[T] = 0.0
@@ -92,41 +111,63 @@ def _programme(states, ptr, move, nxt, loaded, margin, reach, start):
     policy = np.empty((T, X), np.int64)
     for t in range(T - 1, -1, -1):
         _pose_values(t, states, ptr, move, loaded, margin, reach, ok, vals)
+        slack = tol * (T - t)  # a sum of T - t margins, each known to within tol
         for x in range(X):
             moves[t, x] = np.inf
             total[t, x] = -np.inf
             policy[t, x] = first[t, x]
-            if not value[t, x] >= bound:
+            if not value[t, x] >= keep:
                 continue
+            fewest = np.inf
             for k in range(ptr[x], ptr[x + 1]):
                 y = nxt[k]
-                if not (vals[k] >= bound and value[t + 1, y] >= bound):
-                    continue
-                c = moves[t + 1, y] + (1.0 if move[k] > 0 else 0.0)
-                s = total[t + 1, y] + vals[k]
-                if c < moves[t, x] or (c == moves[t, x] and s > total[t, x]):
-                    moves[t, x] = c
-                    total[t, x] = s
-                    policy[t, x] = k
+                if vals[k] >= keep and value[t + 1, y] >= keep:
+                    fewest = min(fewest, moves[t + 1, y] + (1.0 if move[k] > 0 else 0.0))
+            largest = -np.inf
+            for k in range(ptr[x], ptr[x + 1]):
+                y = nxt[k]
+                if vals[k] >= keep and value[t + 1, y] >= keep:
+                    if moves[t + 1, y] + (1.0 if move[k] > 0 else 0.0) == fewest:
+                        largest = max(largest, total[t + 1, y] + vals[k])
+            for k in range(ptr[x], ptr[x + 1]):
+                y = nxt[k]
+                if vals[k] >= keep and value[t + 1, y] >= keep:
+                    c = moves[t + 1, y] + (1.0 if move[k] > 0 else 0.0)
+                    s = total[t + 1, y] + vals[k]
+                    if c == fewest and s >= largest - slack:
+                        moves[t, x] = c
+                        total[t, x] = s
+                        policy[t, x] = k
+                        break
     if start < 0:
-        start = 0
-        for x in range(X):
-            if value[0, x] > value[0, start] or (
-                value[0, x] == value[0, start]
-                and (
-                    moves[0, x] < moves[0, start]
-                    or (moves[0, x] == moves[0, start] and total[0, x] > total[0, start])
-                )
-            ):
-                start = x
+        start = _best_start(value[0], moves[0], total[0], keep, tol * T)
     return value, policy, start, bound
 
 
 @numba.njit(cache=True)
-def _greedy(states, ptr, move, nxt, loaded, margin, reach):
+def _best_start(value, moves, total, keep, slack):
+    """The first state that keeps ``keep`` with the fewest moves and, within ``slack``, the
+    largest sum; state 0 if none keeps it (no gait holds)."""
+    fewest = np.inf
+    for x in range(value.shape[0]):
+        if value[x] >= keep:
+            fewest = min(fewest, moves[x])
+    largest = -np.inf
+    for x in range(value.shape[0]):
+        if value[x] >= keep and moves[x] == fewest:
+            largest = max(largest, total[x])
+    for x in range(value.shape[0]):
+        if value[x] >= keep and moves[x] == fewest and total[x] >= largest - slack:
+            return x
+    return 0
+
+
+@numba.njit(cache=True)
+def _greedy(states, ptr, move, nxt, loaded, margin, reach, tol):
     """The greedy rule from every state at every pose: the move that maximises the smaller of
-    the margin now and the best margin the next pose then allows (ties: the larger margin now,
-    then fewer moves). Returns (policy (T, X) CSR indices, score (T, X) of each choice)."""
+    the margin now and the best margin the next pose then allows; ties within ``tol``: the
+    larger margin now (within ``tol``), then the first in the tables' order (keep before any
+    move, so fewer moves). Returns (policy (T, X) CSR indices, score (T, X) of each choice)."""
     T = margin.shape[0]
     X = states.shape[0]
     ok = _state_ok(states, reach)
@@ -144,16 +185,28 @@ def _greedy(states, ptr, move, nxt, loaded, margin, reach):
     for t in range(T):
         _pose_values(t, states, ptr, move, loaded, margin, reach, ok, vals)
         for x in range(X):
-            arg = ptr[x]
             top = -np.inf
+            for k in range(ptr[x], ptr[x + 1]):
+                top = max(top, min(vals[k], best[t + 1, nxt[k]]))
             now = -np.inf
             for k in range(ptr[x], ptr[x + 1]):
-                look = min(vals[k], best[t + 1, nxt[k]])
-                if k == ptr[x] or look > top or (look == top and vals[k] > now):
-                    top, now, arg = look, vals[k], k
+                if min(vals[k], best[t + 1, nxt[k]]) >= top - tol:
+                    now = max(now, vals[k])
+            arg = ptr[x]
+            for k in range(ptr[x], ptr[x + 1]):
+                if min(vals[k], best[t + 1, nxt[k]]) >= top - tol and vals[k] >= now - tol:
+                    arg = k
+                    break
             policy[t, x] = arg
             score[t, x] = top
     return policy, score
+
+
+def first_best(values: np.ndarray, tol: float = MARGIN_TOL) -> int:
+    """The first index whose value is within ``tol`` of the largest (ties go to the tables'
+    order, not to rounding noise)."""
+    values = np.asarray(values, dtype=float)
+    return int(np.flatnonzero(values >= values.max() - tol)[0])
 
 
 @dataclass(frozen=True, eq=False)
@@ -306,7 +359,10 @@ def _policy_choices(table: GaitStates, policy: np.ndarray, start: int) -> np.nda
 
 
 def optimal_gait(margin: ArrayLike, reach: ArrayLike, start: ArrayLike | None = None) -> Gait:
-    """The gait that maximises the smallest margin (then: fewest moves, largest sum).
+    """The gait that maximises the smallest margin (then: fewest moves, largest sum), margins
+    compared to within :data:`MARGIN_TOL`: its smallest margin is within it of the best, and
+    among the gaits that keep that, it has the fewest moves and, to within MARGIN_TOL per pose,
+    the largest sum; remaining ties go to the tables' order.
 
     Args:
         margin: (T, S) the margin of every site set (:func:`site_sets`) at every pose, -inf
@@ -327,7 +383,7 @@ def optimal_gait(margin: ArrayLike, reach: ArrayLike, start: ArrayLike | None = 
     table = gait_states(reach.shape[1], reach.shape[2])
     _, policy, x, best = _programme(
         table.states, table.ptr, table.move, table.next, table.loaded, margin, reach,
-        _start_index(table, start),
+        _start_index(table, start), MARGIN_TOL,
     )  # fmt: skip
     policy.flags.writeable = False
     # every gait drops somewhere: none is optimal, so none is followed
@@ -339,16 +395,16 @@ def optimal_gait(margin: ArrayLike, reach: ArrayLike, start: ArrayLike | None = 
 def greedy_gait(margin: ArrayLike, reach: ArrayLike, start: ArrayLike | None = None) -> Gait:
     """The greedy baseline: at each pose the move that maximises the smaller of that pose's
     margin and the best margin the next pose then allows (a one-pose lookahead, so that it
-    lifts a finger before the finger loses its site, where it can); ties: the larger margin
-    now, then fewer moves. Default start: its own best first choice. Its ``policy`` is the
-    greedy rule from every state at every pose."""
+    lifts a finger before the finger loses its site, where it can); ties (to within
+    :data:`MARGIN_TOL`): the larger margin now, then fewer moves. Default start: its own
+    best first choice. Its ``policy`` is the greedy rule from every state at every pose."""
     margin, reach = _check_inputs(margin, reach)
     table = gait_states(reach.shape[1], reach.shape[2])
     policy, score = _greedy(
-        table.states, table.ptr, table.move, table.next, table.loaded, margin, reach
+        table.states, table.ptr, table.move, table.next, table.loaded, margin, reach, MARGIN_TOL
     )
     policy.flags.writeable = False
-    x = int(np.argmax(score[0])) if start is None else table.index(start, "start")
+    x = first_best(score[0]) if start is None else table.index(start, "start")
     gait = _follow(table, x, _policy_choices(table, policy, x), margin, reach)
     return Gait(**{**gait.__dict__, "policy": policy})
 
@@ -361,7 +417,7 @@ def best_fixed(margin: ArrayLike, reach: ArrayLike) -> Gait:
     keep = table.ptr[:-1]  # a state's first move: keep, if at most four fingers touch
     worst = np.where(ok, margin[:, table.loaded[keep]], -np.inf).min(axis=0)
     worst[table.move[keep] != 0] = -np.inf
-    x = int(np.argmax(worst))
+    x = first_best(worst)
     return _follow(table, x, np.full(len(margin), keep[x]), margin, reach)
 
 
@@ -375,6 +431,6 @@ def bottleneck_bound(
     table = gait_states(reach.shape[1], reach.shape[2])
     _, _, _, bound = _programme(
         table.states, table.ptr, table.move, table.next, table.loaded, margin, reach,
-        _start_index(table, start),
+        _start_index(table, start), MARGIN_TOL,
     )  # fmt: skip
     return float(bound)

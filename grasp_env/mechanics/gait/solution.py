@@ -11,7 +11,15 @@ from numpy.typing import ArrayLike
 from ..forces import Grasp, n_pairs
 from ..hand import Hand
 from ..trajectory import Trajectory
-from .programme import Gait, _follow, _policy_choices, best_fixed, greedy_gait, optimal_gait
+from .programme import (
+    Gait,
+    _follow,
+    _policy_choices,
+    best_fixed,
+    bottleneck_bound,
+    greedy_gait,
+    optimal_gait,
+)
 from .sites import PAPER_TURN, GaitScene, SetValues, set_values, site_reach
 
 
@@ -25,7 +33,8 @@ class GaitSolution:
         reach: (T, F, N) which finger reaches which site.
         optimal: the optimal gait on the attained margins.
         bound: the programme's value on the certified upper bounds: no gait has a smallest
-            margin above it; ``optimal.margin <= bound <= optimal.margin + gap``. -inf when no
+            margin above it; ``optimal.margin <= bound <= optimal.margin + gap +
+            MARGIN_TOL`` (the optimal gait keeps the best margin to within MARGIN_TOL). -inf when no
             gait holds (:attr:`holds`).
         bound_gait: the gait the programme picks on the upper bounds (its attained margin
             agrees with the optimal gait's within the gap).
@@ -149,7 +158,8 @@ def solve_gait(
     reach = site_reach(scene, hand, rotations)
     optimal = optimal_gait(values.margin, reach, start)
     bound_gait = optimal_gait(values.margin_bound, reach, start)
-    bound = float(bound_gait.margin)
+    # the exact best bottleneck on the bounds (the bound's gait keeps it to within MARGIN_TOL)
+    bound = bottleneck_bound(values.margin_bound, reach, start)
     # the bound's gait on the attained margins: the same moves, what its grips attain
     x = int(bound_gait.states[0])
     attained = bound_gait if x < 0 else _follow(
