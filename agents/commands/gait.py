@@ -42,10 +42,13 @@ from grasp_env.mechanics.gait import _MAX_FINGERS, GAIT_CG_OFFSET, site_sets
 
 from ..cli import folder_argument, path_argument
 from ..progress import console, status
+from . import gait_can
 from .scene_args import floats, friction, weight
 
 #: Fingers a gait may have, the thumb included (grasp_env.mechanics.gait's state tables).
 FINGERS = (3, _MAX_FINGERS)
+#: The cube's defaults for the options the can's gait shares (``gait_can.CAN_DEFAULTS``).
+CUBE_DEFAULTS = {"weight": 5.0, "alpha_start": -90.0, "alpha_end": 90.0, "alpha_step": 1.0}
 #: The hand's fields, by the options that set them (their errors name the option).
 HAND_OPTIONS = {
     "finger_azimuths_deg": "--finger-azimuths",
@@ -60,8 +63,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     hand = Hand()
     parser.add_argument(
-        "--weight", type=weight, default=5.0, help="weight, N, in [1e-6, 1e6] (default 5)"
-    )
+        "--object", choices=("cube", "can"), default="cube",
+        help="the cube's gait along a rotation (default), or the coke can turned a full turn"
+        " about its axis by five fingertips round its side (docs/gait.md, 'The can')",
+    )  # fmt: skip
+    parser.add_argument(
+        "--weight", type=weight, default=None,
+        help="weight, N, in [1e-6, 1e6] (default 5; the can's 3.4)",
+    )  # fmt: skip
     parser.add_argument(
         "--mu", type=friction, default=0.5, help="friction coefficient, in [1e-3, 1e3] (0.5)"
     )
@@ -80,9 +89,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="world-frame rotation axis (default the paper's, 1,-1,0; 0,0,1 turns the cube"
         " about its own diagonal, the vertical)",
     )  # fmt: skip
-    parser.add_argument("--alpha-start", type=float, default=-90.0, help="first alpha, deg")
-    parser.add_argument("--alpha-end", type=float, default=90.0, help="last alpha, deg")
-    parser.add_argument("--alpha-step", type=float, default=1.0, help="alpha step, deg")
+    parser.add_argument(
+        "--alpha-start", type=float, default=None, help="first alpha, deg (default -90; can 0)"
+    )
+    parser.add_argument(
+        "--alpha-end", type=float, default=None, help="last alpha, deg (default 90; can 360)"
+    )
+    parser.add_argument(
+        "--alpha-step", type=float, default=None, help="alpha step, deg (default 1; can 10)"
+    )
     parser.add_argument(
         "--k-max", type=float, default=None,
         help="bound on |k_ij|, N, in [1e-3, 1e3] x weight (default 2 x weight)",
@@ -102,6 +117,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )  # fmt: skip
     parser.add_argument("--no-thumb", action="store_true", help="a hand without the thumb")
     parser.add_argument("--no-plots", action="store_true", help="write the CSV only")
+    gait_can.add_arguments(parser)
     parser.add_argument(
         "--models", nargs="+", type=path_argument, default=[], metavar="MODEL",
         help="trained agents (SB3 model files, e.g. rl-zoo3's)"
@@ -118,8 +134,18 @@ def _numbers(text: str) -> tuple[float, ...]:
         raise argparse.ArgumentTypeError("expected comma-separated numbers") from None
 
 
+def resolve(args: argparse.Namespace) -> argparse.Namespace:
+    """Fills the shared options left unset with the object's defaults (in place)."""
+    defaults = gait_can.CAN_DEFAULTS if getattr(args, "object", "cube") == "can" else CUBE_DEFAULTS
+    for name, value in defaults.items():
+        if getattr(args, name) is None:
+            setattr(args, name, value)
+    return args
+
+
 def problem(args: argparse.Namespace) -> tuple[GaitScene, Hand, Trajectory]:
     """The scene, hand and trajectory the options describe (ValueError if invalid)."""
+    resolve(args)
     offsets = SITE_OFFSETS if args.offsets is None else np.reshape(args.offsets, (-1, 2))
     scene = GaitScene.on_faces(
         SITE_FACES, offsets, weight=args.weight, mu=args.mu, cg_offset=args.cg_offset
@@ -127,17 +153,21 @@ def problem(args: argparse.Namespace) -> tuple[GaitScene, Hand, Trajectory]:
     hand = make_hand(args)
     trajectory = Trajectory(args.axis, args.alpha_start, args.alpha_end, args.alpha_step)
     if args.k_max is not None:
-        # the environments' k_max_ratio range: beyond it the certificate means little, and the
-        # solver takes minutes
-        from grasp_env.envs.validation import K_MAX_RATIO_RANGE
-
-        low, high = K_MAX_RATIO_RANGE
-        if not low <= args.k_max / args.weight <= high:  # NaN fails too
-            raise ValueError(
-                f"--k-max must be within [{low * args.weight:g}, {high * args.weight:g}] N"
-                f" ({low:g} to {high:g} x the weight, {args.weight:g} N here), got {args.k_max:g}"
-            )
+        _check_k_max(args)
     return scene, hand, trajectory
+
+
+def _check_k_max(args: argparse.Namespace) -> None:
+    # the environments' k_max_ratio range: beyond it the certificate means little, and the
+    # solver takes minutes
+    from grasp_env.envs.validation import K_MAX_RATIO_RANGE
+
+    low, high = K_MAX_RATIO_RANGE
+    if not low <= args.k_max / args.weight <= high:  # NaN fails too
+        raise ValueError(
+            f"--k-max must be within [{low * args.weight:g}, {high * args.weight:g}] N"
+            f" ({low:g} to {high:g} x the weight, {args.weight:g} N here), got {args.k_max:g}"
+        )
 
 
 def make_hand(args: argparse.Namespace) -> Hand:
@@ -269,7 +299,8 @@ def env_kwargs(args: argparse.Namespace) -> dict[str, Any]:
     """``grasp_env/CubeGait-v0``'s keywords for the options (ValueError for options that
     environment cannot take: it has the default hand, sites and weight)."""
     add_arguments(parser := argparse.ArgumentParser())
-    defaults = parser.parse_args([])
+    defaults = resolve(parser.parse_args([]))
+    resolve(args)
     fixed = ["weight", "offsets", "cg_offset", "finger_azimuths", "finger_elevation", "no_thumb"]
     changed = [name for name in fixed if getattr(args, name) != getattr(defaults, name)]
     if changed:
@@ -543,6 +574,13 @@ def plot(solution: GaitSolution, path: Path) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    resolve(args)
+    if args.object == "can":
+        add_arguments(parser := argparse.ArgumentParser())
+        gait_can.check_options(args, parser.parse_args([]))
+        if args.k_max is not None:
+            _check_k_max(args)
+        return gait_can.run(args)
     scene, hand, trajectory = problem(args)
     check_rliable(args)
     loaded = []

@@ -1,0 +1,222 @@
+"""``grasp-env gait --object can``: the certified gait that turns a coke can about its axis.
+
+The paper's stretch ("turning a coke can about its axis requires phasing in and out of the
+fingers"): the can stands upright and turns a full turn about its vertical axis; five
+fingertips round its side each reach a patch of it (``grasp_env.mechanics.gait.can``), so
+every contact turns out of reach after a while and its finger must lift and be placed again.
+Prints the optimal gait beside the greedy one and the best fixed set, and writes ``gait.csv``
+(per pose: each finger's point on the can, its phase event, friction angles, the margin and
+the minimax status) and ``gait.png``. docs/gait.md, "The can", has the model.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import time
+from pathlib import Path
+
+import numpy as np
+
+from grasp_env.mechanics import Status
+from grasp_env.mechanics.gait.can import (
+    CAN_DEFAULT_LOADED,
+    CAN_MAX_LOADED,
+    CAN_MIN_LOADED,
+    CAN_WEIGHT,
+    CanGait,
+    CanGaitSolution,
+    CanHand,
+    CanTurn,
+    solve_can_gait,
+)
+
+from ..progress import status
+
+#: The can's defaults for the options the cube's gait shares (``--weight``, ``--alpha-*``).
+CAN_DEFAULTS = {"weight": CAN_WEIGHT, "alpha_start": 0.0, "alpha_end": 360.0, "alpha_step": 10.0}
+#: The cube's options that mean nothing for the can (its hand is a CanHand).
+CUBE_ONLY = ("offsets", "cg_offset", "axis", "cone", "finger_azimuths", "finger_elevation")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The can's own options (the shared ones are the cube gait's)."""
+    hand = CanHand()
+    parser.add_argument(
+        "--reach", type=float, default=hand.reach_deg,
+        help="--object can: half-width of each finger's patch of the side, deg in (0, 90]"
+        f" (default {hand.reach_deg:g})",
+    )  # fmt: skip
+    parser.add_argument(
+        "--max-loaded", type=int, default=CAN_DEFAULT_LOADED,
+        choices=range(CAN_MIN_LOADED, CAN_MAX_LOADED + 1),
+        help="--object can: most fingers carrying load at a pose (five may always touch;"
+        f" 5 loaded solves every five-finger configuration, slow; default {CAN_DEFAULT_LOADED})",
+    )  # fmt: skip
+
+
+def check_options(args: argparse.Namespace, defaults: argparse.Namespace) -> None:
+    """ValueError naming the cube's options that were given with ``--object can``."""
+    given = [n for n in CUBE_ONLY if getattr(args, n) != getattr(defaults, n)]
+    if args.no_thumb:
+        given.append("no_thumb")
+    if args.models:
+        given.append("models")
+    if given:
+        options = ", ".join("--" + n.replace("_", "-") for n in given)
+        raise ValueError(f"--object can takes the can's hand, not the cube's: drop {options}")
+
+
+def _deg(x: float) -> str:
+    return "drops" if x == -np.inf else f"{np.rad2deg(x):.3f} deg"
+
+
+def _dropped(solution: CanGaitSolution, gait: CanGait) -> str:
+    drop = np.flatnonzero(gait.configs < 0)
+    return f", drops at alpha = {solution.turn.alphas_deg[drop[0]]:g} deg" if len(drop) else ""
+
+
+def summary(solution: CanGaitSolution, seconds: float) -> list[str]:
+    """The printed lines: the three gaits, the certificate, the solver's statuses, the cost."""
+    opt, greedy, fixed = solution.optimal, solution.greedy, solution.fixed
+    values = solution.values
+    lines = [
+        f"optimal gait: worst margin {_deg(opt.margin)} (certified: no gait exceeds"
+        f" {_deg(solution.bound)}, gap {np.rad2deg(solution.gap):.1e} deg),"
+        f" {opt.changes} phase changes{_dropped(solution, opt)}",
+        f"greedy gait: worst margin {_deg(greedy.margin)}, {greedy.changes} phase changes"
+        f"{_dropped(solution, greedy)}",
+    ]
+    if fixed.margin > -np.inf:
+        lines.append(f"best fixed set: {_deg(fixed.margin)}")
+    else:
+        lines.append("best fixed set: none stays within reach along the whole turn")
+    lines.append(
+        f"ignoring the moves, the best configuration keeps {_deg(float(values.margin.max()))}"
+    )
+    lines.append(
+        f"solved in {seconds:.2f} s ({len(values.configs):,} configurations of 3 to"
+        f" {max(len(c) for c in values.configs)} loaded fingers, one certified minimax each"
+        f" (the same at every pose: the can turns about its axis), {values.uncertified}"
+        f" uncertified ({solution.uncertified_along(opt)} along the optimal gait);"
+        f" {len(solution.turn)} poses)"
+    )
+    return lines
+
+
+def write_csv(solution: CanGaitSolution, path: Path) -> None:
+    gait = solution.optimal
+    names = solution.hand.names
+    angles, statuses = solution.grips(gait)
+    points = solution.object_angles_deg(gait)
+    limit = solution.friction_limit
+    events = {t: f"{names[f]} {kind}" for t, kind, f in gait.events()}
+    header = ["alpha_deg", *(f"point_{n}_deg" for n in names), "event"]
+    header += [f"theta_{n}_deg" for n in names] + ["theta_max_deg", "margin_deg", "status"]
+    with path.open("w", newline="") as file:
+        writer = csv.writer(file)
+        writer.writerow(header)
+        for t, alpha in enumerate(solution.turn.alphas_deg):
+            loaded = gait.loaded[t]
+            writer.writerow(
+                [
+                    f"{alpha:g}",
+                    *("" if np.isnan(p) else f"{p:g}" for p in points[t]),
+                    events.get(t, ""),
+                    *(
+                        f"{np.rad2deg(a):.10g}" if loaded[f] else ""
+                        for f, a in enumerate(angles[t])
+                    ),
+                    f"{np.rad2deg(limit - gait.margins[t]):.10g}",
+                    f"{np.rad2deg(gait.margins[t]):.10g}",
+                    Status(int(statuses[t])).name.lower() if statuses[t] >= 0 else "dropped",
+                ]
+            )
+
+
+def plot(solution: CanGaitSolution, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    alphas = solution.turn.alphas_deg
+    step = solution.turn.step_deg
+    names = solution.hand.names
+    F = len(names)
+    fig, axes = plt.subplots(
+        3, 1, figsize=(10, 9), sharex=True, gridspec_kw={"height_ratios": [1, 1, 1.3]}
+    )
+    cmap = plt.get_cmap("viridis")
+    for ax, gait, label in (
+        (axes[0], solution.optimal, "optimal"),
+        (axes[1], solution.greedy, "greedy"),
+    ):
+        points = solution.object_angles_deg(gait)
+        for f in range(F):
+            for t in range(len(alphas)):
+                if gait.ages[t, f] < 0:
+                    continue
+                ax.broken_barh(
+                    [(alphas[t] - step / 2, step)], (f - 0.35, 0.7),
+                    color=cmap(points[t, f] / 360.0),
+                    alpha=1.0 if gait.loaded[t, f] else 0.3, linewidth=0,
+                )  # fmt: skip
+        drop = np.flatnonzero(gait.configs < 0)
+        if len(drop):
+            ax.axvline(alphas[drop[0]], color="r", lw=2)
+            ax.text(alphas[drop[0]], F - 0.5, " drops", color="r", va="top")
+        ax.set_yticks(range(F), names)
+        ax.set_ylim(-0.6, F - 0.4)
+        ax.invert_yaxis()
+        ax.set_title(
+            f"{label} gait (colour: the point of the can touched; light: no force),"
+            f" worst margin {_deg(gait.margin)}, {gait.changes} phase changes",
+            fontsize=10,
+        )
+    mappable = plt.cm.ScalarMappable(cmap=cmap, norm=plt.Normalize(0, 360))
+    fig.colorbar(mappable, ax=list(axes), label="contact's azimuth on the can (deg)", pad=0.01)
+    ax = axes[2]
+    ax.plot(alphas, np.rad2deg(solution.optimal.margins), "-", color="k", label="optimal gait")
+    greedy = np.rad2deg(solution.greedy.margins)
+    ax.plot(alphas, greedy, "--", color="tab:red", label="greedy gait")
+    if solution.fixed.margin > -np.inf:
+        ax.plot(alphas, np.rad2deg(solution.fixed.margins), ":", label="best fixed set")
+    ax.axhline(0.0, color="k", lw=0.8)
+    ax.set_ylabel("margin atan(mu) - max theta_i (deg)")
+    ax.set_xlabel("alpha, the can's turn about its axis (deg)")
+    ax.legend(fontsize=8, loc="lower left")
+    fig.suptitle(
+        f"Turning a coke can ({solution.weight:g} N, mu {solution.mu:g}) by {len(alphas)} poses"
+        f" with {F} fingers, each reaching {solution.hand.reach_deg:g} deg either way"
+    )
+    fig.savefig(path, dpi=110, bbox_inches="tight")
+    plt.close(fig)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Solve, print, write gait.csv and gait.png; exit status 2 (a ValueError) if no gait holds."""
+    hand = CanHand(reach_deg=args.reach)
+    turn = CanTurn(args.alpha_start, args.alpha_end, args.alpha_step)
+    start = time.perf_counter()
+    with status(f"the certified minimax of every configuration, then the gait ({len(turn)} poses)"):
+        solution = solve_can_gait(
+            hand, turn, args.weight, args.mu, args.k_max, max_loaded=args.max_loaded
+        )
+    seconds = time.perf_counter() - start
+    if not solution.holds:
+        raise ValueError(
+            "no gait keeps three fingers on the can within reach along this turn (--reach"
+            f" {args.reach:g} deg, --alpha-step {args.alpha_step:g} deg): widen --reach or allow"
+            " more loaded fingers (--max-loaded)"
+        )
+    for line in summary(solution, seconds):
+        print(line)
+    args.out.mkdir(parents=True, exist_ok=True)
+    write_csv(solution, args.out / "gait.csv")
+    written = ["gait.csv"]
+    if not args.no_plots:
+        plot(solution, args.out / "gait.png")
+        written.append("gait.png")
+    print(f"wrote {', '.join(str(args.out / name) for name in written)}")
+    return 0
