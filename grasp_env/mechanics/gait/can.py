@@ -705,8 +705,12 @@ def best_fixed_can(
         choices = np.empty(T, np.int64)
         y = int(x)
         for t in range(T):
-            choices[t] = table.ptr[y]  # move 0, keep: the first of every state's moves
-            y = int(table.next[choices[t]])
+            k = int(table.ptr[y])  # keep, if allowed, is the first of a state's moves
+            if table.ptr[y + 1] == k or table.move[k] != 0:
+                choices[t:] = -1  # no keep here (five touching, at most four loaded)
+                break
+            choices[t] = k
+            y = int(table.next[k])
         gait = _follow_can(table, int(x), choices, margin)
         worst[x] = gait.margin
         gaits[int(x)] = gait
