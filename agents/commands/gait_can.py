@@ -170,12 +170,13 @@ def plot(solution: CanGaitSolution, path: Path) -> None:
         ax.set_ylim(-0.6, F - 0.4)
         ax.invert_yaxis()
         ax.set_title(
-            f"{label} gait (colour: the point of the can touched; light: no force),"
+            f"{label} gait: fingers touching (light: no force, being placed or lifted);"
             f" worst margin {_deg(gait.margin)}, {gait.changes} phase changes",
-            fontsize=10,
+            fontsize=9,
         )
     mappable = plt.cm.ScalarMappable(cmap=cmap, norm=plt.Normalize(0, 360))
-    fig.colorbar(mappable, ax=list(axes), label="contact's azimuth on the can (deg)", pad=0.01)
+    label = "the point touched: its azimuth on the can (deg)"
+    fig.colorbar(mappable, ax=list(axes), label=label, pad=0.01)
     ax = axes[2]
     ax.plot(alphas, np.rad2deg(solution.optimal.margins), "-", color="k", label="optimal gait")
     greedy = np.rad2deg(solution.greedy.margins)
@@ -185,7 +186,7 @@ def plot(solution: CanGaitSolution, path: Path) -> None:
     ax.axhline(0.0, color="k", lw=0.8)
     ax.set_ylabel("margin atan(mu) - max theta_i (deg)")
     ax.set_xlabel("alpha, the can's turn about its axis (deg)")
-    ax.legend(fontsize=8, loc="lower left")
+    ax.legend(fontsize=8, loc="lower right")
     fig.suptitle(
         f"Turning a coke can ({solution.weight:g} N, mu {solution.mu:g}) by {len(alphas)} poses"
         f" with {F} fingers, each reaching {solution.hand.reach_deg:g} deg either way"
