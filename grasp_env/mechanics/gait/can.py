@@ -84,9 +84,9 @@ class CanHand:
 
     The default: five fingertips evenly round the can (72 deg apart, the thumb at 180 deg)
     at staggered heights, each reaching 60 deg either way: a contact lasts 120 deg of the
-    turn, 12 poses of 10 deg. Shorter contacts leave no gait that holds: each contact costs
-    two moves (a placement, a lift), one move a pose, and three fingers must carry load at
-    every pose (with 45 deg the best gait slips by 3.2 deg, with 50 deg by 0.9 deg).
+    turn, 12 poses of 10 deg. Contacts of 6 poses or fewer leave no gait that holds: each
+    contact costs two moves (a placement, a lift), one move a pose, and three fingers must
+    carry load at every pose (docs/gait.md, "The can").
     """
 
     azimuths_deg: tuple[float, ...] = (-36.0, 36.0, 108.0, 252.0, 180.0)
