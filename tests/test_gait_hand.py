@@ -69,7 +69,7 @@ def test_paper_axis_gait_rests_on_the_cones_edge(monkeypatch):
     alpha = +-90 deg (cos = (1 + cos alpha) / 2 = 1/2) and the -z and +z sites at -45 and
     +45 deg: the gait's 12 phase changes count them within reach; with the edge excluded it
     takes 14."""
-    from grasp_env.mechanics.gait import sites
+    from grasp_env.mechanics import hand as hand_module
 
     trajectory = Trajectory(PAPER_TURN.axis, -90.0, 90.0, 3.0)
     scene, hand = GaitScene(), Hand()
@@ -81,7 +81,7 @@ def test_paper_axis_gait_rests_on_the_cones_edge(monkeypatch):
         (-90.0, 0, 0), (-90.0, 0, 4), (-45.0, 0, 2), (45.0, 0, 5), (90.0, 0, 0), (90.0, 0, 4)
     ]  # fmt: skip
     assert solve_gait(scene, hand, trajectory).optimal.changes == 12
-    monkeypatch.setattr(sites, "REACH_TOL", -REACH_TOL)  # the edge just outside
+    monkeypatch.setattr(hand_module, "REACH_TOL", -REACH_TOL)  # the edge just outside
     assert solve_gait(scene, hand, trajectory).optimal.changes == 14
 
 

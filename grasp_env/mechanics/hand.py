@@ -23,6 +23,30 @@ from numpy.typing import ArrayLike
 from .checks import real_array, real_number
 from .trajectory import PHI
 
+#: A normal exactly on a finger's cone is within reach: reach is n . a_f >= cos(cone) -
+#: REACH_TOL (cosines; about 1.2e-12 rad of angle at a 60 deg cone). Rounding in the rotated
+#: normals is about 1e-16; the tolerance is there because edges are met exactly: on the
+#: paper's axis the -x and -y faces' normals reach their fingers' 60 deg cones exactly at
+#: alpha = +-90 deg (cos = (1 + cos alpha) / 2), and the gait's 12 phase changes there count
+#: those poses as within reach. A normal 1e-10 rad outside the cone is out of reach.
+REACH_TOL = 1e-12
+
+
+def cone_reach(approach: ArrayLike, cone_deg: float, normals: ArrayLike) -> np.ndarray:
+    """Which of F fingers with unit approach directions ``approach`` (F, 3) and cones of
+    half-angle ``cone_deg`` can push on contacts of inward world normals ``normals``
+    (..., N, 3): (..., F, N) bool, n . a_f >= cos(cone) - :data:`REACH_TOL` (the cone's edge
+    is within reach, deliberately; docs/gait.md, "The hand and its reach")."""
+    approach = np.asarray(approach, dtype=float)
+    normals = np.asarray(normals, dtype=float)
+    if normals.ndim < 2 or normals.shape[-1] != 3:
+        raise ValueError(f"normals must have shape (..., N, 3), got {normals.shape}")
+    if not np.all(np.isfinite(normals)):
+        raise ValueError("normals must be finite")
+    cosine = np.einsum("fc,...nc->...fn", approach, normals)
+    return cosine >= np.cos(np.deg2rad(cone_deg)) - REACH_TOL
+
+
 #: Elevation of the default fingers' approach: that of the corner faces' inward normals at the
 #: start pose (body diagonal vertical), 90 deg - phi.
 FINGER_ELEVATION_DEG = 90.0 - float(np.rad2deg(PHI))
@@ -99,11 +123,4 @@ class Hand:
     def reach(self, normals: ArrayLike) -> np.ndarray:
         """Which finger can push on which contact: (..., F, N) bool from world-frame inward
         unit normals (..., N, 3) of N contacts."""
-        normals = np.asarray(normals, dtype=float)
-        if normals.ndim < 2 or normals.shape[-1] != 3:
-            raise ValueError(f"normals must have shape (..., N, 3), got {normals.shape}")
-        if not np.all(np.isfinite(normals)):
-            raise ValueError("normals must be finite")
-        cosine = np.einsum("fc,...nc->...fn", self.approach, normals)
-        # a hair of tolerance, so that a normal exactly on the cone counts as inside
-        return cosine >= np.cos(np.deg2rad(self.cone_deg)) - 1e-12
+        return cone_reach(self.approach, self.cone_deg, normals)

@@ -14,7 +14,7 @@ from numpy.typing import ArrayLike
 
 from ..checks import real_array, real_number
 from ..forces import Grasp, grasp, load_wrench
-from ..hand import Hand
+from ..hand import REACH_TOL, Hand, cone_reach  # noqa: F401 (REACH_TOL re-exported)
 from ..minimax import MinimaxResult, solve_minimax
 from ..rotations import check_rotations
 from ..scene import (
@@ -48,13 +48,6 @@ VERTICAL_TURN = Trajectory((0.0, 0.0, 1.0), -180.0, 180.0, 1.0)
 _MAX_SITES = 8
 _MAX_FINGERS = 6  # (N + 1)^F assignment codes: 531,441 for 6 fingers on 8 sites
 _TOL = 1e-9
-#: A normal exactly on a finger's cone is within reach: reach is n . a_f >= cos(cone) -
-#: REACH_TOL (cosines; about 1.2e-12 rad of angle at a 60 deg cone). Rounding in the rotated
-#: normals is about 1e-16; the tolerance is there because edges are met exactly: on the
-#: paper's axis the -x and -y faces' normals reach their fingers' 60 deg cones exactly at
-#: alpha = +-90 deg (cos = (1 + cos alpha) / 2), and the gait's 12 phase changes there count
-#: those poses as within reach. A normal 1e-10 rad outside the cone is out of reach.
-REACH_TOL = 1e-12
 
 
 def _default_sites() -> np.ndarray:
@@ -292,21 +285,6 @@ def set_values(scene: GaitScene, rotations: ArrayLike, k_max: float | None = Non
             )
         )
     return SetValues(sets, margin, bound, tuple(groups))
-
-
-def cone_reach(approach: ArrayLike, cone_deg: float, normals: ArrayLike) -> np.ndarray:
-    """Which of F fingers with unit approach directions ``approach`` (F, 3) and cones of
-    half-angle ``cone_deg`` can push on contacts of inward world normals ``normals``
-    (..., N, 3): (..., F, N) bool, n . a_f >= cos(cone) - :data:`REACH_TOL` (the cone's edge
-    is within reach, deliberately; docs/gait.md, "The hand and its reach")."""
-    approach = np.asarray(approach, dtype=float)
-    normals = np.asarray(normals, dtype=float)
-    if normals.ndim < 2 or normals.shape[-1] != 3:
-        raise ValueError(f"normals must have shape (..., N, 3), got {normals.shape}")
-    if not np.all(np.isfinite(normals)):
-        raise ValueError("normals must be finite")
-    cosine = np.einsum("fc,...nc->...fn", approach, normals)
-    return cosine >= np.cos(np.deg2rad(cone_deg)) - REACH_TOL
 
 
 def site_reach(scene: GaitScene, hand: Hand, rotations: ArrayLike) -> np.ndarray:
