@@ -252,9 +252,12 @@ def solve_minimax(
     Args:
         grasp: one grasp or a batch of them (any leading axes), from :func:`scene_grasp`,
             with 3 to 8 contacts (5 to 8 by the conic solver, :mod:`.conic`).
-        k_max: the box half-width, newtons, > 0; broadcasts against the batch. With five or
-            more contacts it bounds the minimum-norm pair scalars of the interaction force.
-        f_max: optional limit on each finger's force |P_i|, newtons, > 0; broadcasts.
+        k_max: the box half-width, > 0, in the unit of the grasp's forces F_i (newtons for a
+            grasp in newtons; the environments solve in units of the weight and pass
+            ``k_max_ratio``, see :mod:`grasp_env.envs.spec`); broadcasts against the batch.
+            With five or more contacts it bounds the minimum-norm pair scalars of the
+            interaction force.
+        f_max: optional limit on each finger's force |P_i|, in the same unit, > 0; broadcasts.
         follows: optional bool, broadcasts against the batch: grasp b (in C order) is the
             next pose, along a trajectory, after grasp b - 1, whose optimum is then its first
             start (along 1-degree steps 1.8x to 2x faster with three fingers, about 4x
