@@ -157,11 +157,12 @@ class ConicInterpreter(Interpreter):
         return np.array(k, dtype=float), float(lower), int(status)
 
 
-#: The units of a conic solve: (name, the call that marks one unit (caller, callee)).
+#: The units of a conic solve: (name, the call that marks one unit: (caller, callee), or a
+#: kernel's name for its calls from anywhere).
 UNITS = (
     ("barrier Newton step", ("centre", "cholesky_solve")),
     ("KKT Newton step", ("polish", "lu_solve")),
-    ("level", ("(outside)", "level")),
+    ("level", "level"),
 )
 
 
@@ -207,7 +208,8 @@ def count_conic(grasps: list[Grasp], k_max: np.ndarray, f_max: float = math.inf)
         result.svd += svd / len(grasps)
         result.flops += (interpreter.total() + svd) / len(grasps)
         for name, edge in UNITS:
-            units[name] += interpreter.edges[edge] / len(grasps)
+            calls = interpreter.calls[edge] if isinstance(edge, str) else interpreter.edges[edge]
+            units[name] += calls / len(grasps)
         centre_flops += interpreter.inclusive["centre"]
         centre_steps += interpreter.edges[("centre", "cholesky_solve")]
         polish_flops += interpreter.inclusive["polish"]
