@@ -57,7 +57,8 @@ def search(a0, al, tau0, T, box, K, f, best, theta, careful):
     best bound further below), in the coordinates y; best moves to the best grip. careful:
     the schedule of the first solver (every level centred to LEVEL_GAP_CAREFUL, no stalled
     level cut short, the certificate from a level solved afresh), the fallback where the
-    fast one (careful False) leaves a gap. Returns (lower, share)."""
+    fast one (careful False) leaves a gap. best holds the start on entry (k = 0, or a grip
+    found before) and the best grip on return. Returns (lower, share)."""
     n, m = al.shape
     pairs = box.shape[0]
     P = np.empty((n, 3))
@@ -67,7 +68,7 @@ def search(a0, al, tau0, T, box, K, f, best, theta, careful):
     cone = np.empty(n, dtype=np.int64)
     ball = np.empty(n, dtype=np.bool_)
     fixed = np.empty(pairs, dtype=np.int64)
-    best[:] = 0.0  # k = 0: the equilibrating forces alone
+    # (best: the start, k = 0 or the fast search's grip)
     finger_forces(best, a0, al, tau0, T, P)
     t_up = largest_angle(P, f, theta)
     lower, share = 0.0, 0.0
@@ -203,17 +204,27 @@ def solve_one(F, E, N, K_in, f_in, k, theta):
     al, T = al @ box, reduced(T, box)
     m = box.shape[1]
     P = np.empty((n, 3))
-    best = np.zeros(m)
+    best = np.zeros(m)  # k = 0: the equilibrating forces alone
     lower, share = search(a0, al, tau0, T, box, K, f, best, theta, False)
     finger_forces(best, a0, al, tau0, T, P)
     t_best = largest_angle(P, f, theta)
-    if lower < t_best - GAP_TOL and lower < pi / 2 and t_best < pi / 2:
-        # a gap left open: the careful schedule, and the better of the two grips and bounds
-        # (each bound is a proof and each grip attained, whichever search found them)
-        other = np.zeros(m)
+    # a gap left open: the careful schedule from the fast search's grip, then (a gap still
+    # open) from k = 0 (the first solver's search, as it was); the best grip and the best
+    # bound of them all (each bound is a proof and each grip attained, whichever search
+    # found them)
+    other = np.empty(m)
+    for start in range(2):
+        if not (lower < t_best - GAP_TOL and lower < pi / 2 and t_best < pi / 2):
+            break
+        if start == 0:
+            other[:] = best
+        else:
+            other[:] = 0.0
         low, part = search(a0, al, tau0, T, box, K, f, other, theta, True)
         finger_forces(other, a0, al, tau0, T, P)
-        if largest_angle(P, f, theta) < t_best:
+        t_other = largest_angle(P, f, theta)
+        if t_other < t_best:
+            t_best = t_other
             best[:] = other
         if low > lower:
             lower, share = low, part
