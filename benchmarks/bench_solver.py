@@ -82,7 +82,7 @@ TARGETS = {"single": 5_000, "batched": 50_000}  # solves per second, three finge
 GENERAL = (5, 6, 7, 8)
 GENERAL_BATCH = 256
 GENERAL_REFERENCE = 3
-GENERAL_COUNTED = 2
+GENERAL_COUNTED = 6
 RATIO_TARGETS = {6: 1_000, 8: 1_000}
 
 

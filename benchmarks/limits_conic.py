@@ -64,12 +64,11 @@ CONIC_MODULES = {
 
 
 def cholesky_flops(d: int) -> int:
-    """``cholesky_solve`` of a positive definite ``d`` system: per column j the pivot
-    (2 j, a square root), per row below it the entry (2 j + 1: j multiply-adds, a division);
-    the two triangular solves 2 i + 1 per row each. Summed: d^3 / 3 + 3 d^2 / 2 + d / 6 + d
-    square roots, as an integer (d (d - 1) (2 d - 1) / 3 + 3 d (d - 1) / 2 ... below)."""
-    factor = sum(2 * j + 1 + (d - 1 - j) * (2 * j + 1) for j in range(d))
-    return factor + 2 * d * d
+    """``cholesky_solve`` of a positive definite ``d`` system: column j's pivot (2 j and a
+    square root) and, per row below it, its entry (j multiply-adds and a division), in all
+    sum_j (2 j + 1) (d - j) = d (d + 1) (2 d + 1) / 6; the two triangular solves 2 i + 1 a
+    row each, 2 d^2."""
+    return d * (d + 1) * (2 * d + 1) // 6 + 2 * d * d
 
 
 def barrier_flops(n: int, m: int, pairs: int, limited: bool, derivatives: bool) -> int:
