@@ -245,7 +245,8 @@ def test_interpreted_conic_solve_is_the_compiled_one_and_its_units_add_up():
 
     _, scenes = conic_inputs(5)
     grasp, k_max, _ = scenes.one(0)
-    count = limits_conic.count_conic([grasp], np.array([k_max]))  # raises if it departs
+    count = limits_conic.count_conic([grasp], np.array([k_max]))
+    assert count.counted == 1 and count.departed == 0  # the compiled path, interpreted
     steps = count.units["barrier Newton step"]
     assert steps > 0 and count.units["level"] >= 1
     # the barrier's steps (each with its line search) are most of a solve, not all of it
