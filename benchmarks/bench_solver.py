@@ -22,12 +22,13 @@ missed.
 ``benchmarks/general_scenes.py`` (boxes, cylinders, spheres and convex meshes, k_max 0.3 to
 30 w, no force limit), "single" one grasp a call and "batched" 256 a call, each beside the
 reference run on GENERAL_REFERENCE of the same scenes in the same run; the target is >= 1,000 x
-the reference at n = 6 and n = 8, in both modes. ``benchmarks/limits.py`` does not count the
-conic kernels' flops (they factorise with numpy's SVD and multiply matrices, which its
-counted arithmetic does not cover); instead the kernels' own Python source is run on
-GENERAL_COUNTED scenes with every kernel call counted (:func:`conic_steps`): the Newton
+the reference at n = 6 and n = 8, in both modes. ``benchmarks/limits_conic.py`` runs the conic
+kernels' own Python source with counted arithmetic on GENERAL_COUNTED scenes: the Newton
 steps a solve takes (barrier steps, each a Cholesky solve, and KKT steps, each an LU solve),
-the levels t it tries, and the time a step takes at the measured single rate.
+the levels t it tries, the flops of a solve, and the machine's rate on the barrier Newton
+step beside each mode's measurement: the limit in solves/s and in x the reference, and the
+share of it the solver reaches. (:func:`conic_steps` counts the kernels' calls alone, with
+plain floats.)
 
 **The limit** (``benchmarks/limits.py``, three and four fingers): the floating-point
 operations of a solve, counted by running the kernels' own source with counted arithmetic on
@@ -66,6 +67,7 @@ from grasp_env.mechanics.minimax import fingers
 from grasp_env.mechanics.minimax.conic import barrier, driver, frames, polish
 from grasp_env_agents.benchmarks.general_scenes import general_scenes
 from grasp_env_agents.benchmarks.limits import Limit, count_along
+from grasp_env_agents.benchmarks.limits_conic import ConicLimit
 from grasp_env_agents.benchmarks.reference_solver import ConeBisection
 from grasp_env_agents.commands.bench import Targets
 
@@ -80,7 +82,7 @@ TARGETS = {"single": 5_000, "batched": 50_000}  # solves per second, three finge
 GENERAL = (5, 6, 7, 8)
 GENERAL_BATCH = 256
 GENERAL_REFERENCE = 3
-GENERAL_COUNTED = 2
+GENERAL_COUNTED = 6
 RATIO_TARGETS = {6: 1_000, 8: 1_000}
 
 
@@ -250,8 +252,12 @@ def measure_general(n: int, seconds: float) -> dict[str, float]:
         solve_minimax(scenes.grasp, k_max)
         return GENERAL_BATCH
 
-    speeds = {mode: rate(call, seconds) for mode, call in (("single", single),
-                                                           ("batched", batched))}  # fmt: skip
+    # the limit's machine rate is timed right after the solver's in each mode
+    limit = ConicLimit(grasps[:GENERAL_COUNTED], k_max[:GENERAL_COUNTED])
+    speeds = {}
+    for mode, call in (("single", single), ("batched", batched)):
+        speeds[mode] = rate(call, seconds)
+        limit.measure(mode, seconds)
     result = solve_minimax(scenes.grasp, k_max)
     reference = ConeBisection(n)
     errors = []  # the solver's optimum minus the reference's feasible level
@@ -261,15 +267,6 @@ def measure_general(n: int, seconds: float) -> dict[str, float]:
         ref = reference.solve(g.equilibrating, g.basis, g.normals, k_max[i])
         errors.append(result.max_angle[i] - ref.feasible)
     reference_rate = GENERAL_REFERENCE / (time.perf_counter() - start)
-    steps: Counter = Counter()
-    for i in range(GENERAL_COUNTED):
-        calls, largest = conic_steps(grasps[i], k_max[i])
-        if abs(largest - result.max_angle[i]) > 1e-9:
-            raise RuntimeError(
-                f"the interpreted conic solve found {largest!r} rad, the compiled one "
-                f"{result.max_angle[i]!r} (scene {i}, n = {n})"
-            )
-        steps.update(calls)
     pushing = result.status != Status.NOT_PUSHING
     return {
         **speeds,
@@ -279,9 +276,10 @@ def measure_general(n: int, seconds: float) -> dict[str, float]:
         "certified": float(np.mean(result.status != Status.UNCERTIFIED)),
         "gap": float(np.where(pushing, result.gap, 0.0).max()),
         "status": np.bincount(result.status, minlength=4),
-        "barrier_steps": steps["cholesky_solve"] / GENERAL_COUNTED,
-        "kkt_steps": steps["lu_solve"] / GENERAL_COUNTED,
-        "levels": steps["level"] / GENERAL_COUNTED,
+        "barrier_steps": limit.count.units["barrier Newton step"],
+        "kkt_steps": limit.count.units["KKT Newton step"],
+        "levels": limit.count.units["level"],
+        "limit": limit,
     }
 
 
@@ -312,10 +310,18 @@ def general_lines(n: int, figures: dict, targets: Targets) -> list[str]:
         f"  a solve takes {figures['barrier_steps']:,.0f} barrier Newton steps (Cholesky) and "
         f"{figures['kkt_steps']:,.1f} KKT Newton steps (LU) over {figures['levels']:.1f} "
         f"levels t (its kernels' source run on {GENERAL_COUNTED} of the scenes, calls "
-        f"counted): {1e6 / figures['single'] / steps:,.1f} us a step at the single rate; "
-        "the flops are not counted (limits.py's counted arithmetic does not cover the conic "
-        "kernels' SVD and matrix products)"
+        f"counted): {1e6 / figures['single'] / steps:,.1f} us a step at the single rate"
     )
+    lines += figures["limit"].lines(figures, figures["reference"])
+    for mode in ("single", "batched"):
+        if n in RATIO_TARGETS:
+            most = figures["limit"].solves(mode) / figures["reference"]
+            goal = RATIO_TARGETS[n]
+            lines.append(
+                f"    the target {mode} >= {goal:,} x the reference: the limit allows "
+                f"{most:,.0f} x, {'below' if goal < most else 'ABOVE: unreachable with'} "
+                "the method's counted arithmetic"
+            )
     return lines
 
 

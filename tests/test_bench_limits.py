@@ -182,3 +182,75 @@ def test_a_warm_solve_keeps_the_previous_optimums_sets():
     # last time where the KKT residual (the gradients alone, no Hessian) is below CONVERGED
     assert interpreter.edges[("finish_from", "evaluate")] == 1
     assert interpreter.edges[("polish", "evaluate")] == steps
+
+
+# ------------------------------------------------ the conic solver (five to eight contacts)
+
+
+def conic_inputs(n: int) -> tuple:
+    """barrier_steps' arguments for a random scene with n contacts, and the scene."""
+    from grasp_env_agents.benchmarks import limits_conic
+    from grasp_env_agents.benchmarks.general_scenes import general_scenes
+
+    scenes = general_scenes(n, 1, seed=n)
+    grasp, k_max, _ = scenes.one(0)
+    return limits_conic.step_inputs(grasp, float(k_max)), scenes
+
+
+def _counted(value):  # type: ignore[no-untyped-def]
+    if isinstance(value, np.ndarray):
+        return counted_array(value)
+    return counted_array(np.array(value, float))[()]
+
+
+@pytest.mark.parametrize("n", [5, 8])
+def test_conic_leaf_kernels_match_their_closed_forms(n):
+    from grasp_env_agents.benchmarks import limits_conic
+
+    inputs, _ = conic_inputs(n)
+    x, a0, al, tau0, T, box, K, _, ct, st, w, tb = inputs
+    m, d = al.shape[1], al.shape[1] + 1
+    assert m == 3 * n - 6 and box.shape[0] == n * (n - 1) // 2
+    interpreter = limits_conic.ConicInterpreter()
+    barrier = interpreter.kernel("barrier")
+    for f in (math.inf, 50.0):  # a limit no force is near: every cone's branch inside
+        for derivatives in (False, True):
+            interpreter.reset()
+            g, H = counted_array(np.zeros(d)), counted_array(np.zeros((d, d)))
+            args = [_counted(v) for v in (x, a0, al, tau0, T, box, K, f, ct, st, w, tb)]
+            value = barrier(*args, g, H, derivatives)
+            assert value < math.inf  # inside the domain: the closed form's branch
+            expected = limits_conic.barrier_flops(n, m, box.shape[0], f < math.inf, derivatives)
+            assert interpreter.total() == expected
+    rng = np.random.default_rng(n)
+    for size in (1, d, 2 * d):
+        A = rng.normal(size=(size, size))
+        A = A @ A.T + size * np.eye(size)
+        b = rng.normal(size=size)
+        solution = np.linalg.solve(A, b)
+        interpreter.reset()
+        cb = counted_array(b)
+        assert interpreter.kernel("cholesky_solve")(counted_array(A), cb)
+        assert interpreter.total() == limits_conic.cholesky_flops(size)
+        np.testing.assert_allclose(np.array(cb, float), solution, rtol=1e-10)
+    # the rate's step: the barrier, the Jacobi scaling (d square roots and divisions, 2 d^2
+    # products, d regularisations, d right-hand sides), Cholesky, the update (3 d) and the sum
+    step = limits_conic.barrier_step_flops(inputs)
+    dense = limits_conic.barrier_flops(n, m, box.shape[0], False, True)
+    assert step == dense + limits_conic.cholesky_flops(d) + 2 * d * d + 7 * d + 1
+
+
+def test_interpreted_conic_solve_is_the_compiled_one_and_its_units_add_up():
+    from grasp_env_agents.benchmarks import limits_conic
+
+    _, scenes = conic_inputs(5)
+    grasp, k_max, _ = scenes.one(0)
+    count = limits_conic.count_conic([grasp], np.array([k_max]))
+    assert count.counted == 1 and count.departed == 0  # the compiled path, interpreted
+    steps = count.units["barrier Newton step"]
+    assert steps > 0 and count.units["level"] >= 1
+    # the barrier's steps (each with its line search) are most of a solve, not all of it
+    assert 0.5 * count.flops < steps * count.barrier_step < count.flops
+    assert count.svd == limits_conic.svd_flops(15, 10)
+    m = 3 * 5 - 6
+    assert count.barrier_step > limits_conic.barrier_flops(5, m, 10, False, True)

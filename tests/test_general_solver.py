@@ -240,3 +240,52 @@ def test_general_scenes_refuse_bad_arguments():
         general_scenes(5, 0, seed=0)
     with pytest.raises(ValueError, match="shapes must be names from"):
         general_scenes(5, 4, seed=0, shapes=("box", "torus"))
+
+
+@functools.cache
+def _frames():  # type: ignore[no-untyped-def]
+    """A compiled helper: the conic solver's frames of one grasp in the force coordinates,
+    as solve_one makes them (the same kernels, so the same rounding)."""
+    import numba
+
+    from grasp_env.mechanics.minimax.conic.frames import force_coordinates, reduced
+    from grasp_env.mechanics.minimax.fingers import setup
+
+    @numba.njit
+    def frames(F, E, N):  # type: ignore[no-untyped-def]
+        n, m = F.shape[0], E.shape[0]
+        a0, al = np.empty(n), np.empty((n, m))
+        tau0, T = np.empty((n, 2)), np.empty((n, 2, m))
+        scale, _ = setup(F, E, N, a0, al, tau0, T)
+        box = force_coordinates(al, T)
+        return scale, a0, al @ box, tau0, reduced(T, box), box
+
+    return frames
+
+
+@pytest.mark.parametrize("force_limit", [False, True])
+def test_the_fast_search_never_ends_worse_than_the_careful_one_alone(force_limit):
+    # solve_one runs the fast search and, where it leaves a gap, the careful one (the
+    # previous solver's search) from its grip and then from k = 0, keeping the best grip and
+    # bound: so it certifies wherever the careful search alone does, with a grip no worse
+    from grasp_env.mechanics.minimax.conic.driver import search
+
+    scenes = general_scenes(8, 8, seed=3, force_limit=force_limit)
+    result = solve_minimax(scenes.grasp, scenes.k_max, scenes.f_max)
+    for b in range(len(scenes)):
+        g, k_max, f_max = scenes.one(b)
+        F, E, N = (np.ascontiguousarray(x, float) for x in (g.equilibrating, g.basis, g.normals))
+        scale, a0, al, tau0, T, box = _frames()(F, E, N)
+        f = np.inf if f_max is None else f_max / scale
+        best, theta = np.zeros(box.shape[1]), np.zeros(F.shape[0])
+        lower, _ = search(a0, al, tau0, T, box, k_max / scale, f, best, theta, True)
+        angle = float(g.angles(box @ best * scale).max())
+        if result.status[b] == Status.UNCERTIFIED:
+            # the careful search from k = 0 ran: its grip and bound are among those kept
+            assert angle - lower > 1e-9
+            assert result.max_angle[b] <= angle + 1e-12
+            assert result.lower_bound[b] >= lower
+        else:  # certified: within the certificate's 1e-9 rad of the optimum
+            assert result.max_angle[b] <= angle + 1e-9
+            assert result.lower_bound[b] >= lower - 1e-9
+    assert np.any(result.status != Status.UNCERTIFIED)

@@ -10,7 +10,7 @@ method on the KKT system near the optimum, and a weak-duality certificate (docs/
 | ``frames`` | forces, angles, the force coordinates y (k = B y), the dense solves |
 | ``barrier`` | the cone problem at a level by the barrier method; the duals' certificate |
 | ``polish`` | Newton's method on the KKT system of the sets a barrier point shows |
-| ``driver`` | ``solve_one`` (Dinkelbach, then the certificate) and the entry ``solve_batch`` |
+| ``driver`` | ``search`` (fast or careful), ``solve_one`` and the entry ``solve_batch`` |
 """
 
 import os

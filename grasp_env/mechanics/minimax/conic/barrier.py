@@ -7,7 +7,17 @@ from math import inf, log, pi, sqrt
 
 import numpy as np
 
-from .codes import CENTRED, GROWTH, LEVEL_GAP, NEWTON_STEPS, POLISH_FROM, STAGES, kernel
+from .codes import (
+    CENTRED,
+    GROWTH,
+    LEVEL_GAP,
+    LEVEL_GAP_CAREFUL,
+    NEWTON_STEPS,
+    POLISH_FROM,
+    STAGES,
+    STALLED,
+    kernel,
+)
 from .frames import cholesky_solve, finger_forces, level_excess
 
 
@@ -105,16 +115,17 @@ def barrier(x, a0, al, tau0, T, box, K, f, ct, st, w, tb, g, H, derivatives):
 
 
 @kernel
-def centre(x, a0, al, tau0, T, box, K, f, ct, st, w, tb):
+def centre(x, a0, al, tau0, T, box, K, f, ct, st, w, tb, limit):
     """Newton's method on tb r + barrier from the strictly feasible x, in place, to a
-    Newton decrement of 1e-10; returns the steps taken (-1 if a step failed)."""
+    Newton decrement of 1e-10, in at most ``limit`` steps; returns the steps taken (-1 if a
+    step failed)."""
     d = x.shape[0]
     g = np.empty(d)
     H = np.empty((d, d))
     trial = np.empty(d)
     dx = np.empty(d)
     diag = np.empty(d)
-    for step in range(NEWTON_STEPS):
+    for step in range(limit):
         value = barrier(x, a0, al, tau0, T, box, K, f, ct, st, w, tb, g, H, True)
         # Jacobi scaling: near the optimum a box side's or a cone's curvature is 1e20 x
         # another's, and Cholesky's factorisation of the scaled matrix keeps both accurate
@@ -145,7 +156,7 @@ def centre(x, a0, al, tau0, T, box, K, f, ct, st, w, tb):
         else:
             return step
         x[:] = trial
-    return NEWTON_STEPS
+    return limit
 
 
 @kernel
@@ -227,14 +238,15 @@ def dual_bound(z, limit, a0, al, tau0, T, box, K, mu):
 
 
 @kernel
-def level(t, w, k, x, a0, al, tau0, T, box, K, f, decide):
+def level(t, w, k, x, a0, al, tau0, T, box, K, f, decide, careful):
     """Solve the cone problem at level t from k (inside the box) by the barrier method.
 
     k moves to the best point met, x = (k, r) holds the last barrier point. Returns
     (upper, lower, share, tb): v(t) <= upper (attained by k), v(t) >= lower (certified),
     and the last barrier parameter. With decide, it stops as soon as the sign of v(t) is
     known (a better grip: upper < 0; a proof that none holds at t: lower > 0); otherwise
-    when the bounds are within 1% of each other.
+    when the bounds are within LEVEL_GAP of each other and a centring that stalls (STALLED
+    Newton steps) ends the level; careful: within LEVEL_GAP_CAREFUL, no level cut short.
     """
     n, m = al.shape
     ct, st = np.cos(t), np.sin(t)
@@ -249,8 +261,11 @@ def level(t, w, k, x, a0, al, tau0, T, box, K, f, decide):
     nu = 2.0 * n * (2 if f < inf else 1) + 2.0 * m
     tb = nu / margin
     upper, lower, share = excess, -inf, 0.0
+    limit = NEWTON_STEPS if decide or careful else STALLED
+    gap = LEVEL_GAP_CAREFUL if careful else LEVEL_GAP
     for _ in range(STAGES):
-        if centre(x, a0, al, tau0, T, box, K, f, ct, st, w, tb) < 0:
+        steps = centre(x, a0, al, tau0, T, box, K, f, ct, st, w, tb, limit)
+        if steps < 0:
             break
         finger_forces(x[:m], a0, al, tau0, T, P)
         here = level_excess(P, f, ct, st, w)
@@ -262,7 +277,9 @@ def level(t, w, k, x, a0, al, tau0, T, box, K, f, decide):
             lower, share = value / norm, part
         if decide and (upper < 0.0 or lower > 0.0):
             break
-        if upper - lower <= LEVEL_GAP * abs(upper) or tb > POLISH_FROM:
+        if not (decide or careful) and steps >= limit:
+            break  # stalled (Dinkelbach's next level needs only the point: upper's k)
+        if upper - lower <= gap * abs(upper) or tb > POLISH_FROM:
             break  # (beyond POLISH_FROM the barrier's duals lose digits: polish() takes over)
         tb *= GROWTH
     return upper, lower, share, tb

@@ -13,15 +13,24 @@ BOUND_BELOW = (9e-10, 1e-8, 1e-7, 1e-6, 1e-5, 1e-4, 1e-3, 1e-2, 1e-1)
 GROWTH = 12.0
 STAGES = 40
 NEWTON_STEPS = 60
+#: A Dinkelbach level's centring that takes this many Newton steps has stalled (a finger
+#: near its cone's apex: full steps, the decrement constant): the level ends there, its best
+#: point the next level's start (the levels that decide a sign keep NEWTON_STEPS).
+STALLED = 25
 #: A point is centred when its Newton decrement (squared) is below this.
 CENTRED = 1e-9
 DINKELBACH_STEPS = 40
+#: Dinkelbach's iterations stop when a level lowers the best angle by at most this (rad);
+#: the KKT polish, on the sets of the last level's barrier point, finishes.
+CONVERGED = 1e-12
 #: The barrier parameter (units of the load) past which polish() builds the certificate.
 POLISH_FROM = 1e9
 #: Rounds of polishing below the best grip (each may find a better one).
 POLISH_ROUNDS = 6
-#: A Dinkelbach level is solved until its bounds are within this fraction of each other.
-LEVEL_GAP = 1e-4
+#: A Dinkelbach level is solved until its bounds are within this fraction of each other
+#: (LEVEL_GAP_CAREFUL in the careful search, the fallback where the fast one leaves a gap).
+LEVEL_GAP = 1e-2
+LEVEL_GAP_CAREFUL = 1e-4
 
 #: A compiled kernel of the conic solver (numba's runtime: its arrays are heap arrays).
 kernel = njit(cache=True, nogil=True, error_model="numpy")
