@@ -44,7 +44,7 @@ def test_a_number_keyword_takes_its_closed_bounds_and_refuses_beyond_them(parame
 def test_range_and_flag_keywords_refuse_what_they_do_not_accept():
     assert spec.MU_DRAWS.check((0.3, 0.5)) == (0.3, 0.5)
     for bad in ((0.5, 0.3), (0.3,), "0.3", (0.3, 2e3)):
-        with pytest.raises(ValueError, match="^mu_range must be a"):
+        with pytest.raises(ValueError, match=r"^mu_range must be a"):
             spec.MU_DRAWS.check(bad)
     assert spec.TERMINATE_ON_SLIP.check(np.bool_(False)) is False
     with pytest.raises(ValueError, match="terminate_on_slip must be True or False, got 1"):
