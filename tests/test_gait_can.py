@@ -10,15 +10,11 @@ import numpy as np
 import pytest
 
 from grasp_env.mechanics.gait import MARGIN_TOL
-from grasp_env.mechanics.gait.can import (
-    CanHand,
-    CanTurn,
+from grasp_env.mechanics.gait.can import CanHand, CanTurn, can_configs, can_values, contact_points
+from grasp_env.mechanics.gait.can_programme import (
     best_fixed_can,
     can_bottleneck_bound,
-    can_configs,
     can_states,
-    can_values,
-    contact_points,
     greedy_can_gait,
     optimal_can_gait,
     solve_can_gait,

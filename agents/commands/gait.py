@@ -1,13 +1,12 @@
 """``grasp-env gait``: when to phase a finger out or in along a long rotation.
 
 The paper calls for "an algorithm ... when to phase out a finger" and gives none; this command
-computes the certified optimal gait.
-
-A hand with reach (``grasp_env.mechanics.Hand``: four fingers below pushing up and inwards, a
-thumb above pushing down, each within a 60 deg cone of face normals) holds the cube by sites,
-one per face, off-centre; the cube turns about the paper's axis from -90 to +90 deg (or any
-axis and range). At every pose the certified minimax is solved for every set of 3 or 4 sites;
-the dynamic programme over the hand's states then gives the gait that maximises the smallest
+computes the certified optimal gait (``--object can``: the can's, :mod:`.gait_can`). A hand
+with reach (``grasp_env.mechanics.Hand``: four fingers below pushing up and inwards, a thumb
+above pushing down, each within a 60 deg cone of face normals) holds the cube by sites, one per
+face, off-centre; the cube turns about the paper's axis from -90 to +90 deg (or any axis and
+range). At every pose the certified minimax is solved for every set of 3 or 4 sites; the
+dynamic programme over the hand's states then gives the gait that maximises the smallest
 friction-angle margin along the whole trajectory, certified by the same programme on the
 solver's bounds. Prints the gait and compares it with the greedy choice and the best fixed set
 of fingers; writes ``gait.csv`` (one row per pose) and ``gait.png`` (which fingers touch along
@@ -43,18 +42,14 @@ from grasp_env.mechanics.gait import _MAX_FINGERS, GAIT_CG_OFFSET, site_sets
 from ..cli import folder_argument, path_argument
 from ..progress import console, status
 from . import gait_can
-from .scene_args import floats, friction, weight
+from .scene_args import floats, friction, numbers, weight
 
-#: Fingers a gait may have, the thumb included (grasp_env.mechanics.gait's state tables).
-FINGERS = (3, _MAX_FINGERS)
+FINGERS = (3, _MAX_FINGERS)  # fingers a gait may have, the thumb included (the state tables)
 #: The cube's defaults for the options the can's gait shares (``gait_can.CAN_DEFAULTS``).
 CUBE_DEFAULTS = {"weight": 5.0, "alpha_start": -90.0, "alpha_end": 90.0, "alpha_step": 1.0}
 #: The hand's fields, by the options that set them (their errors name the option).
-HAND_OPTIONS = {
-    "finger_azimuths_deg": "--finger-azimuths",
-    "finger_elevation_deg": "--finger-elevation",
-    "cone_deg": "--cone",
-}
+HAND_OPTIONS = {"finger_azimuths_deg": "--finger-azimuths", "cone_deg": "--cone"}
+HAND_OPTIONS["finger_elevation_deg"] = "--finger-elevation"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -107,7 +102,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help=f"half-angle of each finger's cone of normals, deg (default {hand.cone_deg:g})",
     )  # fmt: skip
     parser.add_argument(
-        "--finger-azimuths", type=_numbers, default=hand.finger_azimuths_deg, metavar="A1,...",
+        "--finger-azimuths", type=numbers, default=hand.finger_azimuths_deg, metavar="A1,...",
         help="azimuths of the fingers' approach, deg (default "
         + ",".join(f"{a:g}" for a in hand.finger_azimuths_deg) + ")",
     )  # fmt: skip
@@ -125,13 +120,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         " moves) beside the optimal and the greedy gait (the default hand, sites and weight;"
         " --axis, --alpha-*, --mu, --cone, --k-max apply)",
     )  # fmt: skip
-
-
-def _numbers(text: str) -> tuple[float, ...]:
-    try:
-        return tuple(float(v) for v in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError("expected comma-separated numbers") from None
 
 
 def resolve(args: argparse.Namespace) -> argparse.Namespace:

@@ -24,12 +24,10 @@ from grasp_env.mechanics.gait.can import (
     CAN_MAX_LOADED,
     CAN_MIN_LOADED,
     CAN_WEIGHT,
-    CanGait,
-    CanGaitSolution,
     CanHand,
     CanTurn,
-    solve_can_gait,
 )
+from grasp_env.mechanics.gait.can_programme import CanGait, CanGaitSolution, solve_can_gait
 
 from ..progress import status
 

@@ -11,6 +11,14 @@ import numpy as np
 from grasp_env.mechanics import DEFAULT_MU, DEFAULT_WEIGHT, PAPER_FACES, Scene
 
 
+def numbers(text: str) -> tuple[float, ...]:
+    """An argparse type: comma-separated numbers, any count."""
+    try:
+        return tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError("expected comma-separated numbers") from None
+
+
 def floats(count: int) -> Callable[[str], tuple[float, ...]]:
     """An argparse type: ``count`` comma-separated numbers."""
 
