@@ -12,7 +12,7 @@ optimum along each new trajectory, a growing batch of candidates at a time
 resets per second, the candidates drawn per episode and the solves per episode. Every figure
 is the median of ``--rounds`` rounds, each measuring CartPole first; ratios are within a round.
 
-Reported only (no target): five and six contacts go through the conic solver at 2 to 5 ms a
+Reported only (no goal is set): five and six contacts go through the conic solver at 2 to 5 ms a
 pose, which bounds the random environment's resets.
 """
 

@@ -67,3 +67,19 @@ def pytest_ignore_collect(collection_path: Path, config: pytest.Config) -> bool 
 def _sb3_logs_in_a_test_folder(tmp_path_factory):
     """SB3 models made without a log folder would each leave an empty folder in /tmp."""
     os.environ["SB3_LOGDIR"] = str(tmp_path_factory.mktemp("sb3"))
+
+
+@pytest.fixture(autouse=True)
+def _same_working_directory():
+    """Every test starts and ends in the directory the session started in: a test whose code
+    changes the process's directory (Ray Tune runs a trial in its trial folder, which the test
+    then removes) would otherwise leave a worker in a deleted directory, and every later test
+    of that worker fails with FileNotFoundError."""
+    start = os.getcwd()
+    yield
+    try:
+        moved = os.getcwd() != start
+    except FileNotFoundError:
+        moved = True
+    if moved:
+        os.chdir(start)
