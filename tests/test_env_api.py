@@ -114,7 +114,7 @@ def test_observations_in_bounds_and_finite(env_id):
     ("kwargs", "constant"),
     [
         ({}, {"force", "torque"}),  # no extra load is drawn by default: the load is (0, 0, -1)
-        ({"extra_force": 0.2, "extra_torque": 0.1}, set()),
+        ({"extra_force_max": 0.2, "extra_torque_max": 0.1}, set()),
     ],
 )
 def test_random_env_no_constant_observation_element(kwargs, constant):
@@ -151,14 +151,14 @@ def test_kwargs_accepted():
         "grasp_env/CubeGraspRandom-v0",
         faces=FOUR_FINGER_FACES,
         contact_offset=0.3,
-        cg_offset=0.1,
+        cg_offset_max=0.1,
         weight_range=(2.0, 3.0),
         mu_range=(0.8, 0.9),
         alpha_start_range_deg=(-5.0, -4.0),
         alpha_end_range_deg=(4.0, 5.0),
         alpha_step_deg=2.0,
-        extra_force=0.1,
-        extra_torque=0.05,
+        extra_force_max=0.1,
+        extra_torque_max=0.05,
         min_expert_margin_deg=2.0,
         k_max_ratio=3.0,
     )

@@ -149,7 +149,7 @@ def test_refused_vector_reset_changes_nothing(env_id, options):
         ({"faces": ("-x", "-x", "-z")}, "distinct"),
         ({"faces": ("-x", "-q", "-z")}, "unknown face"),
         ({"min_expert_margin_deg": 50}, "min_expert_margin_deg"),
-        ({"extra_force": 2.0}, "extra_force"),
+        ({"extra_force_max": 2.0}, "extra_force_max"),
     ],
 )
 @pytest.mark.fast

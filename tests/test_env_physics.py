@@ -163,7 +163,7 @@ def test_pose_kernels_match_the_mechanics(faces):
         pose_rotation,
     )
 
-    sampler = SceneSampler(faces=faces, extra_force=0.8, extra_torque=0.8)
+    sampler = SceneSampler(faces=faces, extra_force_max=0.8, extra_torque_max=0.8)
     scenes = sampler.scenes(sampler.raw(np.random.default_rng(3), 50))
     poses = build_episodes(scenes, 2.0).poses
     episode = np.repeat(np.arange(len(scenes)), scenes.length)
@@ -218,7 +218,9 @@ def test_sampled_scenes_within_their_ranges():
     reused a normal draw of the axis)."""
     from grasp_env.envs.cube_grasp.scenes import SceneSampler
 
-    sampler = SceneSampler(extra_force=0.3, extra_torque=0.4, cg_offset=0.2, contact_offset=0.5)
+    sampler = SceneSampler(
+        extra_force_max=0.3, extra_torque_max=0.4, cg_offset_max=0.2, contact_offset=0.5
+    )
     scenes = sampler.scenes(sampler.raw(np.random.default_rng(0), 5000))
     weight = scenes.weight[:, None]
     assert np.all(np.abs(scenes.extra_force) <= 0.3 * weight)

@@ -74,6 +74,37 @@ def test_the_environments_defaults_are_the_records():
 
 
 @pytest.mark.fast
+def test_the_object_family_defaults_are_the_records_or_its_stated_own():
+    from grasp_env.envs.object_grasp.env import ObjectGraspRandomEnv
+    from grasp_env.envs.object_grasp.scenes import ObjectSampler
+
+    signature = inspect.signature(ObjectGraspRandomEnv.__init__).parameters
+    sampler = ObjectSampler()
+    for name, value in spec.OBJECT_DEFAULTS.items():
+        assert spec.PARAMETERS[name].check(value) == value, name  # within its record's range
+    for name, parameter in spec.PARAMETERS.items():
+        default = spec.OBJECT_DEFAULTS.get(name, parameter.default)
+        if name in signature:
+            assert signature[name].default == default, name
+        if hasattr(sampler, name):
+            assert getattr(sampler, name) == default, name
+    assert set(spec.OBJECT_DEFAULTS) < set(signature)
+
+
+@pytest.mark.fast
+def test_a_renamed_keyword_is_refused_with_its_new_name():
+    from grasp_env_agents.run.config import config_path, load_config
+
+    config = load_config(config_path("default"))
+    for old, new in spec.RENAMED.items():
+        assert new in spec.PARAMETERS
+        with pytest.raises(ValueError, match=rf"^env_kwargs\.{old} is now {new}"):
+            config.replace(env_kwargs={old: 0.1})
+        with pytest.raises(TypeError, match=old):
+            gym.make("grasp_env/CubeGraspRandom-v0", **{old: 0.1})
+
+
+@pytest.mark.fast
 def test_the_environments_check_their_keywords_with_the_records():
     for kwargs, message in (
         ({"k_max_ratio": 1e4}, spec.K_MAX_RATIO.accepted().removesuffix(" w")),

@@ -31,7 +31,7 @@ CAN5 = {
         ("-z", 0.0, 0.3),
     ],
     "mu": 0.6,
-    "cg": (0.002, 0.0, 0.01),
+    "cg_offset": (0.002, 0.0, 0.01),
     "max_contacts": 6,
 }
 #: Rounding of a step against the float64 optimum (radians), as the cube envs' tests.
@@ -133,7 +133,9 @@ def test_five_contacts_read_the_minimum_norm_grip_of_the_box() -> None:
 def test_no_action_beats_the_expert(kwargs: dict) -> None:
     """Random actions, the box's corners and the expert's own grip: optimality_gap >= 0 to
     rounding (>= -expert_gap where the optimum is certified to less than 1e-9 rad)."""
-    env = ObjectGraspEnv(**{**kwargs, "terminate_on_slip": False, "cg": (0.003, -0.002, 0.004)})
+    env = ObjectGraspEnv(
+        **{**kwargs, "terminate_on_slip": False, "cg_offset": (0.003, -0.002, 0.004)}
+    )
     env.reset()
     rng = np.random.default_rng(1)
     m = env.action_space.shape[0]
@@ -240,7 +242,7 @@ def test_a_scene_option_sets_one_episode() -> None:
         ({"contacts": [("-x", 0, 0), ("+x", 0, 0), ("-x", 0, 0)]}, "coincide"),
         ({"weight": 0.0}, "weight"),
         ({"mu": 1e4}, "mu"),
-        ({"cg": (0.6, 0, 0)}, "inside"),
+        ({"cg_offset": (0.6, 0, 0)}, "inside"),
         ({"extra_force": (0, 0, 6.0)}, "at most w"),
         ({"trajectory": {"alpha_step_deg": 0.0}}, "alpha_step_deg"),
         ({"max_contacts": 2}, "max_contacts"),

@@ -50,7 +50,7 @@ def singles_rollout(env_id: str, kwargs: dict, seeds: list[int], actions: np.nda
 @pytest.mark.parametrize(
     ("env_id", "kwargs"),
     [
-        (EXPLICIT, {"object": "sphere:r=0.05", "cg": (0.004, 0.0, -0.003)}),
+        (EXPLICIT, {"object": "sphere:r=0.05", "cg_offset": (0.004, 0.0, -0.003)}),
         (RANDOM, {}),
         (RANDOM, {"terminate_on_slip": False, "contact_counts": (3, 5)}),
     ],

@@ -46,7 +46,7 @@ def mujoco_draws_error(k_max_ratio: float) -> ValueError:
     return ValueError(
         f"fewer than 1 in {MUJOCO_DRAWS} holdable random scenes keeps every finger's force,"
         " under every grip in the action box, within what the MuJoCo contact carries"
-        f" (k_max_ratio {k_max_ratio:g}): narrow contact_offset, cg_offset and the extra"
+        f" (k_max_ratio {k_max_ratio:g}): narrow contact_offset, cg_offset_max and the extra"
         " load, or lower k_max_ratio"
     )
 
@@ -432,7 +432,7 @@ class CubeGraspRandomEnv(_CubeGraspEnv):
     ## Description
     As `grasp_env/CubeGrasp-v0`, but every reset draws a scene: each contact moves from its
     face centre by up to `contact_offset` of the half-width along both in-plane axes, the
-    centre of gravity moves by up to `cg_offset` of the half-width along each axis, the weight
+    centre of gravity moves by up to `cg_offset_max` of the half-width along each axis, the weight
     and mu are uniform in their ranges, the trajectory turns about a uniformly random axis from
     the start pose (body diagonal vertical), from alpha_start to alpha_end (uniform in their
     ranges) by `alpha_step_deg`; optionally an extra load force and torque are drawn. Only
@@ -452,18 +452,19 @@ class CubeGraspRandomEnv(_CubeGraspEnv):
     ## Arguments
     ```python
     gym.make("grasp_env/CubeGraspRandom-v0", faces=("-x", "-y", "-z"), contact_offset=0.5,
-             cg_offset=0.2, weight_range=(1.0, 10.0), mu_range=(0.3, 1.0),
+             cg_offset_max=0.2, weight_range=(1.0, 10.0), mu_range=(0.3, 1.0),
              alpha_start_range_deg=(-30.0, -10.0), alpha_end_range_deg=(10.0, 30.0),
-             alpha_step_deg=1.0, extra_force=0.0, extra_torque=0.0, min_expert_margin_deg=1.0,
+             alpha_step_deg=1.0, extra_force_max=0.0, extra_torque_max=0.0,
+             min_expert_margin_deg=1.0,
              k_max_ratio=2.0, terminate_on_slip=True, physics=None, render_mode=None)
     ```
     - `faces`: one contact per named face, 3 or 4 faces.
-    - `contact_offset`, `cg_offset` in [0, 1): largest offsets as fractions of the half-width.
+    - `contact_offset`, `cg_offset_max` in [0, 1): largest offsets as fractions of the half-width.
     - `weight_range` (N, within [1e-6, 1e6]), `mu_range` (within [1e-3, 1e3]): uniform ranges.
     - `alpha_start_range_deg`, `alpha_end_range_deg`: uniform ranges of the trajectory's
       first and last alpha within [-180, 180] (the first lying below the second),
       `alpha_step_deg` its step (at most 10,000 poses).
-    - `extra_force`, `extra_torque` in [0, 1]: each component of an extra load force
+    - `extra_force_max`, `extra_torque_max` in [0, 1]: each component of an extra load force
       (torque) is uniform within this fraction of w (of w L); 0 draws none.
     - `min_expert_margin_deg` in [0, 45), below atan(mu_range[1]): the margin the expert must
       keep at every pose. Ranges that let fewer than 1 draw in 2,000 hold raise `ValueError`
@@ -482,14 +483,14 @@ class CubeGraspRandomEnv(_CubeGraspEnv):
         self,
         faces: Sequence[str] = PAPER_FACES,
         contact_offset: float = spec.CONTACT_OFFSET.default,
-        cg_offset: float = spec.CG_OFFSET.default,
+        cg_offset_max: float = spec.CG_OFFSET_MAX.default,
         weight_range: tuple[float, float] = spec.WEIGHT_DRAWS.default,
         mu_range: tuple[float, float] = spec.MU_DRAWS.default,
         alpha_start_range_deg: tuple[float, float] = spec.ALPHA_START_DRAWS.default,
         alpha_end_range_deg: tuple[float, float] = spec.ALPHA_END_DRAWS.default,
         alpha_step_deg: float = spec.ALPHA_STEP.default,
-        extra_force: float = spec.EXTRA_FORCE.default,
-        extra_torque: float = spec.EXTRA_TORQUE.default,
+        extra_force_max: float = spec.EXTRA_FORCE_MAX.default,
+        extra_torque_max: float = spec.EXTRA_TORQUE_MAX.default,
         min_expert_margin_deg: float = spec.MIN_EXPERT_MARGIN.default,
         k_max_ratio: float = DEFAULT_K_MAX_RATIO,
         terminate_on_slip: bool = True,
@@ -499,14 +500,14 @@ class CubeGraspRandomEnv(_CubeGraspEnv):
         self.sampler = SceneSampler(
             faces,
             contact_offset,
-            cg_offset,
+            cg_offset_max,
             weight_range,
             mu_range,
             alpha_start_range_deg,
             alpha_end_range_deg,
             alpha_step_deg,
-            extra_force,
-            extra_torque,
+            extra_force_max,
+            extra_torque_max,
         )
         self.min_expert_margin = check_margin(min_expert_margin_deg)
         largest = np.arctan(self.sampler.mu_range[1])

@@ -339,28 +339,28 @@ class SceneSampler:
 
     faces: tuple[str, ...] = PAPER_FACES
     contact_offset: float = spec.CONTACT_OFFSET.default
-    cg_offset: float = spec.CG_OFFSET.default
+    cg_offset_max: float = spec.CG_OFFSET_MAX.default
     weight_range: tuple[float, float] = spec.WEIGHT_DRAWS.default
     mu_range: tuple[float, float] = spec.MU_DRAWS.default
     alpha_start_range_deg: tuple[float, float] = spec.ALPHA_START_DRAWS.default
     alpha_end_range_deg: tuple[float, float] = spec.ALPHA_END_DRAWS.default
     alpha_step_deg: float = spec.ALPHA_STEP.default
-    extra_force: float = spec.EXTRA_FORCE.default
-    extra_torque: float = spec.EXTRA_TORQUE.default
+    extra_force_max: float = spec.EXTRA_FORCE_MAX.default
+    extra_torque_max: float = spec.EXTRA_TORQUE_MAX.default
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
         set_(self, "faces", check_faces(self.faces))
         for parameter in (
             spec.CONTACT_OFFSET,
-            spec.CG_OFFSET,
+            spec.CG_OFFSET_MAX,
             spec.WEIGHT_DRAWS,
             spec.MU_DRAWS,
             spec.ALPHA_START_DRAWS,
             spec.ALPHA_END_DRAWS,
             spec.ALPHA_STEP,
-            spec.EXTRA_FORCE,
-            spec.EXTRA_TORQUE,
+            spec.EXTRA_FORCE_MAX,
+            spec.EXTRA_TORQUE_MAX,
         ):
             set_(self, parameter.name, parameter.check(getattr(self, parameter.name)))
         if self.alpha_start_range_deg[1] > self.alpha_end_range_deg[0]:
@@ -395,15 +395,15 @@ class SceneSampler:
         offsets = uniform(slice(0, 2 * n), -self.contact_offset, self.contact_offset)
         u = raw[:, 2 * n :]
         half = EDGE / 2
-        cg = (2 * u[:, 0:3] - 1) * self.cg_offset * half
+        cg = (2 * u[:, 0:3] - 1) * self.cg_offset_max * half
         (w0, w1), (m0, m1) = self.weight_range, self.mu_range
         weight = w0 + (w1 - w0) * u[:, 3]
         mu = m0 + (m1 - m0) * u[:, 4]
         (s0, s1), (e0, e1) = self.alpha_start_range_deg, self.alpha_end_range_deg
         start = s0 + (s1 - s0) * u[:, 5]
         end = e0 + (e1 - e0) * u[:, 6]
-        extra_force = (2 * u[:, 7:10] - 1) * self.extra_force * weight[:, None]
-        extra_torque = (2 * u[:, 10:13] - 1) * self.extra_torque * (weight * EDGE)[:, None]
+        extra_force = (2 * u[:, 7:10] - 1) * self.extra_force_max * weight[:, None]
+        extra_torque = (2 * u[:, 10:13] - 1) * self.extra_torque_max * (weight * EDGE)[:, None]
         axis = raw[:, -3:] / np.linalg.norm(raw[:, -3:], axis=1, keepdims=True)
         contacts = np.empty((count, n, 3))
         for i, face in enumerate(self.faces):

@@ -275,21 +275,22 @@ class ObjectGraspEnv(_ObjectGraspEnv):
         + """
     ## Starting State
     The trajectory's first pose; nothing is random. `reset(options={"scene": {...}})` sets
-    another scene of the same shape for that episode: any of `contacts`, `cg`, `weight`,
+    another scene of the same shape for that episode: any of `contacts`, `cg_offset`, `weight`,
     `mu`, `extra_force`, `extra_torque`, `trajectory` (missing keys keep the environment's).
 
     ## Arguments
     ```python
     gym.make("grasp_env/ObjectGrasp-v0", object="cube", contacts=None, weight=5.0, mu=0.5,
-             cg=(0, 0, 0), extra_force=(0, 0, 0), extra_torque=(0, 0, 0), trajectory=None,
+             cg_offset=(0, 0, 0), extra_force=(0, 0, 0), extra_torque=(0, 0, 0), trajectory=None,
              max_contacts=None, k_max_ratio=2.0, terminate_on_slip=True, render_mode=None)
     ```
     - `object`: an object spec (`grasp_env.mechanics.parse_object`: "cube", "can",
       "box:x=0.1,y=0.2,z=0.3", "cylinder:r=0.033,h=0.115", "sphere:r=0.05") or a shape.
     - `contacts`: 3 to 8 surface coordinates (default: three whose normals meet at the
       centre; a convex mesh needs them).
-    - `weight` (N, [1e-6, 1e6]), `mu` ([1e-3, 1e3]), `cg` (object frame, metres, inside the
-      shape), `extra_force`, `extra_torque` (world frame, at most w and w L per component).
+    - `weight` (N, [1e-6, 1e6]), `mu` ([1e-3, 1e3]), `cg_offset` (the centre of gravity,
+      object frame, metres, inside the shape), `extra_force`, `extra_torque` (world frame,
+      at most w and w L per component).
     - `trajectory`: a mapping of `axis`, `alpha_start_deg`, `alpha_end_deg`,
       `alpha_step_deg` (missing keys: the paper's).
 """
@@ -306,7 +307,7 @@ class ObjectGraspEnv(_ObjectGraspEnv):
         contacts: Sequence[Any] | None = None,
         weight: float = DEFAULT_WEIGHT,
         mu: float = DEFAULT_MU,
-        cg: Sequence[float] = (0.0, 0.0, 0.0),
+        cg_offset: Sequence[float] = (0.0, 0.0, 0.0),
         extra_force: Sequence[float] = (0.0, 0.0, 0.0),
         extra_torque: Sequence[float] = (0.0, 0.0, 0.0),
         trajectory: Mapping[str, Any] | None = None,
@@ -319,13 +320,13 @@ class ObjectGraspEnv(_ObjectGraspEnv):
         contacts = default_contacts(self.shape) if contacts is None else contacts
         trajectory = {**default_trajectory(), **(trajectory or {})}
         scene = make_scene(
-            self.shape, contacts, weight, mu, cg, extra_force, extra_torque, trajectory
+            self.shape, contacts, weight, mu, cg_offset, extra_force, extra_torque, trajectory
         )
         big = check_max_contacts(max_contacts, scene.n_contacts)
         super().__init__(big, k_max_ratio, terminate_on_slip, render_mode)
         self.object_scene = scene
         self._defaults = {
-            "contacts": contacts, "weight": weight, "mu": mu, "cg": cg,
+            "contacts": contacts, "weight": weight, "mu": mu, "cg_offset": cg_offset,
             "extra_force": extra_force, "extra_torque": extra_torque, "trajectory": trajectory,
         }  # fmt: skip
         self._default_episode = cached_episode(scene, self.k_max_ratio, big)
@@ -348,7 +349,7 @@ class ObjectGraspRandomEnv(_ObjectGraspEnv):
     edges; a cylinder's diameter and height; a sphere's diameter), the contact count
     uniformly from `contact_counts`, each contact on a random face of a box, on a
     cylinder's side (70%) or a cap, or anywhere on a sphere, moved from the face centre by
-    up to `contact_offset` of the half-widths; the centre of gravity by up to `cg_offset` of
+    up to `contact_offset` of the half-widths; the centre of gravity by up to `cg_offset_max` of
     the half-widths per axis (inside the shape); weight and mu uniform in their ranges; the
     trajectory as the cube's random one (a uniform axis, alpha_start and alpha_end uniform
     in their ranges, by `alpha_step_deg`). Only draws that the minimax expert holds along the
@@ -367,16 +368,18 @@ class ObjectGraspRandomEnv(_ObjectGraspEnv):
     ```python
     gym.make("grasp_env/ObjectGraspRandom-v0", shapes=("box", "cylinder", "sphere"),
              size_range=(0.05, 0.3), contact_counts=(3, 4, 5, 6), contact_offset=0.6,
-             cg_offset=0.2, weight_range=(1.0, 10.0), mu_range=(0.4, 1.0),
+             cg_offset_max=0.2, weight_range=(1.0, 10.0), mu_range=(0.4, 1.0),
              alpha_start_range_deg=(-20.0, -5.0), alpha_end_range_deg=(5.0, 20.0),
-             alpha_step_deg=2.5, extra_force=0.0, extra_torque=0.0,
+             alpha_step_deg=2.5, extra_force_max=0.0, extra_torque_max=0.0,
              min_expert_margin_deg=1.0, max_contacts=None, k_max_ratio=2.0,
              terminate_on_slip=True, render_mode=None)
     ```
     - `contact_counts`: the counts drawn from, each in [3, 8]; `max_contacts` defaults to the
       largest. Five or more contacts cost the expert's conic solver 2 to 5 ms a pose.
-    - The other ranges as `grasp_env/CubeGraspRandom-v0`'s; ranges that let fewer than 1
-      draw in 2,000 hold raise `ValueError` at reset.
+    - The other ranges as `grasp_env/CubeGraspRandom-v0`'s. Its defaults, except
+      `contact_offset`, `mu_range` and the turn's (`grasp_env.envs.spec.OBJECT_DEFAULTS`:
+      the conic solver's poses cost more, so the turns are shorter and coarser). Ranges
+      that let fewer than 1 draw in 2,000 hold raise `ValueError` at reset.
 """
         + _DOC_COMMON_ARGS
         + """
@@ -390,15 +393,15 @@ class ObjectGraspRandomEnv(_ObjectGraspEnv):
         shapes: Sequence[str] = ("box", "cylinder", "sphere"),
         size_range: tuple[float, float] = (0.05, 0.3),
         contact_counts: Sequence[int] = (3, 4, 5, 6),
-        contact_offset: float = 0.6,
-        cg_offset: float = spec.CG_OFFSET.default,
+        contact_offset: float = spec.OBJECT_DEFAULTS["contact_offset"],
+        cg_offset_max: float = spec.CG_OFFSET_MAX.default,
         weight_range: tuple[float, float] = spec.WEIGHT_DRAWS.default,
-        mu_range: tuple[float, float] = (0.4, 1.0),
-        alpha_start_range_deg: tuple[float, float] = (-20.0, -5.0),
-        alpha_end_range_deg: tuple[float, float] = (5.0, 20.0),
-        alpha_step_deg: float = 2.5,
-        extra_force: float = spec.EXTRA_FORCE.default,
-        extra_torque: float = spec.EXTRA_TORQUE.default,
+        mu_range: tuple[float, float] = spec.OBJECT_DEFAULTS["mu_range"],
+        alpha_start_range_deg: tuple[float, float] = spec.OBJECT_DEFAULTS["alpha_start_range_deg"],
+        alpha_end_range_deg: tuple[float, float] = spec.OBJECT_DEFAULTS["alpha_end_range_deg"],
+        alpha_step_deg: float = spec.OBJECT_DEFAULTS["alpha_step_deg"],
+        extra_force_max: float = spec.EXTRA_FORCE_MAX.default,
+        extra_torque_max: float = spec.EXTRA_TORQUE_MAX.default,
         min_expert_margin_deg: float = spec.MIN_EXPERT_MARGIN.default,
         max_contacts: int | None = None,
         k_max_ratio: float = DEFAULT_K_MAX_RATIO,
@@ -410,14 +413,14 @@ class ObjectGraspRandomEnv(_ObjectGraspEnv):
             size_range,
             tuple(contact_counts) if isinstance(contact_counts, list) else contact_counts,
             contact_offset,
-            cg_offset,
+            cg_offset_max,
             weight_range,
             mu_range,
             alpha_start_range_deg,
             alpha_end_range_deg,
             alpha_step_deg,
-            extra_force,
-            extra_torque,
+            extra_force_max,
+            extra_torque_max,
         )
         self.min_expert_margin = check_margin(min_expert_margin_deg)
         largest = np.arctan(self.sampler.mu_range[1])
@@ -442,7 +445,7 @@ class ObjectGraspRandomEnv(_ObjectGraspEnv):
         self.shape = shape
         self._defaults = {
             "contacts": default_contacts(shape),
-            "weight": DEFAULT_WEIGHT, "mu": DEFAULT_MU, "cg": (0.0, 0.0, 0.0),
+            "weight": DEFAULT_WEIGHT, "mu": DEFAULT_MU, "cg_offset": (0.0, 0.0, 0.0),
             "extra_force": (0.0, 0.0, 0.0), "extra_torque": (0.0, 0.0, 0.0),
             "trajectory": default_trajectory(),
         }  # fmt: skip

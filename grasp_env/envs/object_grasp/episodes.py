@@ -414,7 +414,7 @@ def draws_error(min_margin: float) -> ValueError:
     return ValueError(
         f"fewer than 1 in {MAX_DRAWS} random scenes lets the expert keep a margin of"
         f" {np.rad2deg(min_margin):g} deg along the whole trajectory; widen mu_range, lower"
-        " min_expert_margin_deg, or narrow contact_offset, cg_offset and the extra load"
+        " min_expert_margin_deg, or narrow contact_offset, cg_offset_max and the extra load"
     )
 
 

@@ -59,7 +59,7 @@ from ..validation import (
     check_trajectory,
 )
 
-SCENE_KEYS = ("contacts", "cg", "weight", "mu", "extra_force", "extra_torque", "trajectory")
+SCENE_KEYS = ("contacts", "cg_offset", "weight", "mu", "extra_force", "extra_torque", "trajectory")
 #: The shapes a random scene may be, by their :func:`parse_object` names.
 SHAPE_KINDS = ("box", "cylinder", "sphere")
 #: The smallest net load besides none, in units of w (w L for the torque), as the cube's.
@@ -207,7 +207,7 @@ def make_scene(
     contacts: Any,
     weight: Any,
     mu: Any,
-    cg: Any,
+    cg_offset: Any,
     extra_force: Any,
     extra_torque: Any,
     trajectory: Mapping[str, Any],
@@ -240,7 +240,7 @@ def make_scene(
         contacts=points,
         weight=weight,
         mu=check_number(f"{label} 'mu'", mu, *MU_RANGE),
-        cg_offset=check_array(f"{label} 'cg'", cg, (3,)),
+        cg_offset=check_array(f"{label} 'cg_offset'", cg_offset, (3,)),
         extra_force=force,
         extra_torque=torque,
     )
@@ -265,7 +265,7 @@ def parse_scene(
     trajectory = merged["trajectory"]
     if isinstance(trajectory, Mapping):
         trajectory = {**defaults["trajectory"], **trajectory}
-    keys = ("contacts", "weight", "mu", "cg", "extra_force", "extra_torque")
+    keys = ("contacts", "weight", "mu", "cg_offset", "extra_force", "extra_torque")
     return make_scene(shape, *(merged[k] for k in keys), trajectory, "reset option 'scene'")
 
 
@@ -304,15 +304,15 @@ class ObjectSampler:
     shapes: tuple[str, ...] = SHAPE_KINDS
     size_range: tuple[float, float] = (0.05, 0.3)
     contact_counts: tuple[int, ...] = (3, 4, 5, 6)
-    contact_offset: float = 0.6
-    cg_offset: float = spec.CG_OFFSET.default
+    contact_offset: float = spec.OBJECT_DEFAULTS["contact_offset"]
+    cg_offset_max: float = spec.CG_OFFSET_MAX.default
     weight_range: tuple[float, float] = spec.WEIGHT_DRAWS.default
-    mu_range: tuple[float, float] = (0.4, 1.0)
-    alpha_start_range_deg: tuple[float, float] = (-20.0, -5.0)
-    alpha_end_range_deg: tuple[float, float] = (5.0, 20.0)
-    alpha_step_deg: float = 2.5
-    extra_force: float = spec.EXTRA_FORCE.default
-    extra_torque: float = spec.EXTRA_TORQUE.default
+    mu_range: tuple[float, float] = spec.OBJECT_DEFAULTS["mu_range"]
+    alpha_start_range_deg: tuple[float, float] = spec.OBJECT_DEFAULTS["alpha_start_range_deg"]
+    alpha_end_range_deg: tuple[float, float] = spec.OBJECT_DEFAULTS["alpha_end_range_deg"]
+    alpha_step_deg: float = spec.OBJECT_DEFAULTS["alpha_step_deg"]
+    extra_force_max: float = spec.EXTRA_FORCE_MAX.default
+    extra_torque_max: float = spec.EXTRA_TORQUE_MAX.default
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -344,13 +344,13 @@ class ObjectSampler:
 
         set_(self, "size_range", check_range("size_range", self.size_range, 1e-6, 1e6))
         for parameter in (
-            spec.CG_OFFSET,
+            spec.CG_OFFSET_MAX,
             spec.WEIGHT_DRAWS,
             spec.ALPHA_START_DRAWS,
             spec.ALPHA_END_DRAWS,
             spec.ALPHA_STEP,
-            spec.EXTRA_FORCE,
-            spec.EXTRA_TORQUE,
+            spec.EXTRA_FORCE_MAX,
+            spec.EXTRA_TORQUE_MAX,
         ):
             set_(self, parameter.name, parameter.check(getattr(self, parameter.name)))
         set_(self, "mu_range", spec.MU_DRAWS.check(self.mu_range))
@@ -451,15 +451,15 @@ class ObjectSampler:
             direction /= np.linalg.norm(direction, axis=1, keepdims=True)
             contacts, normals = shape.radius * direction, -direction
         half = shape.bounding_size / 2
-        cg = (2 * u[5:8] - 1) * self.cg_offset * half
+        cg = (2 * u[5:8] - 1) * self.cg_offset_max * half
         (w0, w1), (m0, m1) = self.weight_range, self.mu_range
         weight = w0 + (w1 - w0) * u[8]
         mu = m0 + (m1 - m0) * u[9]
         (s0, s1), (e0, e1) = self.alpha_start_range_deg, self.alpha_end_range_deg
         start, end = s0 + (s1 - s0) * u[10], e0 + (e1 - e0) * u[11]
         length = float(shape.bounding_size.max())
-        force = (2 * u[12:15] - 1) * self.extra_force * weight
-        torque = (2 * u[15:18] - 1) * self.extra_torque * weight * length
+        force = (2 * u[12:15] - 1) * self.extra_force_max * weight
+        torque = (2 * u[15:18] - 1) * self.extra_torque_max * weight * length
         z, angle = 2 * u[18] - 1, 2 * np.pi * u[19]  # uniform on the sphere
         rho = np.sqrt(max(1 - z * z, 0.0))
         axis_ = np.array([rho * np.cos(angle), rho * np.sin(angle), z])
