@@ -14,33 +14,66 @@ make each contact's latent depend on the whole set and not on the order, so the 
 equivariant to permutations of the fingers and takes any n up to N; its weights do not depend
 on N, so a policy trained with one N loads into another (:func:`transfer`).
 
-Its mean action is the force-direction head of :mod:`~.policy`: each contact's latent gives the
-direction of its force, d_i = (n_i + v_i) / |n_i + v_i|, and the grip is the k whose forces
-F_i + sum k_ij e_ij (eq. 4) point best along them (:func:`~.policy.grip_along`, with a ridge
-that picks the minimum-norm k where five or more contacts make the k_ij redundant). Padded
-contacts have no force, no normal and no pairs, and add nothing to its least squares. The
-least squares is itself equivariant, so the actions of permuted fingers are the permuted
+Its mean action is a force-direction head with a release gate. Each contact's latent gives
+the direction of its force, d_i = (n_i + v_i) / |n_i + v_i|, and a release logit. With five or
+more contacts the certified optimum usually *releases* fingers (P_i = 0 exactly: 77% of
+five-contact poses release one or two, 97% of six-contact poses), and a finger the environment
+finds released (``grasp_env.envs.kernels.RELEASE``) counts as angle 0, however its rounding
+residue points. A direction cannot say "no force", so the head releases the contacts whose
+logit is positive (at most n - 3, the most confident first, so that three contacts hold) and
+the grip is the k whose forces P_i = F_i + sum k_ij e_ij (eq. 4) point best along the
+directions of the others while the released contacts' P_i = 0 (three equations each, weighted
+by :data:`RELEASE_WEIGHT`): :func:`grip_with_release`, a weighted least squares in float64,
+re-weighted by 1 / |P_i| as :mod:`grasp_env.mechanics.directions` and with its ridge (the
+minimum-norm k where five or more contacts make the k_ij redundant, the k the environment
+plays). The expert's own grip is representable exactly: its directions P*_i / |P*_i| and its
+released set give back k*. The gate is a hard choice, not differentiated: imitation trains it
+(:func:`fit_contact_set`, a cross-entropy against the expert's released set); the directions
+learn from the expert's force directions and from the reward's exact gradient
+(:func:`reward_angles`, the environment's step in torch, released fingers at angle 0).
+Padded contacts have no force, no normal and no pairs, and add nothing to the least squares.
+The least squares is itself equivariant, so the actions of permuted fingers are the permuted
 actions. The critic pools the set (a masked mean) into one value.
 """
 
 from __future__ import annotations
 
+import math
+from dataclasses import dataclass, fields
 from functools import partial
 from typing import Any
 
 import gymnasium as gym
+import numpy as np
 import torch
 from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from torch import nn
 
+from grasp_env.envs.kernels import RELEASE
 from grasp_env.envs.validation import DEFAULT_K_MAX_RATIO
 from grasp_env.mechanics import contact_pairs
+from grasp_env.mechanics.directions import MIN_FORCE, RIDGE, SOLVES
 
-from .policy import force_directions, grip_along
+from .envs import action_scale
+from .policy import force_directions
 
+#: The random objects' environment the policy is trained on.
+ENV_ID = "grasp_env/ObjectGraspRandom-v0"
 #: Floats per contact token: p_i, n_i and F_i in the object's frame, and the friction limit.
 TOKEN = 10
+#: Weight of a released contact's three equations P_i = 0 in the least squares, against the
+#: held contacts' unit-weighted ones: its force is left at about RELEASE_WEIGHT^-2 of their
+#: misfit, far below the environment's RELEASE threshold.
+RELEASE_WEIGHT = 1e4
+#: Weight of a held contact's magnitude equation d_i . P_i = rho_i against its two direction
+#: equations: it only picks among the grips that the directions leave free.
+MAGNITUDE_WEIGHT = 1e-3
+#: The release logit's initial bias: an untrained head releases nothing.
+INITIAL_RELEASE_LOGIT = -3.0
+#: A contact of the expert's grip is released where |P*_i| <= RELEASE_LABEL (|F_i| +
+#: sum_j |k_ij|) in the observation's float32 grasp (:func:`expert_forces`).
+RELEASE_LABEL = 1e-4
 
 
 def max_contacts_of(size: int) -> int:
@@ -58,15 +91,16 @@ def _cross(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
 
 
 def object_frame_set(
-    obs: torch.Tensor, max_contacts: int
+    obs: torch.Tensor, max_contacts: int, double: bool = False
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """The grasp of padded observations (B, 14 + 7N) in the object's frame, units of w and L.
 
     Returns the positions p_i (B, N, 3), inward normals n_i (B, N, 3), minimum-norm
     equilibrating forces F_i (B, N, 3), the mask (B, N) (1 for a real contact) and the friction
-    limit (B, 1). Padded contacts are zeros. F is G^+ (-(f, tau)) in closed form over the real
-    contacts (as :func:`grasp_env.mechanics.equilibrating_forces`): F_i = -f / n + mu x q_i,
-    q_i = p_i - c, (sum_i |q_i|^2 I - sum_i q_i q_i^T) mu = c x f - tau.
+    limit (B, 1), float32 (float64 with ``double``). Padded contacts are zeros. F is
+    G^+ (-(f, tau)) in closed form over the real contacts (as
+    :func:`grasp_env.mechanics.equilibrating_forces`): F_i = -f / n + mu x q_i, q_i = p_i - c,
+    (sum_i |q_i|^2 I - sum_i q_i q_i^T) mu = c x f - tau.
     """
     big = max_contacts
     batch = obs.shape[0]
@@ -90,7 +124,8 @@ def object_frame_set(
         ..., None
     ]
     limit = obs[:, tail + 6 : tail + 7]
-    return positions.float(), normals.float(), forces.float(), mask.float(), limit.float()
+    out = positions, normals, forces, mask, limit
+    return out if double else tuple(t.float() for t in out)
 
 
 def pair_basis(positions: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
@@ -110,15 +145,109 @@ def pair_basis(positions: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     return basis
 
 
-def set_grasp(obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """The object-frame F (B, N, 3), interaction basis (B, M, N, 3) and normals (B, N, 3) of
-    padded observations, for :func:`~.features.max_friction_angle` (the reward's friction
-    angle, differentiable): a padded contact gets the force and normal e_z and no pairs, so
-    its angle is 0 with a finite gradient (atan2 at (0, 0) has none)."""
+@dataclass(frozen=True)
+class SetGrasp:
+    """A batch of padded grasps in the object's frame (float64, units of w), as the reward
+    sees them: the equilibrating forces F_i (B, N, 3), the interaction basis e_ij
+    (B, M, N, 3), the inward normals n_i (B, N, 3), the mask (B, N) and the projection
+    E^+ E (B, M, M) that the environment applies to a grip of five or more contacts (the
+    minimum-norm k of the interaction force E k; the identity on the pairs in use for fewer).
+    """
+
+    forces: torch.Tensor
+    basis: torch.Tensor
+    normals: torch.Tensor
+    mask: torch.Tensor
+    projection: torch.Tensor
+
+    def __len__(self) -> int:
+        return len(self.forces)
+
+    def __getitem__(self, index: Any) -> SetGrasp:
+        return SetGrasp(*(getattr(self, f.name)[index] for f in fields(self)))
+
+
+def _projection(basis: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """E^+ E (B, M, M) of padded grasps with five or more contacts, the identity on the pairs
+    in use for fewer (as ``grasp_env.envs.object_grasp.episodes.projection``)."""
+    batch, m, big, _ = basis.shape
+    e = basis.reshape(batch, m, 3 * big).transpose(1, 2)  # (B, 3N, M), columns e_ij
+    counts = mask.sum(1)
+    used = basis.abs().sum((2, 3)) > 0  # pairs of two real contacts
+    out = torch.diag_embed(used.to(basis.dtype))
+    many = counts >= 5
+    if many.any():
+        out[many] = torch.linalg.pinv(e[many]) @ e[many]
+    # pairs with a padded contact: exactly none (pinv leaves rounding there)
+    return out * (used[:, :, None] & used[:, None, :])
+
+
+def set_grasp(obs: torch.Tensor) -> SetGrasp:
+    """The grasps of padded observations (B, 14 + 7N) for :func:`reward_angles`, in float64
+    (the object's frame: the angles do not depend on it, eq. 2)."""
     big = max_contacts_of(obs.shape[-1])
-    positions, normals, forces, mask, _ = object_frame_set(obs, big)
-    absent = (1.0 - mask)[..., None] * normals.new_tensor([0.0, 0.0, 1.0])
-    return forces + absent, pair_basis(positions, mask), normals + absent
+    positions, normals, forces, mask, _ = object_frame_set(obs, big, double=True)
+    basis = pair_basis(positions, mask)
+    return SetGrasp(forces, basis, normals, mask, _projection(basis, mask))
+
+
+def played_grip(actions: torch.Tensor, grasp: SetGrasp, k_max_ratio: float) -> torch.Tensor:
+    """The grip k / w (B, M) the environment plays for ``actions`` (B, M): clipped to
+    [-1, 1], times k_max / w, pairs with a padded contact at 0, and with five or more contacts
+    k' = E^+ E k, scaled back into the box |k'_ij| <= k_max where it leaves it
+    (``grasp_env.envs.object_grasp.kernels.object_row``)."""
+    pairs = torch.as_tensor(contact_pairs(grasp.mask.shape[1]))
+    used = grasp.mask[:, pairs[:, 0]] * grasp.mask[:, pairs[:, 1]]
+    k = actions.double().clamp(-1.0, 1.0) * k_max_ratio * used
+    many = (grasp.mask.sum(1) >= 5)[:, None]
+    projected = (grasp.projection @ k[..., None])[..., 0]
+    largest = projected.abs().amax(1, keepdim=True)
+    scale = torch.where(largest > k_max_ratio, k_max_ratio / largest.clamp_min(1e-300), 1.0)
+    return torch.where(many, projected * scale, k)
+
+
+def net_forces(k: torch.Tensor, grasp: SetGrasp) -> torch.Tensor:
+    """P_i / w = F_i + sum_j k_ij e_ij (eq. 4), (B, N, 3), for grips k / w (B, M)."""
+    return grasp.forces + torch.einsum("bq,bqnc->bnc", k, grasp.basis)
+
+
+def released_contacts(k: torch.Tensor, net: torch.Tensor, grasp: SetGrasp, ratio: float) -> Any:
+    """Which real contacts (B, N) bool have |P_i| <= ``ratio`` (|F_i| + sum_j |k_ij|): with
+    ratio ``RELEASE`` the environment's released fingers (``grasp_env.envs.kernels.released``)."""
+    size = torch.linalg.vector_norm(grasp.forces, dim=-1) + torch.einsum(
+        "bq,bqn->bn", k.abs(), torch.linalg.vector_norm(grasp.basis, dim=-1)
+    )
+    tiny = torch.linalg.vector_norm(net, dim=-1) <= ratio * size
+    return tiny & (grasp.mask > 0.5)
+
+
+def reward_angles(actions: torch.Tensor, grasp: SetGrasp, k_max_ratio: float) -> torch.Tensor:
+    """The friction angles theta_i (B, N) (radians, float64) the environment gives
+    ``actions`` (B, M), differentiable: :func:`played_grip`, eq. 4, and eq. 2's
+    atan2(|P_i x n_i|, P_i . n_i), with a released finger's (``RELEASE``) and a padded
+    contact's angle 0. The reward is theta_lim - max_i theta_i."""
+    k = played_grip(actions, grasp, k_max_ratio)
+    net = net_forces(k, grasp)
+    released = released_contacts(k, net, grasp, RELEASE)
+    normals = grasp.normals
+    tangential = torch.linalg.vector_norm(torch.linalg.cross(net, normals), dim=-1)
+    normal = (net * normals).sum(-1)
+    counted = (grasp.mask > 0.5) & ~released
+    # a finite gradient everywhere: the uncounted contacts' angles are those of (0, 1)
+    theta = torch.atan2(torch.where(counted, tangential, 0.0), torch.where(counted, normal, 1.0))
+    return theta
+
+
+def expert_forces(
+    actions: torch.Tensor, grasp: SetGrasp, k_max_ratio: float
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """The forces P*_i / w (B, N, 3) of the expert's ``actions`` (k* / k_max, B x M) and the
+    contacts it releases (B, N) bool: |P*_i| <= :data:`RELEASE_LABEL` (|F_i| + sum_j |k_ij|).
+    The observation is float32, so a force the optimum releases exactly keeps about 1e-7 of
+    the forces it is made of here; the optimum's smallest loaded forces are above 1e-3."""
+    k = played_grip(actions, grasp, k_max_ratio)
+    net = net_forces(k, grasp)
+    return net, released_contacts(k, net, grasp, RELEASE_LABEL)
 
 
 class ContactSetFeatures(BaseFeaturesExtractor):
@@ -201,16 +330,125 @@ class _SetExtractor(nn.Module):
         return self.value(pooled)
 
 
+def release_set(logits: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """The contacts (B, N) bool the head releases: real ones with a positive logit, at most
+    n - 3 of them (the largest logits), so that three contacts at least carry the load."""
+    candidate = (logits > 0.0) & (mask > 0.5)
+    ranked = torch.where(candidate, logits, -torch.inf)
+    rank = torch.argsort(torch.argsort(ranked, dim=1, descending=True), dim=1)
+    allowed = (mask.sum(1, keepdim=True) - 3.0).clamp_min(0.0)
+    return candidate & (rank < allowed)
+
+
+def grip_with_release(
+    directions: torch.Tensor,
+    magnitudes: torch.Tensor,
+    released: torch.Tensor,
+    forces: torch.Tensor,
+    basis: torch.Tensor,
+    normals: torch.Tensor,
+    k_max: float,
+    solves: int = SOLVES,
+) -> torch.Tensor:
+    """The grips k / w (B, M), float64, whose forces P_i = F_i + B_i k (eq. 4) point along
+    ``directions`` d_i (B, N, 3) with normal parts d_i . P_i near ``magnitudes`` (B, N) at the
+    contacts that are not ``released`` (B, N) bool, and vanish at the released ones;
+    differentiable in the directions and the magnitudes.
+
+    The least squares of :mod:`grasp_env.mechanics.directions` with two more kinds of rows: a
+    held contact contributes w_i (I - d_i d_i^T) P_i(k) (two equations) and
+    MAGNITUDE_WEIGHT w_i (d_i . P_i(k) - rho_i) (one, weak: with seven or more contacts the
+    directions leave some grips free, and the ridge alone would pick the smallest k there,
+    which may leave the action box where the optimum sits on it); a released one
+    w_max RELEASE_WEIGHT P_i(k) (three, w_max the largest held weight), so that its residual
+    force is about RELEASE_WEIGHT^-2 of the others' misfit. The ridge RIDGE tr(A_held) / m (m
+    the pairs in use, A_held the held rows' normal matrix) picks the minimum-norm k where
+    five or more contacts make the k_ij redundant; the system is solved by QR of the stacked
+    rows (the normal equations square its condition). The first solve weighs the held
+    contacts equally, each next one by w_i = 1 / max(|P_i|, MIN_FORCE) at the previous grip;
+    of the solves, the one whose grip, clipped to |k_ij| <= k_max, has the smallest largest
+    friction angle (eq. 2, over the held contacts) is returned (the choice and the weights
+    are not differentiated), as the minimum-norm k of its force, E^+ E k (the rounding of the
+    k that make no force removed). Padded contacts (zero forces, normals, directions and pairs)
+    change nothing. With the expert's directions P*_i / |P*_i|, magnitudes |P*_i| and
+    released set every equation holds at k*, and k* is what it returns.
+    """
+    if solves < 1:
+        raise ValueError(f"solves must be an integer >= 1, got {solves!r}")
+    d, f, e, nn_ = (t.double() for t in (directions, forces, basis, normals))
+    m = e.shape[1]
+    columns = e.permute(0, 2, 3, 1)  # B_i (B, N, 3, M)
+    eye = torch.eye(3, dtype=d.dtype)
+    held = ~released
+    across = torch.where(
+        held[..., None, None], eye - d[..., :, None] * d[..., None, :], RELEASE_WEIGHT * eye
+    )
+    along = torch.where(held[..., None], MAGNITUDE_WEIGHT * d, 0.0)[..., None, :]
+    rows = torch.cat([across, along], -2)  # (B, N, 4, 3)
+    jac = rows @ columns  # (B, N, 4, M)
+    target = torch.where(held, MAGNITUDE_WEIGHT * magnitudes.double(), 0.0)
+    rhs_rows = (rows @ f[..., None])[..., 0]  # (B, N, 4)
+    rhs_rows = torch.cat([rhs_rows[..., :3], rhs_rows[..., 3:] - target[..., None]], -1)
+    used = (e.abs().sum((2, 3)) > 0).sum(1).clamp_min(1).to(d.dtype)
+    batch, big = held.shape
+    weights = torch.ones(batch, big, dtype=d.dtype)  # w_i (released rows: the largest w_i)
+    best_k, best_cos = None, None
+    for _ in range(solves):
+        scaled = jac * weights[..., None, None]
+        held_trace = (scaled.square() * held[..., None, None]).sum((1, 2, 3))
+        ridge = torch.sqrt(RIDGE * held_trace / used)
+        # the least squares by QR of the stacked rows [w_i J_i; sqrt(r) I]: the normal
+        # equations' condition is squared, and their error along the k that make no force
+        # (five or more contacts) would reach the action's clip
+        stacked = torch.cat(
+            [scaled.reshape(batch, 4 * big, m), ridge[:, None, None] * torch.eye(m, dtype=d.dtype)],
+            1,
+        )
+        target = torch.cat(
+            [-(rhs_rows * weights[..., None]).reshape(batch, 4 * big), d.new_zeros(batch, m)], 1
+        )
+        q, r = torch.linalg.qr(stacked)
+        k = torch.linalg.solve_triangular(r, (q.transpose(1, 2) @ target[..., None]), upper=True)
+        k = k[..., 0]
+        with torch.no_grad():
+            clipped = k.clamp(-k_max, k_max)
+            net = f + torch.einsum("bq,bqnc->bnc", clipped, e)
+            size = torch.linalg.vector_norm(net, dim=-1)
+            cos = torch.where(size > 0, (net * nn_).sum(-1) / size.clamp_min(1e-300), 1.0)
+            worst = torch.where(held & (size > 0), cos, torch.inf).amin(1)
+            unclipped = f + torch.einsum("bq,bqnc->bnc", k, e)
+            force = torch.linalg.vector_norm(unclipped, dim=-1).clamp_min(MIN_FORCE)
+            weights = torch.where(held, 1.0 / force, 0.0)
+            # a released contact's rows as strong against the strongest held contact's
+            weights = torch.where(held, weights, weights.amax(1, keepdim=True))
+        if best_k is None:
+            best_k, best_cos = k, worst
+        else:
+            better = worst > best_cos
+            best_k = torch.where(better[:, None], k, best_k)
+            best_cos = torch.where(better, worst, best_cos)
+    # the least squares leaves the k that make no force (five or more contacts) to the ridge
+    # alone, so to its rounding: the minimum-norm k of the same force, E^+ E k, has none
+    with torch.no_grad():
+        projection = _projection(e, (nn_.abs().sum(-1) > 0).to(d.dtype))
+    return (projection @ best_k[..., None])[..., 0]
+
+
 class ContactSetHead(nn.Module):
-    """The actor's latent -> mean action k / k_max: a direction per contact, then the grip
-    along them (:func:`~.policy.grip_along`)."""
+    """The actor's latent -> mean action k / k_max: a direction and a release logit per
+    contact, then the grip along the held contacts' directions with the released ones at
+    P_i = 0 (:func:`grip_with_release`)."""
 
     def __init__(self, max_contacts: int, width: int, k_max_ratio: float) -> None:
         super().__init__()
         self.max_contacts, self.width, self.k_max_ratio = max_contacts, width, k_max_ratio
         self.tilts = nn.Linear(width, 3)
+        self.release = nn.Linear(width, 2)  # the release logit and log rho_i
 
-    def forward(self, latent: torch.Tensor) -> torch.Tensor:
+    def parts(self, latent: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        """The directions d_i (B, N, 3), magnitudes rho_i (B, N) (units of w), release logits
+        (B, N), and the grasp the head reads: forces F_i, interaction basis, normals and mask
+        (the features, not differentiated)."""
         big = self.max_contacts
         hidden = latent[:, : big * self.width].reshape(len(latent), big, self.width)
         tokens, mask = split_features(latent[:, big * self.width :].detach(), big)
@@ -219,9 +457,29 @@ class ContactSetHead(nn.Module):
         # a padded contact gets a stand-in normal (its direction is multiplied away)
         stand_in = normals + (1.0 - real) * normals.new_tensor([0.0, 0.0, 1.0])
         directions = force_directions(self.tilts(hidden), stand_in) * real
-        basis = pair_basis(positions, mask)
-        k = grip_along(directions, forces, basis, normals, self.k_max_ratio)
-        return k / self.k_max_ratio
+        gate = self.release(hidden)
+        logits, magnitudes = gate[..., 0], torch.exp(gate[..., 1].clamp(-20.0, 5.0)) * mask
+        return directions, magnitudes, logits, forces, pair_basis(positions, mask), normals, mask
+
+    def grip(
+        self,
+        directions: torch.Tensor,
+        magnitudes: torch.Tensor,
+        released: torch.Tensor,
+        forces: torch.Tensor,
+        basis: torch.Tensor,
+        normals: torch.Tensor,
+    ) -> torch.Tensor:
+        """k / k_max (B, M) in the directions' dtype from :meth:`parts` and a released set."""
+        k = grip_with_release(
+            directions, magnitudes, released, forces, basis, normals, self.k_max_ratio
+        )
+        return (k / self.k_max_ratio).to(directions.dtype)
+
+    def forward(self, latent: torch.Tensor) -> torch.Tensor:
+        directions, magnitudes, logits, forces, basis, normals, mask = self.parts(latent)
+        released = release_set(logits, mask)
+        return self.grip(directions, magnitudes, released, forces, basis, normals)
 
 
 class ContactSetPolicy(ActorCriticPolicy):
@@ -266,6 +524,8 @@ class ContactSetPolicy(ActorCriticPolicy):
         self.action_net = ContactSetHead(big, self.width, self.k_max_ratio)
         if self.ortho_init:  # small, so that d_i starts at n_i (a pure squeeze)
             self.action_net.apply(partial(self.init_weights, gain=0.01))
+        with torch.no_grad():  # an untrained gate releases no contact
+            self.action_net.release.bias[0] = INITIAL_RELEASE_LOGIT
         self.optimizer = self.optimizer_class(
             self.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs
         )
@@ -289,14 +549,160 @@ def transfer(policy: ContactSetPolicy, other: ContactSetPolicy) -> None:
         raise ValueError(f"not the same network: missing {missing}, unexpected {unexpected}")
 
 
+def expert_states(
+    env_kwargs: dict[str, Any], states: int, n_envs: int, seed: int, env_id: str = ENV_ID
+) -> tuple[np.ndarray, np.ndarray]:
+    """``states`` observations (float32) of the random objects' vector environment and the
+    expert's actions k* / k_max there (float32; ``info["expert_k"]`` over k_max w, the
+    certified optimum of the exact pose), visited with the zero grip along whole trajectories
+    (slips do not end them: the states do not depend on the actions). The step that only
+    resets a sub-environment (Gymnasium's next-step autoreset) is left out."""
+    if states < 1 or n_envs < 1:
+        raise ValueError(f"states and n_envs must be >= 1, got {states} and {n_envs}")
+    envs = gym.make_vec(
+        env_id,
+        num_envs=n_envs,
+        vectorization_mode="vector_entry_point",
+        **{**env_kwargs, "terminate_on_slip": False},
+    )
+    try:
+        k_max_ratio = action_scale(envs)
+        big = max_contacts_of(envs.single_observation_space.shape[0])
+        obs, _ = envs.reset(seed=seed)
+        pending = np.zeros(n_envs, bool)
+        zeros = np.zeros((n_envs, *envs.single_action_space.shape), np.float32)
+        observations, actions, count = [], [], 0
+        while count < states:
+            following, _, terminated, truncated, info = envs.step(zeros)
+            tail = 6 + 7 * big
+            load = np.linalg.norm(obs[:, tail : tail + 3], axis=1)
+            weight = np.linalg.norm(info["equilibrating_forces"].sum(1), axis=1) / np.where(
+                load > 0, load, 1.0
+            )
+            scale = np.where(weight > 0, weight, 1.0)[:, None] * k_max_ratio
+            action = np.clip(info["expert_k"] / scale, -1.0, 1.0).astype(np.float32)
+            keep = ~pending
+            observations.append(obs[keep])
+            actions.append(action[keep])
+            count += int(keep.sum())
+            pending = terminated | truncated
+            obs = following
+    finally:
+        envs.close()
+    return np.concatenate(observations)[:states], np.concatenate(actions)[:states]
+
+
+def _direction_error(directions: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """The angle between unit directions and (non-zero) targets, (B, N): sqrt(2 (1 - cos)),
+    smoothed at 0 by 1e-12 so that its gradient is finite there."""
+    unit = target / torch.linalg.vector_norm(target, dim=-1, keepdim=True).clamp_min(1e-300)
+    return torch.sqrt(2.0 * (1.0 - (directions.double() * unit).sum(-1)).clamp_min(0.0) + 1e-12)
+
+
+def fit_contact_set(
+    policy: ContactSetPolicy,
+    obs: np.ndarray,
+    expert_actions: np.ndarray | None,
+    epochs: int,
+    batch_size: int = 512,
+    learning_rate: float = 1e-3,
+    generator: torch.Generator | None = None,
+    imitation_weight: float = 1.0,
+    reward_weight: float = 0.0,
+) -> list[float]:
+    """Fit the policy's actor on padded observations ``obs`` (B, 14 + 7N); returns each
+    epoch's mean loss.
+
+    The loss, per minibatch: ``imitation_weight`` x (the mean angle between d_i and the
+    expert's force P*_i over the contacts it holds, + 0.1 x the mean squared error of
+    log rho_i against log |P*_i| there, + 0.1 x the release gate's cross-entropy against the
+    expert's released set, :func:`expert_forces`), plus ``reward_weight`` x the mean largest
+    friction angle of the head's grip as the environment counts it (:func:`reward_angles`,
+    radians: the reward's exact gradient, the released set as the head chose it). With
+    ``imitation_weight`` 0 the expert's actions are not read (they may be None). Adam with a
+    cosine decay of the learning rate to 1% and the gradient norm clipped at 1 (a finger whose
+    force nearly vanishes has a huge angle gradient); only the actor is trained.
+    """
+    if imitation_weight < 0 or reward_weight < 0 or imitation_weight + reward_weight == 0:
+        raise ValueError(
+            f"imitation_weight and reward_weight must be >= 0 and not both 0, got"
+            f" {imitation_weight} and {reward_weight}"
+        )
+    if imitation_weight > 0 and (expert_actions is None or len(expert_actions) != len(obs)):
+        raise ValueError("imitation needs the expert's actions, one row per observation")
+    if epochs < 1 or batch_size < 1:
+        raise ValueError(f"epochs and batch_size must be >= 1, got {epochs} and {batch_size}")
+    head = policy.action_net
+    ratio = head.k_max_ratio
+    with torch.no_grad():
+        obs_t = torch.as_tensor(obs, dtype=torch.float32)
+        features = policy.extract_features(obs_t, policy.pi_features_extractor)
+        grasp = set_grasp(obs_t)
+        if imitation_weight > 0:
+            target, released = expert_forces(torch.as_tensor(expert_actions), grasp, ratio)
+            real = grasp.mask > 0.5
+            held = real & ~released
+            size = torch.linalg.vector_norm(target, dim=-1).clamp_min(1e-6)
+    actor = [*policy.mlp_extractor.actor.parameters(), *head.parameters()]
+    optimizer = torch.optim.Adam(actor, lr=learning_rate)
+    steps = epochs * math.ceil(len(obs) / batch_size)
+    schedule = torch.optim.lr_scheduler.LambdaLR(
+        optimizer, lambda step: 0.01 + 0.99 * 0.5 * (1.0 + math.cos(math.pi * step / steps))
+    )
+    policy.set_training_mode(True)
+    losses = []
+    for _ in range(epochs):
+        order = torch.randperm(len(obs), generator=generator)
+        total = 0.0
+        for start in range(0, len(obs), batch_size):
+            index = order[start : start + batch_size]
+            latent = policy.mlp_extractor.forward_actor(features[index])
+            directions, magnitudes, logits, forces, basis, normals, mask = head.parts(latent)
+            loss = torch.zeros((), dtype=torch.float64)
+            if imitation_weight > 0:
+                h, r = held[index], real[index]
+                angle = _direction_error(directions, target[index])
+                log_error = torch.log(magnitudes.double().clamp_min(1e-12)) - torch.log(size[index])
+                gate = torch.nn.functional.binary_cross_entropy_with_logits(
+                    logits[r], released[index][r].to(logits.dtype)
+                )
+                loss = loss + imitation_weight * (
+                    angle[h].mean() + 0.1 * log_error[h].square().mean() + 0.1 * gate
+                )
+            if reward_weight > 0:
+                chosen = release_set(logits, mask)
+                action = head.grip(directions, magnitudes, chosen, forces, basis, normals)
+                theta = reward_angles(action, grasp[index], ratio)
+                loss = loss + reward_weight * theta.amax(1).mean()
+            optimizer.zero_grad()
+            loss.backward()
+            torch.nn.utils.clip_grad_norm_(actor, 1.0)
+            optimizer.step()
+            schedule.step()
+            total += float(loss.detach()) * len(index)
+        losses.append(total / len(obs))
+    policy.set_training_mode(False)
+    return losses
+
+
 __all__ = [
     "ContactSetFeatures",
     "ContactSetHead",
     "ContactSetPolicy",
     "SetEncoder",
+    "SetGrasp",
+    "expert_forces",
+    "expert_states",
+    "fit_contact_set",
+    "grip_with_release",
     "max_contacts_of",
+    "net_forces",
     "object_frame_set",
     "pair_basis",
+    "played_grip",
+    "release_set",
+    "released_contacts",
+    "reward_angles",
     "set_grasp",
     "transfer",
 ]
