@@ -11,9 +11,14 @@ from grasp_env.envs.object_grasp.env import ObjectGraspRandomEnv
 from grasp_env.mechanics import contact_pairs
 from grasp_env_agents.learning.contact_set import (
     ContactSetPolicy,
+    expert_forces,
+    grip_with_release,
     max_contacts_of,
     object_frame_set,
     pair_basis,
+    release_set,
+    reward_angles,
+    set_grasp,
     transfer,
 )
 
@@ -189,3 +194,152 @@ def test_padding_changes_neither_the_grip_nor_its_gradient(draws):
         np.testing.assert_allclose(k["padded"][0, real], k["alone"][0], rtol=1e-9, atol=1e-12)
         assert np.all(np.delete(k["padded"][0], real) == 0)
         np.testing.assert_allclose(grad["padded"][0, :n], grad["alone"][0], rtol=1e-7, atol=1e-9)
+
+
+@pytest.fixture(scope="module")
+def releasing():
+    """First poses of five- and six-contact scenes (padded to six), each with the expert's
+    action (k* / k_max from the environment's info) and the environment's info for it."""
+    env = ObjectGraspRandomEnv(contact_counts=(5, 6), max_contacts=N)
+    obs, actions, infos = [], [], []
+    for seed in range(12):
+        o, _ = env.reset(seed=seed)
+        _, _, _, _, info = env.step(np.zeros(env.action_space.shape, np.float32))
+        weight = np.linalg.norm(np.asarray(info["equilibrating_forces"]).sum(0))
+        action = (np.asarray(info["expert_k"]) / (weight * env.k_max_ratio)).astype(np.float32)
+        again, _ = env.reset(seed=seed)
+        assert np.array_equal(again, o)
+        _, _, _, _, played = env.step(action)
+        obs.append(o)
+        actions.append(action)
+        infos.append(played)
+    return env, np.array(obs), np.array(actions), infos
+
+
+def play(env, seed: int, action: np.ndarray) -> dict:
+    """The environment's info for ``action`` at the first pose of the scene ``seed``."""
+    env.reset(seed=seed)
+    return env.step(action.astype(np.float32))[4]
+
+
+@pytest.mark.fast
+def test_the_expert_releases_fingers_and_the_environment_counts_them_at_angle_0(releasing):
+    """The diagnosis: on these scenes the certified optimum releases at least one finger in
+    most poses, and the environment gives a released finger theta = 0 exactly."""
+    env, obs, actions, infos = releasing
+    grasp = set_grasp(torch.as_tensor(obs))
+    _, released = expert_forces(torch.as_tensor(actions), grasp, env.k_max_ratio)
+    assert released.any(1).float().mean() >= 0.5
+    for b, info in enumerate(infos):
+        theta = np.asarray(info["theta"])
+        assert np.all(theta[released[b].numpy()] == 0.0)
+        assert info["optimality_gap"] <= 1e-5  # the expert's own float32 action
+
+
+@pytest.mark.fast
+def test_the_loss_is_the_environments_reward(releasing):
+    """reward_angles gives the environment's largest friction angle, theta_lim - reward, to
+    2e-6 rad on the expert's actions (released fingers), on random actions inside and beyond
+    the box (clipped; five or more contacts: projected and scaled back), and per contact on
+    the random ones."""
+    env, obs, actions, infos = releasing
+    grasp = set_grasp(torch.as_tensor(obs))
+    rng = np.random.default_rng(1)
+    for name, batch in (("expert", actions), ("random", rng.uniform(-1.5, 1.5, actions.shape))):
+        theta = reward_angles(torch.as_tensor(batch, dtype=torch.float32), grasp, env.k_max_ratio)
+        for b in range(len(obs)):
+            info = infos[b] if name == "expert" else play(env, b, batch[b])
+            expected = np.asarray(info["theta"])
+            worst = float(theta[b].max())
+            assert abs(worst - expected.max()) <= 2e-6, (name, b)
+            if name == "random":
+                np.testing.assert_allclose(theta[b].numpy(), expected, atol=2e-6, rtol=0)
+
+
+@pytest.mark.fast
+def test_the_head_represents_the_experts_grip_with_its_released_fingers(releasing):
+    """Given the expert's directions P*_i / |P*_i|, magnitudes |P*_i| and released set, the
+    gated least squares returns a grip the environment finds as good as the expert's own
+    action (optimality gaps <= 1e-4 deg; the grasp is rebuilt from the float32 observation),
+    with the released fingers released (theta_i = 0 exactly); the ungated head cannot
+    (the same directions, a released finger given its normal, slip on some scenes)."""
+    env, obs, actions, _ = releasing
+    grasp = set_grasp(torch.as_tensor(obs))
+    forces, released = expert_forces(torch.as_tensor(actions), grasp, env.k_max_ratio)
+    size = torch.linalg.vector_norm(forces, dim=-1)
+    unit = forces / size.clamp_min(1e-300)[..., None]  # padded contacts: 0
+    directions = torch.where(released[..., None], grasp.normals, unit)
+    directions = directions * grasp.mask[..., None]
+    magnitudes = torch.where(released, 0.0, size) * grasp.mask
+    gaps = {}
+    for gated in (True, False):
+        k = grip_with_release(
+            directions,
+            magnitudes,
+            released & gated,
+            grasp.forces,
+            grasp.basis,
+            grasp.normals,
+            env.k_max_ratio,
+        )
+        gaps[gated] = []
+        for b in range(len(obs)):
+            info = play(env, b, (k[b] / env.k_max_ratio).numpy())
+            gaps[gated].append(np.rad2deg(info["optimality_gap"]))
+            if gated:
+                assert np.all(np.asarray(info["theta"])[released[b].numpy()] == 0.0)
+    assert max(gaps[True]) <= 1e-4
+    assert max(gaps[False]) > 1.0
+
+
+@pytest.mark.fast
+def test_the_gate_releases_at_most_all_but_three_contacts():
+    logits = torch.tensor([[2.0, 1.0, 3.0, -1.0, 0.5, 4.0], [1.0, 1.0, 1.0, 1.0, 0.0, 0.0]])
+    mask = torch.tensor([[1.0, 1, 1, 1, 1, 0], [1, 1, 1, 0, 0, 0]])
+    released = release_set(logits, mask)
+    # five real contacts: two released, the largest logits among the real ones; three: none
+    assert released.tolist() == [
+        [True, False, True, False, False, False],
+        [False, False, False, False, False, False],
+    ]
+
+
+@pytest.mark.fast
+def test_padding_changes_nothing_in_the_gated_grip(releasing):
+    """grip_with_release on a grasp padded with absent contacts: the real pairs' k and the
+    gradients with respect to the real contacts' directions and magnitudes are those of the
+    unpadded grasp (1e-7 relative: the QR's rounding, through the released rows' weight), the
+    padded pairs' k exactly 0."""
+    env, obs, actions, _ = releasing
+    grasp = set_grasp(torch.as_tensor(obs))
+    _, released = expert_forces(torch.as_tensor(actions), grasp, env.k_max_ratio)
+    rng = np.random.default_rng(2)
+    pairs = contact_pairs(N).tolist()
+    for b in range(len(obs)):
+        n = int(grasp.mask[b].sum())
+        real = [q for q, (_, j) in enumerate(pairs) if j < n]
+        d = grasp.normals[b] + torch.as_tensor(rng.normal(size=(N, 3)) * 0.2)
+        d = d / torch.linalg.vector_norm(d, dim=-1, keepdim=True) * grasp.mask[b][:, None]
+        rho = torch.as_tensor(rng.uniform(0.5, 2.0, N)) * grasp.mask[b]
+        upstream = torch.as_tensor(rng.normal(size=len(real)))
+        out = {}
+        for name, rows, slots in (("padded", slice(None), slice(None)), ("alone", slice(n), real)):
+            dd = d[rows].clone()[None].requires_grad_(True)
+            rr = rho[rows].clone()[None].requires_grad_(True)
+            k = grip_with_release(
+                dd,
+                rr,
+                released[b, rows][None],
+                grasp.forces[b, rows][None],
+                grasp.basis[b][slots][:, rows][None],
+                grasp.normals[b, rows][None],
+                env.k_max_ratio,
+            )[0]
+            on_real = k[real] if name == "padded" else k
+            (on_real * upstream).sum().backward()
+            out[name] = k.detach(), dd.grad[0, :n], rr.grad[0, :n]
+        k_padded, k_alone = out["padded"][0], out["alone"][0]
+        np.testing.assert_allclose(k_padded[real].numpy(), k_alone.numpy(), rtol=1e-7, atol=1e-9)
+        assert np.all(np.delete(k_padded.numpy(), real) == 0.0)
+        for mine, alone in zip(out["padded"][1:], out["alone"][1:], strict=True):
+            np.testing.assert_allclose(mine.numpy(), alone.numpy(), rtol=1e-6, atol=1e-8)
