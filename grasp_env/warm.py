@@ -9,16 +9,17 @@ CPU they took from an empty cache (numba 0.68, Python 3.11, one core each):
 
 | job | compiles | CPU |
 | --- | --- | --- |
-| ``solve_batch`` | the solver's kernels, then ``driver.solve_batch`` | 109 s (57 + 51 s) |
-| ``solve_grasp`` | ``driver.solve_grasp`` (``solve_one`` inlined again), kernels cached | 51 s |
+| ``solve_batch`` | the solver's kernels, then ``driver.solve_batch`` | 93 s |
+| ``solve_grasp`` | ``driver.solve_grasp`` (``solve_one`` inlined again), kernels cached | 15 s |
 | ``conic`` | ``conic.solve_batch``, the solver of five or more contacts | 36 s |
 | ``environments`` | the environments' step and pose kernels, float32 and float64 actions | 8 s |
 | ``mujoco`` | the MuJoCo check's kernels | 7 s |
 
 Every kernel is compiled once: in two processes side by side, ``solve_batch`` and
-``solve_grasp`` each compiled the 57 s of kernels they share (214 s of CPU, where 160 s do in
-one process). Here one process compiles ``solve_batch``; the other compiles the conic solver
-first, and by the time it reaches ``solve_grasp`` the first has cached most of those kernels,
+``solve_grasp`` each compiled the 57 s of kernels they share (214 s of CPU, where 160 s did in
+one process, before the driver's later attempts became shared kernels: 108 s now). Here one
+process compiles ``solve_batch``; the other compiles the conic solver first, and by the time
+it reaches ``solve_grasp`` the first has cached most of those kernels,
 which it then loads (numba writes a cache entry atomically, so two processes may write one side
 by side). The environments' jobs solve with both entries, so they start once the solver's are
 done. On one core (``processes=1``) every job runs in one process, in turn.

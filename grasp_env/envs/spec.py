@@ -206,7 +206,7 @@ OBJECT_DEFAULTS: Mapping[str, Any] = {
     "alpha_end_range_deg": (5.0, 20.0),
     "alpha_step_deg": 2.5,
 }
-#: Keywords renamed in 0.3.0, each to its new name: ``cg_offset`` and the extra load's names
+#: Keywords renamed in 0.2.0, each to its new name: ``cg_offset`` and the extra load's names
 #: stand for a scene's vectors; a random env's largest draws are ``*_max``.
 RENAMED: Mapping[str, str] = {
     "cg_offset": "cg_offset_max",
