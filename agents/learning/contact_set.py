@@ -22,12 +22,14 @@ finds released (``grasp_env.envs.kernels.RELEASE``) counts as angle 0, however i
 residue points. A direction cannot say "no force", so the head releases the contacts whose
 logit is positive (at most n - 3, the most confident first, so that three contacts hold) and
 the grip is the k whose forces P_i = F_i + sum k_ij e_ij (eq. 4) point best along the
-directions of the others while the released contacts' P_i = 0 (three equations each, weighted
-by :data:`RELEASE_WEIGHT`): :func:`grip_with_release`, a weighted least squares in float64,
-re-weighted by 1 / |P_i| as :mod:`grasp_env.mechanics.directions` and with its ridge (the
-minimum-norm k where five or more contacts make the k_ij redundant, the k the environment
-plays). The expert's own grip is representable exactly: its directions P*_i / |P*_i| and its
-released set give back k*. The gate is a hard choice, not differentiated: imitation trains it
+directions of the others (with a weak pull of d_i . P_i towards a predicted magnitude rho_i,
+which picks among the grips that seven or more contacts leave free) while the released
+contacts' P_i = 0 (three equations each, weighted by :data:`RELEASE_WEIGHT`):
+:func:`grip_with_release`, a weighted least squares in float64, re-weighted by 1 / |P_i| as
+:mod:`grasp_env.mechanics.directions` and with its ridge (the minimum-norm k where five or
+more contacts make the k_ij redundant, the k the environment plays). The expert's own grip is
+representable exactly: its directions P*_i / |P*_i|, magnitudes |P*_i| and released set give
+back k*. The gate is a hard choice, not differentiated: imitation trains it
 (:func:`fit_contact_set`, a cross-entropy against the expert's released set); the directions
 learn from the expert's force directions and from the reward's exact gradient
 (:func:`reward_angles`, the environment's step in torch, released fingers at angle 0).
