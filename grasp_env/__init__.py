@@ -57,6 +57,10 @@ _ENVS = {
         "gait.vector:CubeGaitVectorEnv",
         {"optimal_grip": True},
     ),
+    # the coke can turned a full turn about its axis (docs/gait.md, "The can"): moves and
+    # grip, and moves with the certified grip; no batched class (gym.make_vec: sync)
+    "CanGait-v0": ("can_gait.env:CanGaitEnv", None, {}),
+    "CanGaitMoves-v0": ("can_gait.env:CanGaitEnv", None, {"optimal_grip": True}),
     # any object (box, cylinder, sphere, convex mesh) by 3 to 8 contacts, padded with a mask
     # (envs/object_grasp/): one scene from keywords, and random shapes, sizes and counts
     "ObjectGrasp-v0": (
