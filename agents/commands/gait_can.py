@@ -28,6 +28,7 @@ from grasp_env.mechanics.gait.can import (
     CanTurn,
 )
 from grasp_env.mechanics.gait.can_programme import CanGait, CanGaitSolution, solve_can_gait
+from grasp_env.physics.can_gait import can_gait_schedule, check_can_gait
 
 from ..progress import status
 
@@ -51,6 +52,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="--object can: most fingers carrying load at a pose (five may always touch;"
         f" 5 loaded solves every five-finger configuration, slow; default {CAN_DEFAULT_LOADED})",
     )  # fmt: skip
+    parser.add_argument(
+        "--mujoco", action="store_true",
+        help="--object can: carry the optimal gait through one continuous MuJoCo rollout and"
+        " print its verdict (one fingertip per placement: a window of at most 8 placements)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--mujoco-window", type=str, default=None, metavar="START,STOP",
+        help="--object can: the poses [START, STOP) the rollout carries (default: the longest"
+        " window from pose 0 with at most 8 placements; implies --mujoco)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--video", type=Path, default=None, metavar="FILE.mp4",
+        help="--object can: write the rollout as a video (implies --mujoco)",
+    )  # fmt: skip
 
 
 def check_options(args: argparse.Namespace, defaults: argparse.Namespace) -> None:
@@ -63,6 +78,75 @@ def check_options(args: argparse.Namespace, defaults: argparse.Namespace) -> Non
     if given:
         options = ", ".join("--" + n.replace("_", "-") for n in given)
         raise ValueError(f"--object can takes the can's hand, not the cube's: drop {options}")
+    if args.video is not None:
+        check_video(args.video)
+        args.mujoco = True
+    if args.mujoco_window is not None:
+        args.mujoco = True
+
+
+def check_video(path: Path) -> None:
+    """ValueError unless ``path`` is a writable FILE.mp4 (verify's ``--video`` rules)."""
+    if path.suffix.lower() != ".mp4":
+        raise ValueError(f"--video {path}: the video is an MP4, name it FILE.mp4")
+    existed = path.exists()
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.open("ab").close()
+    except OSError as error:
+        raise ValueError(f"--video {path}: cannot write it ({error.strerror})") from None
+    if not existed:
+        path.unlink()
+
+
+def mujoco_window(solution: CanGaitSolution, text: str | None) -> tuple[int, int]:
+    """The poses [start, stop) of ``--mujoco-window`` (default: the longest window from pose 0
+    whose placements fit the model's 8 tips)."""
+    n_poses = len(solution.turn)
+    if text is None:
+        stop = 2
+        while stop < n_poses and len(can_gait_schedule(solution, stop=stop + 1).sites) <= 8:
+            stop += 1
+        return 0, stop
+    try:
+        start, stop = (int(v) for v in text.split(","))
+    except ValueError:
+        raise ValueError(
+            f"--mujoco-window {text!r}: give two pose indices START,STOP with"
+            f" 0 <= START < STOP <= {n_poses}"
+        ) from None
+    return start, stop
+
+
+def run_mujoco(solution: CanGaitSolution, args: argparse.Namespace) -> None:
+    """Carry the optimal gait's window through MuJoCo, print the verdict, write the video."""
+    start, stop = mujoco_window(solution, args.mujoco_window)
+    cpu = time.process_time()
+    with status(f"the optimal gait in one MuJoCo rollout, poses [{start}, {stop})"):
+        rollout = check_can_gait(solution, start=start, stop=stop)
+    cpu = time.process_time() - cpu
+    report, alphas = rollout.report, solution.turn.alphas_deg[start:stop]
+    events = [e for e in solution.optimal.events() if start <= e[0] < stop]
+
+    def where(x: float | None) -> str:
+        """A pose coordinate of the window (t + s between poses t and t + 1) as alpha."""
+        if x is None:
+            return "holds"
+        return f"first failure at alpha = {alphas[0] + x * solution.turn.step_deg:.1f} deg"
+
+    print(
+        f"MuJoCo, alpha {alphas[0]:g} to {alphas[-1]:g} deg ({stop - start} poses,"
+        f" {len(events)} phase changes, {len(rollout.scene.contacts)} placements,"
+        f" {report.time:.1f} s simulated, {cpu:.1f} s CPU): {where(report.first_failure)};"
+        f" analytic: {where(report.predicted_first_failure)}; margin"
+        f" {report.margin_deg:.3f} deg, largest slip {np.nanmax(report.slip):.2e} m, drift"
+        f" {report.drift.max():.2e} m, rotation {report.rotation_deg.max():.2e} deg"
+    )
+    if args.video is not None:
+        from ..studies.physics_plots import write_video
+
+        frames = write_video(args.video, rollout.scene, alphas, report)
+        print(f"wrote {args.video} ({frames} frames)")
 
 
 def _deg(x: float) -> str:
@@ -218,4 +302,6 @@ def run(args: argparse.Namespace) -> int:
         plot(solution, args.out / "gait.png")
         written.append("gait.png")
     print(f"wrote {', '.join(str(args.out / name) for name in written)}")
+    if args.mujoco:
+        run_mujoco(solution, args)
     return 0
