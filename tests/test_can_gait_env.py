@@ -75,11 +75,13 @@ def test_refused_moves_and_reproducible_seeds():
         runs.append([env.step(env.action_space.sample())[1] for _ in range(10)])
     assert runs[0] == runs[1]
     env.reset(seed=0)
-    touching = task.table.states[task.start] >= 0
-    if touching.sum() == 3:  # lifting one of three is refused: the step keeps
-        f = int(np.flatnonzero(touching)[0])
-        *_, info = env.step(1 + f)
-        assert info["refused"] and info["move"] == 0
+    assert (task.table.states[task.start] >= 0).sum() == 4  # the optimal gait's first state
+    *_, info = env.step(1)  # place finger1 beside the four loaded: allowed
+    assert not info["refused"] and info["move"] == 1 and info["ages"][0] == 0
+    assert info["loaded"].sum() == 4 and not info["loaded"][0]
+    *_, info = env.step(0)  # five touch, four at most loaded: keep is refused ...
+    assert info["refused"] and info["move"] == 1  # ... and the lowest finger is lifted
+    assert info["ages"][0] == -1 and info["loaded"].sum() == 4
 
 
 @pytest.mark.parametrize(
