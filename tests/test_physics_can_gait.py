@@ -7,7 +7,7 @@ import pytest
 
 from grasp_env.mechanics import Scene
 from grasp_env.mechanics.gait.can_programme import solve_can_gait
-from grasp_env.physics.can_gait import can_gait_schedule, check_can_gait
+from grasp_env.physics import can_gait_schedule, check_can_gait
 from grasp_env.physics.gait import check_gait
 
 #: Poses [0, 8) of the default full turn: seven placements, two lifts (poses 3 and 6) and
@@ -80,3 +80,18 @@ def test_bad_input(solution) -> None:
         check_can_gait(solution)
     with pytest.raises(ValueError, match="must be an integer"):
         check_can_gait(solution, stop=True)
+
+
+def test_gait_command_mujoco_and_video(tmp_path, capsys) -> None:
+    from grasp_env_agents.cli import main
+
+    out, video = tmp_path / "can", tmp_path / "can.mp4"
+    argv = ["gait", "--object", "can", "--reach", "30", "--alpha-end", "60", "--no-plots"]
+    assert main([*argv, "--out", str(out), "--video", str(video)]) == 0
+    printed = capsys.readouterr().out
+    assert "MuJoCo, alpha 0 to" in printed and ": holds; analytic: holds;" in printed
+    assert video.stat().st_size > 10_000
+    assert main([*argv, "--out", str(out), "--video", str(tmp_path / "can.avi")]) == 2
+    assert "name it FILE.mp4" in capsys.readouterr().err
+    assert main([*argv, "--out", str(out), "--mujoco-window", "0"]) == 2
+    assert "two pose indices START,STOP" in capsys.readouterr().err
