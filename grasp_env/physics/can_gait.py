@@ -29,7 +29,7 @@ from grasp_env.mechanics.gait.can_programme import CanGait, CanGaitSolution
 from .gait import GaitRollout, check_gait
 
 #: Largest difference, radians, between a finger's friction angle recomputed from the
-#: solution's k and the angle the solver reported: more means another centre of gravity.
+#: solution's k and the angle the solver reported: more means a gait of another solution.
 ANGLE_TOL = 1e-7
 
 
@@ -76,10 +76,11 @@ def can_gait_schedule(
     """The sites and forces of poses [start, stop) of ``gait`` (default the optimal one).
 
     Each finger's force at a pose is the certified grip of the configuration loaded there
-    (k from the solver, P = F + sum k_ij e_ij, eq. 1), turned with the can. ``cg_height`` must
-    be the one the solution was solved with: the recomputed friction angles are checked
-    against the solver's to :data:`ANGLE_TOL`. A ValueError names a bad window, a gait that
-    drops inside it, or a mismatched ``cg_height``.
+    (k from the solver, P = F + sum k_ij e_ij, eq. 1), turned with the can. The recomputed
+    friction angles are checked against the solver's to :data:`ANGLE_TOL` (a gait from another
+    solution fails it). ``cg_height`` is the centre of gravity's height on the axis; with the
+    weight along the axis it moves no grip, so it sets only the MuJoCo model's centre of
+    gravity. A ValueError names a bad window or a gait that drops inside it.
     """
     if not isinstance(solution, CanGaitSolution):
         raise ValueError(f"solution must be a CanGaitSolution, got {type(solution).__name__}")
@@ -122,8 +123,8 @@ def can_gait_schedule(
         g = grasp(points - cg, normals, np.eye(3), wrench, solution.friction_limit)
         if np.max(np.abs(g.angles(k) - angles)) > ANGLE_TOL:
             raise ValueError(
-                f"cg_height {cg_height} m does not reproduce the solver's friction angles at"
-                f" pose {start + t}: pass the cg_height the solution was solved with"
+                f"the grip at pose {start + t} does not reproduce the solver's friction angles:"
+                " pass the gait of this solution and the cg_height it was solved with"
             )
         forces[t, fingers] = g.forces(k)
     return CanSchedule(np.array(sites), contacts, forces, rotations, alphas)
