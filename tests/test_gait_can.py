@@ -295,6 +295,11 @@ def test_can_command(tmp_path, capsys):
     assert "drop --cone" in capsys.readouterr().err
     assert main(["gait", "--object", "can", "--reach", "5", "--no-plots", "--out", str(out)]) == 2
     assert "no gait keeps three fingers on the can" in capsys.readouterr().err
+    for option in (["--mujoco"], ["--reach", "30"], ["--video", str(out / "v.mp4")]):
+        assert main(["gait", *option, "--no-plots", "--out", str(out)]) == 2  # the cube's gait
+        assert f"{option[0]}: the can's options, given with --object can only" in (
+            capsys.readouterr().err
+        )
 
 
 def test_combinations_of_the_tables_are_complete():

@@ -569,6 +569,7 @@ def run(args: argparse.Namespace) -> int:
         if args.k_max is not None:
             _check_k_max(args)
         return gait_can.run(args)
+    gait_can.check_cube_options(args)
     scene, hand, trajectory = problem(args)
     check_rliable(args)
     loaded = []

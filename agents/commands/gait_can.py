@@ -36,6 +36,8 @@ from ..progress import status
 CAN_DEFAULTS = {"weight": CAN_WEIGHT, "alpha_start": 0.0, "alpha_end": 360.0, "alpha_step": 10.0}
 #: The cube's options that mean nothing for the can (its hand is a CanHand).
 CUBE_ONLY = ("offsets", "cg_offset", "axis", "cone", "finger_azimuths", "finger_elevation")
+#: The can's options (:func:`add_arguments`), refused for the cube.
+CAN_ONLY = ("reach", "max_loaded", "mujoco", "mujoco_window", "video")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -83,6 +85,16 @@ def check_options(args: argparse.Namespace, defaults: argparse.Namespace) -> Non
         args.mujoco = True
     if args.mujoco_window is not None:
         args.mujoco = True
+
+
+def check_cube_options(args: argparse.Namespace) -> None:
+    """ValueError naming the can's options that were given without ``--object can``."""
+    add_arguments(parser := argparse.ArgumentParser())
+    defaults = parser.parse_args([])
+    given = [n for n in CAN_ONLY if getattr(args, n) != getattr(defaults, n)]
+    if given:
+        options = ", ".join("--" + n.replace("_", "-") for n in given)
+        raise ValueError(f"{options}: the can's options, given with --object can only")
 
 
 def check_video(path: Path) -> None:
