@@ -8,7 +8,7 @@ counts outside its training range, against the certified optimum.
 Training: states of ``grasp_env/ObjectGraspRandom-v0`` (boxes and cylinders, 3 to 6 contacts,
 padded to 8), visited with the zero grip along whole trajectories (``terminate_on_slip``
 off), each with the expert's action (the certified optimum the environment reports);
-:func:`~grasp_env_agents.learning.contact_set.fit_contact_set` fits the head's force
+:func:`~grasp_env_agents.learning.contact_set_fit.fit_contact_set` fits the head's force
 directions, magnitudes and release gate to the expert's forces for ``--epochs``, then
 ``--reward-epochs`` more with the reward's exact gradient added (released fingers at angle
 0, as the environment counts them). Evaluation: ``--episodes`` held-out episodes (seeds
@@ -34,12 +34,11 @@ import grasp_env  # noqa: F401  (registers the environments)
 from grasp_env_agents.learning.contact_set import (
     ENV_ID,
     ContactSetPolicy,
-    expert_states,
-    fit_contact_set,
     net_forces,
     played_grip,
     set_grasp,
 )
+from grasp_env_agents.learning.contact_set_fit import expert_states, fit_contact_set
 from grasp_env_agents.learning.envs import HELD_OUT_SEED, action_scale
 from grasp_env_agents.learning.imitation import mean_action
 

@@ -12,7 +12,6 @@ from grasp_env.mechanics import contact_pairs
 from grasp_env_agents.learning.contact_set import (
     ContactSetPolicy,
     expert_forces,
-    fit_contact_set,
     grip_with_release,
     max_contacts_of,
     object_frame_set,
@@ -22,6 +21,7 @@ from grasp_env_agents.learning.contact_set import (
     set_grasp,
     transfer,
 )
+from grasp_env_agents.learning.contact_set_fit import fit_contact_set
 
 N = 6
 
