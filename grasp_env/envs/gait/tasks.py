@@ -22,13 +22,8 @@ from ...mechanics import (
 )
 from ...mechanics.checks import is_integer
 from ...mechanics.gait import GaitStates, gait_states
-from ..validation import (
-    MU_RANGE,
-    TRAJECTORY_KEYS,
-    check_k_max_ratio,
-    check_number,
-    check_trajectory,
-)
+from ..spec import CONE, MU
+from ..validation import TRAJECTORY_KEYS, check_k_max_ratio, check_trajectory
 
 #: The paper's axis over [-90, 90] deg in 1 deg steps, as the ``trajectory`` keyword's mapping.
 PAPER_TURN_SPEC = {key: getattr(PAPER_TURN, key) for key in TRAJECTORY_KEYS}
@@ -275,8 +270,8 @@ def _task(
         )
     spec = {**PAPER_TURN_SPEC, **(trajectory or {})}
     trajectory = check_trajectory(spec)
-    mu = check_number("mu", mu, *MU_RANGE)
-    cone_deg = check_number("cone_deg", cone_deg, 0.0, 180.0, open_low=True, open_high=True)
+    mu = MU.check(mu)
+    cone_deg = CONE.check(cone_deg)
     k_max_ratio = check_k_max_ratio(k_max_ratio)
     if start is not None:
         sites = isinstance(start, Sequence | np.ndarray) and not isinstance(start, str | bytes)
