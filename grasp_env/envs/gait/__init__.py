@@ -12,24 +12,42 @@ very same numbers.
 
 Modules by concern: ``tasks`` (one configuration's tables, :func:`gait_task`), ``kernels``
 (the compiled step and the certified grip of a move), ``experts`` (:class:`GaitExpert`,
-:class:`GreedyGait`), ``env`` (:class:`CubeGaitEnv`), ``vector`` (:class:`CubeGaitVectorEnv`)
-and ``render`` (``GaitView``: the frames of ``render_mode="rgb_array"``).
+:class:`GreedyGait`), ``env`` (:class:`CubeGaitEnv`), ``vector`` (:class:`CubeGaitVectorEnv`),
+``render`` (``GaitView``: the frames of ``render_mode="rgb_array"``) and ``shaping``
+(:class:`GaitShaping`: potential-based shaping from the certified programme;
+:class:`GaitMoveMasks`: the legal moves as an action mask).
 """
 
 from .env import CubeGaitEnv
 from .experts import GaitExpert, GreedyGait
 from .kernels import check_moves, optimal_actions
+from .shaping import (
+    POTENTIALS,
+    GaitMoveMasks,
+    GaitShaping,
+    legal_moves,
+    poses_held,
+    potential_table,
+    shaped_gait_env,
+)
 from .tasks import PAPER_TURN_SPEC, GaitTask, gait_task
 from .vector import CubeGaitVectorEnv
 
 __all__ = [
     "PAPER_TURN_SPEC",
+    "POTENTIALS",
     "CubeGaitEnv",
     "CubeGaitVectorEnv",
     "GaitExpert",
+    "GaitMoveMasks",
+    "GaitShaping",
     "GaitTask",
     "GreedyGait",
     "check_moves",
     "gait_task",
+    "legal_moves",
     "optimal_actions",
+    "poses_held",
+    "potential_table",
+    "shaped_gait_env",
 ]

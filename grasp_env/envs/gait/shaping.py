@@ -1,0 +1,236 @@
+"""Potential-based shaping of the gait's reward from the certified programme
+(:class:`GaitShaping`), and the legal moves as an action mask (:class:`GaitMoveMasks`).
+
+**Shaping** (Ng, Harada and Russell 1999). A shaping reward F(s, s') = gamma Phi(s') - Phi(s)
+added to every step leaves the optimal policies of the discounted task unchanged, for any
+potential Phi of the state (Phi = 0 at episode ends): an episode's shaped return is its
+return plus gamma^n Phi(s_n) - Phi(s_0), so no choice changes its rank. Here the state is the
+pose t and the hand's state x (which finger touches which site), and Phi comes from the
+programme of docs/gait.md, "The algorithm", on the task's own tables (margins of every site
+set at every pose, reach, moves):
+
+- ``"held"``: Phi(t, x) = scale x H_t(x), H_t(x) the most poses a gait from state x at pose t
+  still holds (no lost contact, no slip: every pose's margin theta_lim - max_i theta_i >= 0,
+  eq. 2, 4) before the trajectory ends; a backward pass of the programme's form, H_T = 0 and
+  H_t(x) = max over the moves k allowed at (t, x) with margin_t(k) >= 0 of
+  1 + H_{t+1}(next(k)), 0 if there is none.
+- ``"holds"``: Phi(t, x) = scale if a gait from x at t holds to the end (H_t(x) = T - t: the
+  programme's pass 1 value V_t(x) >= 0), else 0.
+
+The gait's missing choice (docs/gait.md, "Learning when to phase") pays off 18 poses after it
+is made: with ``"held"`` the step that makes it earns the difference in H at once.
+
+Phi is a table (T + 1, X), computed once per task (a compiled backward pass, about 0.1 s for
+181 poses and 3,000 states) and cached; a step adds one look-up. The env's own reward stays in
+``info["unshaped_reward"]`` and the episode statistics of a ``Monitor`` inside the wrapper
+(rl-zoo3 and ``make_vec_env`` put it there) are unshaped; ``grasp-env gait --models`` plays
+agents on the unshaped environment.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from typing import Any
+
+import gymnasium as gym
+import numba
+import numpy as np
+
+from ...mechanics.checks import real_number
+from ...mechanics.gait.programme import _pose_values, _state_ok
+from .env import CubeGaitEnv
+from .tasks import GaitTask
+
+#: The potentials :class:`GaitShaping` takes (see the module docstring).
+POTENTIALS = ("held", "holds")
+
+
+@numba.njit(cache=True)
+def _poses_held(states, ptr, move, nxt, loaded, margin, reach):
+    """(T + 1, X) int64: H_t(x), the most poses a gait from state x at pose t holds (each with
+    an allowed move whose margin is >= 0, no contact lost), H_T = 0."""
+    T = margin.shape[0]
+    X = states.shape[0]
+    ok = _state_ok(states, reach)
+    vals = np.empty(move.shape[0])
+    held = np.zeros((T + 1, X), np.int64)
+    for t in range(T - 1, -1, -1):
+        _pose_values(t, states, ptr, move, loaded, margin, reach, ok, vals)  # -inf: not allowed
+        for x in range(X):
+            best = 0
+            for k in range(ptr[x], ptr[x + 1]):
+                if vals[k] >= 0.0:
+                    best = max(best, 1 + held[t + 1, nxt[k]])
+            held[t, x] = best
+    return held
+
+
+def poses_held(task: GaitTask) -> np.ndarray:
+    """H (T + 1, X) int64 of ``task`` (read-only, cached per task): H[t, x] is the most poses
+    that a gait from state x at pose t holds before the trajectory ends (a pose is held when
+    no touching finger has lost its site and the loaded set's certified margin is >= 0; the
+    moves allowed as in the programme, docs/gait.md); H[T] = 0. The optimal gait's start has
+    H[0, start] = T."""
+    if not isinstance(task, GaitTask):
+        raise ValueError(f"task must be a GaitTask (gait_task), got {type(task).__name__}")
+    return _held_table(task)
+
+
+@lru_cache(maxsize=8)
+def _held_table(task: GaitTask) -> np.ndarray:
+    table = task.table
+    solution = task.solution
+    held = _poses_held(
+        table.states, table.ptr, table.move, table.next, table.loaded,
+        np.ascontiguousarray(solution.values.margin), np.ascontiguousarray(solution.reach),
+    )  # fmt: skip
+    held.flags.writeable = False
+    return held
+
+
+def potential_table(task: GaitTask, potential: str = "held", scale: float = 1.0) -> np.ndarray:
+    """Phi (T + 1, X) float64 of ``task`` for ``potential`` (one of :data:`POTENTIALS`) times
+    ``scale``; Phi[T] = 0 (the trajectory's end is an episode end: Ng et al.'s potential of an
+    absorbing state)."""
+    if potential not in POTENTIALS:
+        raise ValueError(f"potential must be one of {POTENTIALS}, got {potential!r}")
+    scale = real_number("scale", scale, 0.0, open_low=True)
+    held = poses_held(task)
+    if potential == "held":
+        phi = held.astype(float)
+    else:
+        left = task.n_poses - np.arange(task.n_poses + 1)
+        phi = (held == left[:, None]).astype(float)
+    phi[task.n_poses] = 0.0
+    return phi * scale
+
+
+class _GaitState(gym.Wrapper):
+    """Reads the gait environment's pose t and hand state x, whatever wrappers lie between
+    (a ``Monitor``, gymnasium's checkers): one attribute read a step, no decoding."""
+
+    def __init__(self, env: gym.Env) -> None:
+        if not isinstance(env, gym.Env) or not isinstance(env.unwrapped, CubeGaitEnv):
+            raise ValueError(
+                "env must be a gait environment (grasp_env/CubeGait-v0 or"
+                f" grasp_env/CubeGaitMoves-v0, possibly wrapped), got {env!r}"
+            )
+        super().__init__(env)
+        self._base: CubeGaitEnv = env.unwrapped
+        self.task: GaitTask = self._base.task
+
+    @property
+    def pose_state(self) -> tuple[int, int]:
+        """(t, x): the pose the next step is at (T after the end) and the hand's state index."""
+        return self._base._t, self._base._x
+
+
+class GaitShaping(_GaitState):
+    """The gait's reward plus a potential-based shaping term from the certified programme:
+    r + gamma Phi(t + 1, x') - Phi(t, x) (Ng, Harada and Russell 1999; module docstring).
+
+    Args:
+        env: a gait environment (``grasp_env/CubeGait-v0`` or ``CubeGaitMoves-v0``), possibly
+            wrapped.
+        potential: ``"held"`` (scale x the poses a gait from here still holds) or ``"holds"``
+            (scale if a gait from here holds to the end, else 0).
+        scale: radians per unit of potential, a number > 0; default: the optimal gait's
+            smallest margin B (6.97 deg on the default task) for ``"held"`` (one pose held is
+            worth a pose at the bottleneck), B / (1 - gamma) for ``"holds"`` (the discounted
+            return of holding at B forever).
+        gamma: the agent's discount factor, in (0, 1] (the shaping keeps the optimal policies
+            only for the gamma the agent discounts with: rl-zoo3's entry uses 0.99).
+
+    ``info`` gains ``unshaped_reward`` (the environment's reward), ``shaping`` (the term
+    added) and ``potential`` (Phi of the state reached; 0 at an episode's end). The shaped
+    return of an episode of n steps is its return plus gamma^n Phi(s_n) - Phi(s_0), Phi(s_n)
+    = 0 if it ended.
+    """
+
+    def __init__(
+        self,
+        env: gym.Env,
+        potential: str = "held",
+        scale: float | None = None,
+        gamma: float = 0.99,
+    ) -> None:
+        super().__init__(env)
+        if potential not in POTENTIALS:
+            raise ValueError(f"potential must be one of {POTENTIALS}, got {potential!r}")
+        self.gamma = real_number("gamma", gamma, 0.0, 1.0, open_low=True)
+        bottleneck = float(self.task.solution.optimal.margin)
+        if scale is None:
+            scale = bottleneck if potential == "held" else bottleneck / max(1.0 - gamma, 1e-3)
+        self.potential = potential
+        self.scale = real_number("scale", scale, 0.0, open_low=True)
+        self.phi = potential_table(self.task, potential, self.scale)
+
+    def step(self, action: Any) -> tuple[Any, float, bool, bool, dict[str, Any]]:
+        t, x = self._base._t, self._base._x
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        # Phi = 0 at an episode's end: a drop or slip (terminated), or the trajectory's end
+        after = 0.0 if terminated else float(self.phi[self._base._t, self._base._x])
+        shaping = self.gamma * after - float(self.phi[t, x])
+        info["unshaped_reward"] = float(reward)
+        info["shaping"] = shaping
+        info["potential"] = after
+        return obs, float(reward) + shaping, terminated, truncated, info
+
+
+class GaitMoveMasks(_GaitState):
+    """The gait environment with :meth:`action_masks`: the moves the rules allow now, for
+    sb3-contrib's ``MaskablePPO`` (only with ``optimal_grip=True``: ``CubeGaitMoves-v0``).
+    Rewards and steps are the environment's."""
+
+    def __init__(self, env: gym.Env) -> None:
+        super().__init__(env)
+        if not self.env.unwrapped.optimal_grip:
+            raise ValueError(
+                "GaitMoveMasks masks Discrete moves: env must act with moves alone"
+                " (grasp_env/CubeGaitMoves-v0, optimal_grip=True)"
+            )
+
+    def action_masks(self) -> np.ndarray:
+        """(M,) bool: True for the moves the rules allow from the current state at the current
+        pose (keep always; a lift that leaves three touching, a placement within reach on a
+        free site); all True once the episode has ended."""
+        t, x = self.pose_state
+        if self._base._done:
+            return np.ones(self.task.n_moves, bool)
+        return legal_moves(self.task, t, x)
+
+
+def legal_moves(task: GaitTask, t: int, x: int) -> np.ndarray:
+    """(M,) bool, the moves the rules allow from state ``x`` at pose ``t``: those the
+    environment does not refuse (keep, always; lifts that leave three touching; placements on
+    a free site within reach)."""
+    allowed = task.csr[x] >= 0
+    states, N = task.table.states, task.n_sites
+    moves = np.flatnonzero(allowed[1:]) + 1
+    f, s = np.divmod(moves - 1, N)
+    placed = states[x, f] < 0
+    allowed[moves[placed]] = task.solution.reach[t, f[placed], s[placed]]
+    return allowed
+
+
+def shaped_gait_env(
+    potential: str = "held",
+    scale: float | None = None,
+    gamma: float = 0.99,
+    **kwargs: Any,
+) -> GaitShaping:
+    """``CubeGaitEnv(**kwargs)`` (``optimal_grip`` True unless given) wrapped in
+    :class:`GaitShaping` with ``potential``, ``scale`` and ``gamma``."""
+    kwargs.setdefault("optimal_grip", True)
+    return GaitShaping(CubeGaitEnv(**kwargs), potential, scale, gamma)
+
+
+__all__ = [
+    "POTENTIALS",
+    "GaitMoveMasks",
+    "GaitShaping",
+    "legal_moves",
+    "poses_held",
+    "potential_table",
+    "shaped_gait_env",
+]
