@@ -57,6 +57,9 @@ _ENVS = {
         "gait.vector:CubeGaitVectorEnv",
         {"optimal_grip": True},
     ),
+    # CubeGaitMoves-v0 with potential-based shaping from the certified programme
+    # (envs/gait/shaping.py; rl-zoo3 keys its hyperparameters by id); no batched class
+    "CubeGaitMovesShaped-v0": ("gait.shaping:shaped_gait_env", None, {}),
     # the coke can turned a full turn about its axis (docs/gait.md, "The can"): moves and
     # grip, and moves with the certified grip; no batched class (gym.make_vec: sync)
     "CanGait-v0": ("can_gait.env:CanGaitEnv", None, {}),
