@@ -125,7 +125,7 @@ class _GaitState(gym.Wrapper):
         return self._base._t, self._base._x
 
 
-class GaitShaping(_GaitState):
+class GaitShaping(_GaitState, gym.utils.RecordConstructorArgs):
     """The gait's reward plus a potential-based shaping term from the certified programme:
     r + gamma Phi(t + 1, x') - Phi(t, x) (Ng, Harada and Russell 1999; module docstring).
 
@@ -137,7 +137,7 @@ class GaitShaping(_GaitState):
         scale: radians per unit of potential, a number > 0; default: the optimal gait's
             smallest margin B (6.97 deg on the default task) for ``"held"`` (one pose held is
             worth a pose at the bottleneck), B / (1 - gamma) for ``"holds"`` (the discounted
-            return of holding at B forever).
+            return of holding at B forever; 1e3 B at gamma = 1).
         gamma: the agent's discount factor, in (0, 1] (the shaping keeps the optimal policies
             only for the gamma the agent discounts with: rl-zoo3's entry uses 0.99).
 
@@ -154,13 +154,16 @@ class GaitShaping(_GaitState):
         scale: float | None = None,
         gamma: float = 0.99,
     ) -> None:
+        gym.utils.RecordConstructorArgs.__init__(
+            self, potential=potential, scale=scale, gamma=gamma
+        )
         super().__init__(env)
         if potential not in POTENTIALS:
             raise ValueError(f"potential must be one of {POTENTIALS}, got {potential!r}")
         self.gamma = real_number("gamma", gamma, 0.0, 1.0, open_low=True)
         bottleneck = float(self.task.solution.optimal.margin)
         if scale is None:
-            scale = bottleneck if potential == "held" else bottleneck / max(1.0 - gamma, 1e-3)
+            scale = bottleneck if potential == "held" else bottleneck / max(1.0 - self.gamma, 1e-3)
         self.potential = potential
         self.scale = real_number("scale", scale, 0.0, open_low=True)
         self.phi = potential_table(self.task, potential, self.scale)
@@ -177,12 +180,13 @@ class GaitShaping(_GaitState):
         return obs, float(reward) + shaping, terminated, truncated, info
 
 
-class GaitMoveMasks(_GaitState):
+class GaitMoveMasks(_GaitState, gym.utils.RecordConstructorArgs):
     """The gait environment with :meth:`action_masks`: the moves the rules allow now, for
     sb3-contrib's ``MaskablePPO`` (only with ``optimal_grip=True``: ``CubeGaitMoves-v0``).
     Rewards and steps are the environment's."""
 
     def __init__(self, env: gym.Env) -> None:
+        gym.utils.RecordConstructorArgs.__init__(self)
         super().__init__(env)
         if not self.env.unwrapped.optimal_grip:
             raise ValueError(
