@@ -50,6 +50,19 @@ tremor of the contact solver, and slides too slowly to show whether it slips.) S
 fingertips that touch are exactly those in contact and loaded: a finger leaving contact is
 lifted once its force has ramped below ``released_force`` x w, and one joining is placed once
 its force has ramped above it.
+
+**Tips whose point changes** (a gait's fingers placed again and again on new points, one tip
+per finger: ``points`` (T, n, 3), each tip's object-frame contact point at each pose, finite
+where it is in contact). A tip keeps its point while it touches; out of contact it keeps the
+point it last had (the scene's contact before its first), so a lifted tip is parked off the
+point it left, and once placed it sits just inside the face at its new point. Within a segment
+each tip has one point (its point at the segment's start if it touches there, else at its
+end), so the grasp matrix of the load-sharing fingers is constant along each segment and the
+grip between poses is as above; a tip may change its point between two poses where it touches
+only if it carries no load at either (lifted at the first, placed at the second). The
+motion's steps then carry their points and normals (:attr:`Motion.points`,
+:attr:`Motion.normals`), which the simulation and both verdicts use; without ``points`` every
+step has the scene's contacts, as before.
 """
 
 from __future__ import annotations
@@ -91,6 +104,10 @@ class Motion:
         pose: (N,) the pose coordinate of the step: t + s between poses t and t + 1.
         rotations: (N, 3, 3) the world orientation of the object the step stands for.
         settle_steps: the first ``settle_steps`` steps are the settle at pose 0.
+        points: (N, n, 3) each tip's contact point at each step, object frame, model units
+            (relative to the box centre), for tips whose point changes (see the module
+            docstring); None: the scene's contacts at every step.
+        normals: (N, n, 3) the inward unit normals at ``points``; None with it.
     """
 
     forces: np.ndarray
@@ -99,6 +116,8 @@ class Motion:
     pose: np.ndarray
     rotations: np.ndarray
     settle_steps: int
+    points: np.ndarray | None = None
+    normals: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.pose)
@@ -117,7 +136,8 @@ class Motion:
     def friction_angles(self, scene: Scene) -> np.ndarray:
         """(N, n) the analytic friction angle of each finger's force at each step, radians; 0 for
         a finger that does not touch (out of contact or released)."""
-        angles = friction_angles(self.forces, scene.normals)
+        normals = scene.normals if self.normals is None else self.normals
+        angles = friction_angles(self.forces, normals)
         return np.where(self.contact, angles, 0.0)
 
     def imbalance(self, scene: Scene) -> np.ndarray:
@@ -125,8 +145,14 @@ class Motion:
         the net wrench, in w and w L. A grip balances it exactly (paper eq. 4), but for the
         released fingers' forces that the motion leaves out (each at most ``released_force``
         x w); forces given otherwise do not."""
-        positions = model_contacts(scene) - model_cg(scene)
-        wrench = self.forces.reshape(len(self.forces), -1) @ grasp_matrix(positions).T
+        if self.points is None:
+            positions = model_contacts(scene) - model_cg(scene)
+            wrench = self.forces.reshape(len(self.forces), -1) @ grasp_matrix(positions).T
+        else:  # each step's own contact points
+            arms = self.points - model_cg(scene)
+            wrench = np.concatenate(
+                [self.forces.sum(axis=1), np.cross(arms, self.forces).sum(axis=1)], axis=-1
+            )
         return np.abs(wrench + self.load).max(axis=-1)
 
 
@@ -166,8 +192,8 @@ def timed_segments(
     cone anyway, and must not stall the run). Each segment's path is sampled :data:`FINE`
     times per base step, its forces (units of w) there given by ``terms`` (S, 5, n x 3) as
     (cos phi, 1 - cos phi, sin phi, 1 - s, s) @ terms[t] with phi = s x ``angles``[t];
-    ``normals`` (n, 3) are the inward normals, ``touching`` (S, n) each segment's fingers in
-    contact. Each sample interval takes the time the bound needs (at least its base time),
+    ``normals`` (S, n, 3) are each segment's inward normals, ``touching`` (S, n) its fingers
+    in contact. Each sample interval takes the time the bound needs (at least its base time),
     and the steps are spaced evenly in that clock (s interpolated between the samples).
 
     Only the timing changes: the steps are points of the same path, so the forces both
@@ -175,7 +201,7 @@ def timed_segments(
     its normal force, and a light tip moved fast lags, so its contact's normal force falls
     below the commanded one (docs/physics.md). Compiled, and without the GIL: it is most of
     a rollout's planning, which threads then plan in parallel."""
-    segments, n = len(base_steps), normals.shape[0]
+    segments, n = len(base_steps), normals.shape[1]
     counts = np.empty(segments, dtype=np.int64)
     parts = []
     total = 0
@@ -193,7 +219,7 @@ def timed_segments(
                     force = 0.0
                     for k in range(5):
                         force += q[k] * terms[t, k, 3 * i + c]
-                    along += force * normals[i, c]
+                    along += force * normals[t, i, c]
                     squared += force * force
                 normal[j, i], magnitude[j, i] = along, np.sqrt(squared)
         clock = np.zeros(samples)
@@ -276,6 +302,59 @@ def _check_contact(
     return contact
 
 
+def tip_points(
+    scene: Scene, points: ArrayLike, contact: np.ndarray, carrying: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Each tip's contact point and inward normal at each of T poses, (T, n, 3) each, object
+    frame, model units, from ``points`` (T, n, 3, metres, relative to the box centre; finite
+    where ``contact`` (T, n), ignored elsewhere): a tip out of contact keeps the point it last
+    had (the scene's contact before its first). ``carrying`` (T, n) says which tips carry
+    load. A ValueError names the tip and the pose of a point that is not finite where the tip
+    touches, not on the object's surface, or changed between two poses where the tip touches
+    and carries load at either (it must be lifted and placed again with zero force)."""
+    n_poses, n = contact.shape
+    shape = (n_poses, n, 3)
+    raw = np.asarray(points) if is_numeric(points) else None
+    if raw is None or raw.shape != shape:
+        raise ValueError(
+            f"points must be real numbers of shape {shape}: each tip's object-frame contact"
+            " point at each pose (NaN where it is out of contact)"
+        )
+    raw = raw.astype(float)
+    bad = contact & ~np.all(np.isfinite(raw), axis=-1)
+    if bad.any():
+        t, i = np.argwhere(bad)[0]
+        raise ValueError(f"tip {i} touches at pose {t} but its point is not finite: {raw[t, i]}")
+    filled = np.empty(shape)
+    last = np.asarray(scene.contacts, dtype=float)
+    for t in range(n_poses):
+        last = np.where(contact[t, :, None], raw[t], last)
+        filled[t] = last
+    unique, inverse = np.unique(filled.reshape(-1, 3), axis=0, return_inverse=True)
+    try:
+        normals = scene.shape.inward_normals(unique)[inverse.ravel()].reshape(shape)
+    except ValueError as error:
+        raise ValueError(f"points: a tip's point is off the {scene.shape.kind}: {error}") from None
+    moved = np.any(filled[1:] != filled[:-1], axis=-1) & contact[1:] & contact[:-1]
+    loaded_move = moved & (carrying[1:] | carrying[:-1])
+    if loaded_move.any():
+        t, i = np.argwhere(loaded_move)[0]
+        raise ValueError(
+            f"tip {i} changes its point between poses {t} and {t + 1} while it carries load:"
+            f" lift it with zero force at pose {t} and place it with zero force at {t + 1}"
+        )
+    return filled / length_unit(scene), normals
+
+
+def is_numeric(value: ArrayLike) -> bool:
+    """Whether ``value`` is an array of integers or reals (no strings, booleans or objects)."""
+    try:
+        array = np.asarray(value)
+    except (TypeError, ValueError):
+        return False
+    return array.dtype.kind in "iuf"
+
+
 def plan_poses(
     scene: Scene,
     rotations: ArrayLike,
@@ -326,11 +405,14 @@ def plan_motion(
     forces: ArrayLike,
     in_contact: ArrayLike | None,
     settings: dict[str, float],
+    points: ArrayLike | None = None,
 ) -> Motion:
     """The run that carries ``forces`` (T, n, 3, world frame, newtons) along ``rotations``
     (T, 3, 3) with fingers ``in_contact`` (T, n; None: every finger), under ``settings``
     (``timestep``, ``settle_time``, ``hold_time``, ``pose_hold_time``, ``time_per_degree``,
-    ``min_segment_time``, ``released_force``)."""
+    ``min_segment_time``, ``released_force``). ``points`` (T, n, 3): each tip's object-frame
+    contact point at each pose, metres (:func:`tip_points`; see the module docstring, "Tips
+    whose point changes"); None: the scene's contacts throughout."""
     rotations = check_rotations(rotations, name="rotations")
     n_poses, n = len(rotations), scene.n_contacts
     forces = check_forces(forces, n, (n_poses,))
@@ -343,15 +425,14 @@ def plan_motion(
     pose_forces[~contact] = 0.0
     pose_load = _load(scene, rotations)
     carrying = ~released(pose_forces, 1.0, settings["released_force"])
-    positions = model_contacts(scene) - model_cg(scene)
-    pinvs: dict[tuple[bool, ...], np.ndarray] = {}
+    if points is None:
+        pose_points = pose_normals = None
+    else:
+        pose_points, pose_normals = tip_points(scene, points, contact, carrying)
 
-    def equilibrating(active: np.ndarray, load: np.ndarray) -> np.ndarray:
+    def equilibrating(pinv: np.ndarray, load: np.ndarray) -> np.ndarray:
         """G_A^+ (-load) over the active fingers, (S, |A|, 3): exact least squares for any A."""
-        key = tuple(bool(a) for a in active)
-        if key not in pinvs:
-            pinvs[key] = np.linalg.pinv(grasp_matrix(positions[active]))
-        return (-load @ pinvs[key].T).reshape(len(load), -1, 3)
+        return (-load @ pinv.T).reshape(len(load), -1, 3)
 
     dwell = max(1, round(settings["pose_hold_time"] / dt))
     total = settle + hold + (n_poses - 1) * dwell
@@ -378,16 +459,29 @@ def plan_motion(
             " or raise timestep"
         )
     base_steps = base_steps.astype(np.int64)
-    # Each segment's fingers sharing the load.
+    # Each segment's fingers sharing the load, and its contact points: a tip's at the
+    # segment's start if it touches there, else at its end.
     active = carrying[:-1] | carrying[1:]  # (T - 1, n)
-    # For each set A of load-sharing fingers: its segments, and the pose forces' parts in the
-    # null space of G_A (T, |A|, 3), interpolated along them.
-    shared = [
-        (key, np.flatnonzero((active == key).all(axis=1)),
-         pose_forces[:, key] - equilibrating(key, pose_load))
-        for key in np.unique(active, axis=0)
-        if key.any()
-    ]  # fmt: skip
+    if pose_points is None:
+        segment_points = np.broadcast_to(model_contacts(scene), (n_poses - 1, n, 3))
+        segment_normals = np.broadcast_to(scene.normals, (n_poses - 1, n, 3))
+    else:
+        starts = contact[:-1, :, None]
+        segment_points = np.where(starts, pose_points[:-1], pose_points[1:])
+        segment_normals = np.where(starts, pose_normals[:-1], pose_normals[1:])
+    # For each set A of load-sharing fingers at the same points: its segments, G_A^+, and the
+    # pose forces' parts in the null space of G_A (T, |A|, 3), interpolated along them.
+    groups: dict[tuple[bytes, bytes], list[int]] = {}
+    for t in np.flatnonzero(active.any(axis=1)):
+        key = active[t]
+        groups.setdefault((key.tobytes(), segment_points[t, key].tobytes()), []).append(t)
+    shared = []
+    cg = model_cg(scene)
+    for segments in groups.values():
+        key = active[segments[0]]
+        pinv = np.linalg.pinv(grasp_matrix(segment_points[segments[0], key] - cg))
+        null = pose_forces[:, key] - equilibrating(pinv, pose_load)
+        shared.append((key, np.array(segments), null, pinv))
 
     def path(seg: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(orientations, load, forces) at the steps of segments ``seg`` at path coordinates
@@ -404,11 +498,11 @@ def plan_motion(
         load = _load(scene, turned)
         a = s[:, None, None]
         step_forces = (1 - a) * pose_forces[seg] + a * pose_forces[seg + 1]
-        for key, segments, null in shared:
+        for key, segments, null, pinv in shared:
             rows = np.flatnonzero(np.isin(seg, segments))
             a_rows, seg_rows = a[rows], seg[rows]
             step_forces[np.ix_(rows, np.flatnonzero(key))] = (
-                equilibrating(key, load[rows])
+                equilibrating(pinv, load[rows])
                 + (1 - a_rows) * null[seg_rows]
                 + a_rows * null[seg_rows + 1]
             )
@@ -423,10 +517,10 @@ def plan_motion(
     across = -np.cross(axes[:, None], start_load)
     terms = np.zeros((n_poses - 1, 5, n, 3))
     terms[:, 3], terms[:, 4] = pose_forces[:-1], pose_forces[1:]
-    for key, segments, null in shared:
+    for key, segments, null, pinv in shared:
         rows, cols = segments[:, None], np.flatnonzero(key)[None]
         for j, part in enumerate((start_load, along, across)):
-            terms[rows, j, cols] = equilibrating(key, part[segments].reshape(-1, 6))
+            terms[rows, j, cols] = equilibrating(pinv, part[segments].reshape(-1, 6))
         terms[rows, 3, cols], terms[rows, 4, cols] = null[segments], null[segments + 1]
     # The timing: each segment's steps spaced so that no touching finger's normal force
     # changes faster than force_rate x max(N, force_floor).
@@ -434,7 +528,7 @@ def plan_motion(
         terms.reshape(n_poses - 1, 5, 3 * n),
         angles,
         base_steps,
-        np.ascontiguousarray(scene.normals, dtype=float),
+        np.ascontiguousarray(segment_normals, dtype=float),
         contact[:-1] | contact[1:],
         dt,
         settings["released_force"],
@@ -470,4 +564,7 @@ def plan_motion(
         "rotations": np.concatenate([rotations, turned])[row],
     }
     steps["contact"] &= ~released(steps["forces"], 1.0, settings["released_force"])
+    if pose_points is not None:
+        steps["points"] = np.concatenate([pose_points, segment_points[seg]])[row]
+        steps["normals"] = np.concatenate([pose_normals, segment_normals[seg]])[row]
     return Motion(**steps, settle_steps=settle)

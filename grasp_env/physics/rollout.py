@@ -185,37 +185,49 @@ class TrajectoryChecker(Checker):
     """
 
     def plan(
-        self, rotations: ArrayLike, contact_forces: ArrayLike, in_contact: ArrayLike | None = None
+        self,
+        rotations: ArrayLike,
+        contact_forces: ArrayLike,
+        in_contact: ArrayLike | None = None,
+        points: ArrayLike | None = None,
     ) -> Motion:
         """The steps a run of this grip takes (see :func:`grasp_env.physics.motion.plan_motion`)."""
-        return plan_motion(self.scene, rotations, contact_forces, in_contact, self.settings)
+        return plan_motion(self.scene, rotations, contact_forces, in_contact, self.settings, points)
 
     def check(
-        self, rotations: ArrayLike, contact_forces: ArrayLike, in_contact: ArrayLike | None = None
+        self,
+        rotations: ArrayLike,
+        contact_forces: ArrayLike,
+        in_contact: ArrayLike | None = None,
+        points: ArrayLike | None = None,
     ) -> RolloutReport:
         """Carry ``contact_forces`` (T, n, 3; world frame, newtons, the fingers' forces on the
         object at each pose) along ``rotations`` (T, 3, 3) in one simulation. ``in_contact``
         (T, n) bool says which fingers touch at each pose (default: those commanded a force);
-        see :mod:`grasp_env.physics.motion` for how fingers leave and join."""
-        return self.check_batch([(rotations, contact_forces, in_contact)], threads=1)[0]
+        ``points`` (T, n, 3) each tip's object-frame contact point at each pose, metres, for
+        tips placed again elsewhere (default: the scene's contacts throughout); see
+        :mod:`grasp_env.physics.motion` for how fingers leave and join."""
+        return self.check_batch([(rotations, contact_forces, in_contact, points)], threads=1)[0]
 
     def check_batch(
         self,
-        grips: Sequence[tuple[ArrayLike, ArrayLike, ArrayLike | None]],
+        grips: Sequence[tuple[ArrayLike, ...]],
         threads: int | None = None,
     ) -> list[RolloutReport]:
-        """:meth:`check` of several (rotations, contact_forces, in_contact) grips, in parallel
-        on ``threads`` threads (an integer >= 1; default: the checker's). No grip, no report."""
+        """:meth:`check` of several (rotations, contact_forces, in_contact[, points]) grips,
+        in parallel on ``threads`` threads (an integer >= 1; default: the checker's). No grip,
+        no report."""
         if isinstance(grips, str | bytes) or not isinstance(grips, Sequence):
             raise ValueError(
                 "grips must be a list of (rotations, contact_forces, in_contact) tuples, got"
                 f" {type(grips).__name__}"
             )
         for g, grip in enumerate(grips):
-            if not isinstance(grip, tuple | list) or len(grip) != 3:
+            if not isinstance(grip, tuple | list) or len(grip) not in (3, 4):
                 raise ValueError(
                     f"grip {g} must be a (rotations, contact_forces, in_contact) tuple"
-                    f" (in_contact may be None), got {described(grip)}"
+                    f" (in_contact may be None; a fourth item, points, optional), got"
+                    f" {described(grip)}"
                 )
         if threads is not None:
             check_threads(threads)

@@ -15,6 +15,12 @@ fingers that do not touch (released, see :mod:`~grasp_env.physics.motion`) act o
 directly, at their contact points. Shorter runs are padded by holding their last step, and
 measured over their own steps only.
 
+A motion whose tips change their contact points (:attr:`~grasp_env.physics.motion.Motion.points`,
+a gait with one tip per finger) runs on :meth:`PhysicsModel.following` it: the same MuJoCo
+model (its tips are free bodies, placed by their joint positions), with the per-scene arrays the
+controls and measurements read (contact points, normals, lever arms, where a tip is placed and
+parked) given per step; such a run steps in a batch of its own.
+
 The Python around the rollout is kept to whole-batch array work, since it does not run in
 parallel: the controls of a batch are built in one pass, initial states are cached per finger
 set, ``mujoco.rollout`` gets its inputs laid out as it wants them (its checks skipped), and the
@@ -23,6 +29,7 @@ measurements of the runs of one length are taken in one vectorised pass.
 
 from __future__ import annotations
 
+import copy
 import itertools
 import threading
 from collections.abc import Callable, Sequence
@@ -44,6 +51,7 @@ from .model import (
     is_curved,
     model_cg,
     model_contacts,
+    tip_centres,
     tip_positions,
     tip_radius,
 )
@@ -178,12 +186,37 @@ class PhysicsModel:
             state = self._initial[key] = self._build_initial_state(np.asarray(contact, bool))
         return state
 
+    def following(self, motion: Motion) -> PhysicsModel:
+        """This model for ``motion``: itself if the motion's tips keep the scene's contacts,
+        else a copy whose contact points, normals, lever arms and tip places are the motion's
+        per step, (N, n, 3) each (its runs step alone: a signature of their own)."""
+        if motion.points is None:
+            return self
+        moving = copy.copy(self)
+        moving.contacts, moving.normals = motion.points, motion.normals
+        moving.arms = motion.points - self.cg
+        moving.placed = tip_centres(motion.points, motion.normals, self.radius, True)
+        moving.parked = tip_centres(motion.points, motion.normals, self.radius, False)
+        moving.signature = (*self.signature, id(moving))
+        moving._initial = {}
+        return moving
+
+    def at_step(self, step: int) -> PhysicsModel:
+        """This model with the tips' places (``placed``, ``parked``, (n, 3)) of ``step``: itself
+        unless it follows a motion (:meth:`following`)."""
+        if self.placed.ndim == 2:
+            return self
+        here = copy.copy(self)
+        here.placed, here.parked = self.placed[step], self.parked[step]
+        return here
+
     def _build_initial_state(self, contact: np.ndarray) -> np.ndarray:
         data = self.data()
         mujoco.mj_resetData(self.model, data)
         data.qpos[:3] = -self.cg
         data.qpos[3] = 1.0
-        data.qpos[7:] = (np.where(contact[:, None], self.placed, self.parked) - self.cg).ravel()
+        start = self.at_step(0)
+        data.qpos[7:] = (np.where(contact[:, None], start.placed, start.parked) - self.cg).ravel()
         state = np.empty(self.nstate)
         mujoco.mj_getState(self.model, data, state, _STATE)
         return state
@@ -247,6 +280,7 @@ def _simulate_serial(runs: Sequence[tuple[PhysicsModel, Motion]]) -> list[Trace]
     """:func:`simulate` on the calling thread."""
     traces: list[Trace | None] = [None] * len(runs)
     groups: dict[tuple, list[int]] = {}
+    runs = [(physics.following(motion), motion) for physics, motion in runs]
     moves = [_moves(motion) for _, motion in runs]
     for r, (physics, motion) in enumerate(runs):
         place, lift = moves[r]
@@ -326,7 +360,7 @@ def _simulate_batch(
     for a, b in itertools.pairwise(bounds):
         if a in events:
             for r, p in enumerate(physics):
-                _move_fingers(p, state[r], moves[r][0][a], moves[r][1][a])
+                _move_fingers(p.at_step(a), state[r], moves[r][0][a], moves[r][1][a])
         # Inputs are laid out as mujoco.rollout wants them (contiguous float64, one model and
         # initial state per run, the output allocated here), so its checks are skipped.
         states = np.empty((count, b - a, physics0.nstate))
