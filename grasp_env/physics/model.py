@@ -167,6 +167,21 @@ def object_geom(scene: Scene) -> tuple[str, str]:
     return f'<geom name="object" type="mesh" mesh="{geom["mesh"]}" {style}/>', asset
 
 
+def seam_geom(scene: Scene) -> str:
+    """A cylinder's *seam*, for pictures only: a thin dark stripe down its side at azimuth 0
+    (visual, group 2, no collision), so that its turn about its axis shows; "" for other
+    shapes (a box's or a mesh's turn shows by itself)."""
+    if scene.shape.kind != "cylinder":
+        return ""
+    scale = 1.0 / length_unit(scene)
+    radius, height = scene.shape.radius * scale, scene.shape.height * scale
+    half = [0.01 * radius, 0.08 * radius, 0.45 * height]
+    return (
+        f'<geom name="seam" type="box" pos="{_vec([radius, 0.0, 0.0])}" size="{_vec(half)}"'
+        ' rgba="0.55 0.05 0.05 1" contype="0" conaffinity="0" group="2"/>'
+    )
+
+
 def object_geom_name(scene: Scene) -> str:
     """The name of the object's geom in the model (see :func:`object_geom`)."""
     return "box" if isinstance(scene.shape, Box) else "object"
@@ -254,9 +269,20 @@ def check_forces(
 def tip_positions(scene: Scene, in_contact: np.ndarray) -> np.ndarray:
     """Object-frame fingertip centres in the model's units, (n, 3): just inside the face at the
     contact point for a finger in contact, :data:`PARK_DISTANCE` radii off it otherwise."""
-    radius = tip_radius(scene)
+    return tip_centres(model_contacts(scene), scene.normals, tip_radius(scene), in_contact)
+
+
+def tip_centres(
+    points: np.ndarray, normals: np.ndarray, radius: float, in_contact: ArrayLike
+) -> np.ndarray:
+    """Fingertip centres (..., n, 3) for contact ``points`` (..., n, 3) with inward unit
+    ``normals`` (model units, object frame) and tips of ``radius``: a tip ``in_contact``
+    (..., n) just inside the face (:data:`TIP_PENETRATION`), the others
+    :data:`PARK_DISTANCE` radii off it. A tip whose contact point changes from pose to pose
+    (a finger placed again elsewhere) takes its point at each step
+    (:attr:`~grasp_env.physics.motion.Motion.points`)."""
     standoff = np.where(in_contact, radius * (1 - TIP_PENETRATION), radius * PARK_DISTANCE)
-    return model_contacts(scene) - standoff[:, None] * scene.normals
+    return points - standoff[..., None] * normals
 
 
 def world_qpos(
@@ -281,8 +307,8 @@ def build_mjcf(scene: Scene, timestep: float = 2e-3, visual: bool = False) -> st
     run, so one model serves every orientation. With ``visual`` the model also carries what
     :class:`~grasp_env.physics.GraspView` draws: a sky, lights and the friction cones (visual
     only: ``contype = conaffinity = 0``, group 2), which open outwards from each contact, so
-    the finger's push, drawn ending at the contact, lies inside its cone exactly when it holds.
-    A box thinner than :data:`MIN_ASPECT` is refused.
+    the finger's push, drawn ending at the contact, lies inside its cone exactly when it holds,
+    and a cylinder's seam (:func:`seam_geom`). A box thinner than :data:`MIN_ASPECT` is refused.
     """
     check_aspect(scene)
     size = model_size(scene)
@@ -337,7 +363,7 @@ def build_mjcf(scene: Scene, timestep: float = 2e-3, visual: bool = False) -> st
             f'<mesh name="cone" vertex="{_vec(cone_vertices(scene.friction_limit, slant))}"/>'
             f"{mesh}</asset>"
         )
-        visuals = "".join(cones)
+        visuals = "".join(cones) + seam_geom(scene)
         light = '<light pos="1 -1 3" dir="-1 1 -3" diffuse="0.5 0.5 0.5"/>'
     elif mesh:
         assets = f"<asset>{mesh}</asset>"
