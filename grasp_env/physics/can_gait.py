@@ -7,11 +7,14 @@ point fixed in the can's frame. :func:`can_gait_schedule` turns a window of a
 :class:`~grasp_env.mechanics.gait.can_programme.CanGaitSolution`'s gait into the sites of
 :func:`~grasp_env.physics.gait.check_gait` (one site per placement, object frame) with each
 finger's certified minimax force (eq. 2, 4) at every pose, and :func:`check_can_gait` runs it
-in one continuous rollout. The model has one fingertip per site, at most
-:data:`~grasp_env.mechanics.MAX_SCENE_CONTACTS` of them, so one rollout covers a window with
-at most that many placements (a full turn of the default hand places about 25).
+in one continuous rollout with one fingertip per *finger*
+(:func:`~grasp_env.physics.gait.check_finger_gait`): each tip's contact point in the can's
+frame is its finger's placement at each pose (:attr:`CanSchedule.points`), so a lifted tip is
+parked off the side and moves to its finger's new point when placed again. The whole turn
+(37 poses, 16 placements for the default hand) runs in one rollout; ``start`` and ``stop``
+take a window of it.
 
-    rollout = check_can_gait(solve_can_gait(), start=0, stop=8)
+    rollout = check_can_gait(solve_can_gait())
     rollout.report.holds, rollout.report.predicted_holds, rollout.report.first_failure
 """
 
@@ -26,7 +29,7 @@ from grasp_env.mechanics.forces import grasp, load_wrench
 from grasp_env.mechanics.gait.can import contact_points
 from grasp_env.mechanics.gait.can_programme import CanGait, CanGaitSolution
 
-from .gait import GaitRollout, check_gait
+from .gait import GaitRollout, check_finger_gait, first_points
 
 #: Largest difference, radians, between a finger's friction angle recomputed from the
 #: solution's k and the angle the solver reported: more means a gait of another solution.
@@ -51,6 +54,14 @@ class CanSchedule:
     finger_forces: np.ndarray
     rotations: np.ndarray
     alphas_deg: np.ndarray
+
+    @property
+    def points(self) -> np.ndarray:
+        """(T, F, 3) the object-frame point each finger touches at each pose (its placement's
+        site), metres; NaN where it touches nothing."""
+        points = self.sites[np.maximum(self.contacts, 0)]
+        points[self.contacts < 0] = np.nan
+        return points
 
 
 def _window(n_poses: int, start: int, stop: int | None) -> tuple[int, int]:
@@ -138,24 +149,20 @@ def check_can_gait(
     cg_height: float = 0.0,
     **settings: float,
 ) -> GaitRollout:
-    """Carry poses [start, stop) of the can's gait through one continuous MuJoCo rollout
-    (:func:`can_gait_schedule`, then :func:`~grasp_env.physics.gait.check_gait` with one site
-    per placement). A ValueError says so if the window places more fingers than the model has
-    tips (3 to 8 sites): take a shorter window."""
+    """Carry poses [start, stop) of the can's gait (default: the whole turn) through one
+    continuous MuJoCo rollout: :func:`can_gait_schedule`, then
+    :func:`~grasp_env.physics.gait.check_finger_gait` with one tip per finger, each at its
+    placement's point (:attr:`CanSchedule.points`), waiting before its first placement where
+    it is first placed. ``settings`` override :data:`~grasp_env.physics.SETTINGS`. A
+    ValueError names a bad window, a gait that drops inside it, or a finger that touches
+    nothing in it (its tip has no place to wait: take a longer window)."""
     schedule = can_gait_schedule(solution, gait, start, stop, cg_height)
-    n_sites = len(schedule.sites)
-    if not 3 <= n_sites <= 8:
-        raise ValueError(
-            f"poses [{start}, {stop}) place {n_sites} contacts: one rollout carries 3 to 8"
-            " (one fingertip per placement); take a shorter window"
-        )
+    points = schedule.points
     scene = Scene(
-        shape=solution.can, contacts=schedule.sites, weight=solution.weight, mu=solution.mu,
-        cg_offset=[0.0, 0.0, float(cg_height)],
+        shape=solution.can, contacts=first_points(points), weight=solution.weight,
+        mu=solution.mu, cg_offset=[0.0, 0.0, float(cg_height)],
     )  # fmt: skip
-    return check_gait(
-        scene, schedule.rotations, schedule.contacts, schedule.finger_forces, **settings
-    )
+    return check_finger_gait(scene, schedule.rotations, points, schedule.finger_forces, **settings)
 
 
 __all__ = ["ANGLE_TOL", "CanSchedule", "can_gait_schedule", "check_can_gait"]

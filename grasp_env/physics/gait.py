@@ -16,6 +16,13 @@ in is placed at its new site, just inside the face, once its force ramps up from
     rollout = check_gait(scene, rotations, contacts, forces)
     rollout.report.holds, rollout.report.predicted_holds, rollout.report.first_failure
     write_video("gait.mp4", rollout.scene, alphas_deg, rollout.report)  # physics_plots
+
+A gait that places its fingers on more sites than the model has tips (a can turned a full
+turn places each finger again and again on new points) runs with one tip per *finger*
+instead (:func:`check_finger_gait`): each tip's contact point in the object's frame is given
+per pose, and the tip moves to its finger's new point when it is placed again
+(:mod:`grasp_env.physics.motion`, "Tips whose point changes"). Both are the same rollout: a
+site's tip is a tip whose point never changes.
 """
 
 from __future__ import annotations
@@ -29,6 +36,7 @@ from grasp_env.mechanics import Scene
 from grasp_env.mechanics.checks import real_array
 
 from .model import check_rotations
+from .motion import is_numeric
 from .rollout import RolloutReport, TrajectoryChecker
 
 
@@ -43,7 +51,10 @@ class GaitRollout:
             the finger touching it, 0 where none does.
         in_contact: (T, N) whether some finger touches each site.
         report: the rollout's verdicts (:class:`~grasp_env.physics.RolloutReport`; its
-            per-finger arrays are per site).
+            per-finger arrays are per tip: per site, or per finger for a finger gait).
+        points: (T, n, 3) each tip's object-frame contact point at each pose (metres, NaN
+            where it touches nothing) for a gait with one tip per finger
+            (:func:`check_finger_gait`); None: one tip per site, at the scene's contacts.
     """
 
     scene: Scene
@@ -51,6 +62,7 @@ class GaitRollout:
     forces: np.ndarray
     in_contact: np.ndarray
     report: RolloutReport
+    points: np.ndarray | None = None
 
 
 def site_schedule(
@@ -78,7 +90,7 @@ def site_schedule(
             f"finger {f} at pose {t} touches site {sites[t, f]}: a site index must be in"
             f" [-1, {n_sites - 1}] (-1: none)"
         )
-    forces = np.asarray(finger_forces, dtype=float) if _numeric(finger_forces) else None
+    forces = np.asarray(finger_forces, dtype=float) if is_numeric(finger_forces) else None
     if forces is None or forces.shape != (n_poses, n_fingers, 3):
         raise ValueError(
             f"finger_forces must be real numbers of shape ({n_poses}, {n_fingers}, 3), one"
@@ -101,14 +113,6 @@ def site_schedule(
             in_contact[t, s] = True
             site_forces[t, s] = forces[t, f]
     return site_forces, in_contact
-
-
-def _numeric(value: ArrayLike) -> bool:
-    try:
-        array = np.asarray(value)
-    except (TypeError, ValueError):
-        return False
-    return array.dtype.kind in "iuf"
 
 
 def check_gait(
@@ -159,4 +163,71 @@ def check_gait(
     return GaitRollout(scene, rotations, forces, in_contact, report)
 
 
-__all__ = ["GaitRollout", "check_gait", "site_schedule"]
+def check_finger_gait(
+    scene: Scene,
+    rotations: ArrayLike,
+    points: ArrayLike,
+    finger_forces: ArrayLike,
+    threads: int | None = None,
+    **settings: float,
+) -> GaitRollout:
+    """Carry a finger gait through one continuous MuJoCo rollout with one fingertip per
+    finger, whose contact point may change at each placement (see the module docstring).
+
+    Args:
+        scene: the object (any shape), its load and mu, with one contact per finger
+            (3 <= F <= 8): where each finger's tip waits before it is first placed
+            (:func:`first_points` of ``points``, say).
+        rotations: (T, 3, 3) the object's pose at each of T poses (proper rotations).
+        points: (T, F, 3) the object-frame point each finger touches at each pose, metres,
+            on the object's surface; NaN where it touches nothing. A finger keeps its point
+            while it carries load; it may take another only between poses where it carries
+            none (lifted with zero force, placed again with zero force).
+        finger_forces: (T, F, 3) each finger's force on the object, world frame, newtons:
+            finite wherever it touches (zero at a pose where it is lifted or placed), ignored
+            where it does not.
+        threads, **settings: as :func:`check_gait`.
+
+    Returns:
+        The :class:`GaitRollout` (``points`` the points given; its report's per-finger arrays
+        per finger). A ValueError names a bad input: points or forces of the wrong shape, a
+        touching finger's non-finite force, a point off the surface, a point changed under
+        load (:func:`~grasp_env.physics.motion.tip_points`), or a force above ``MAX_FORCE`` w.
+    """
+    if not isinstance(scene, Scene):
+        raise ValueError(f"scene must be a grasp_env.mechanics.Scene, got {type(scene).__name__}")
+    rotations = check_rotations(rotations, name="rotations")
+    shape = (len(rotations), scene.n_contacts, 3)
+    points = np.asarray(points, dtype=float) if is_numeric(points) else None
+    if points is None or points.shape != shape:
+        raise ValueError(
+            f"points must be real numbers of shape {shape}: per pose, the object-frame point"
+            f" each of the scene's {scene.n_contacts} fingers touches (NaN for none)"
+        )
+    touching = np.all(np.isfinite(points), axis=-1)
+    contacts = np.where(touching, np.arange(scene.n_contacts), -1)
+    forces, in_contact = site_schedule(contacts, finger_forces, scene.n_contacts)
+    checker = TrajectoryChecker(scene, threads=threads, **settings)
+    try:
+        report = checker.check(rotations, forces, in_contact, points)
+    finally:
+        checker.close()
+    return GaitRollout(scene, rotations, forces, in_contact, report, points)
+
+
+def first_points(points: ArrayLike) -> np.ndarray:
+    """(F, 3) each finger's first point of ``points`` (T, F, 3; NaN where it touches nothing),
+    the scene's contacts for :func:`check_finger_gait`. A ValueError names a finger that
+    touches nothing at any pose."""
+    points = np.asarray(points, dtype=float)
+    touching = np.all(np.isfinite(points), axis=-1)
+    if points.ndim != 3 or points.shape[-1] != 3 or not touching.any(axis=0).all():
+        never = np.flatnonzero(~touching.any(axis=0)) if points.ndim == 3 else []
+        raise ValueError(
+            f"points must be (T, F, 3) with every finger touching at some pose, got shape"
+            f" {points.shape}" + (f"; finger {never[0]} never touches" if len(never) else "")
+        )
+    return points[touching.argmax(axis=0), np.arange(points.shape[1])]
+
+
+__all__ = ["GaitRollout", "check_finger_gait", "check_gait", "first_points", "site_schedule"]
