@@ -49,7 +49,7 @@ def _choose_gl_backend() -> None:
 _choose_gl_backend()
 
 from .can_gait import CanSchedule, can_gait_schedule, check_can_gait  # noqa: E402
-from .gait import GaitRollout, check_gait  # noqa: E402
+from .gait import GaitRollout, check_finger_gait, check_gait  # noqa: E402
 from .render import GraspView  # noqa: E402
 from .rollout import RolloutReport, TrajectoryChecker, check_trajectories  # noqa: E402
 from .stability import SETTINGS, PhysicsReport, StabilityChecker, check_poses  # noqa: E402
@@ -65,6 +65,7 @@ __all__ = [
     "TrajectoryChecker",
     "can_gait_schedule",
     "check_can_gait",
+    "check_finger_gait",
     "check_gait",
     "check_poses",
     "check_trajectories",
