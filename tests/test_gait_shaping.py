@@ -254,6 +254,33 @@ def test_masks_are_the_moves_the_environment_takes():
     assert env.action_masks().all()  # the episode ended: nothing left to mask
 
 
+def test_hold_masks_keep_the_pose():
+    """With ``hold`` the mask is the legal moves whose loaded set holds the pose (certified
+    margin >= 0), where one does: masked random episodes slip only from states where no
+    allowed move holds (H = 0)."""
+    env = GaitMoveMasks(moves_env(), hold=True)
+    task = env.task
+    held, margin = poses_held(task), task.solution.values.margin
+    rng = np.random.default_rng(1)
+    for _ in range(200):
+        t, x = int(rng.integers(task.n_poses)), int(rng.integers(len(task.table.states)))
+        legal, mask = legal_moves(task, t, x), legal_moves(task, t, x, hold=True)
+        holding = legal & (margin[t, task.table.loaded[np.maximum(task.csr[x], 0)]] >= 0)
+        assert np.array_equal(mask, holding if holding.any() else legal)
+    for _ in range(3):
+        env.reset()
+        done = False
+        while not done:
+            t, x = env.pose_state
+            move = int(rng.choice(np.flatnonzero(env.action_masks())))
+            _, _, terminated, truncated, info = env.step(move)
+            done = terminated or truncated
+            if info["slip"].any():
+                assert held[t, x] == 0
+    with pytest.raises(ValueError, match="hold must be True or False"):
+        GaitMoveMasks(moves_env(), hold=1)
+
+
 # --------------------------------------------------------------------------- refusals
 
 

@@ -38,6 +38,7 @@ import numpy as np
 
 from ...mechanics.checks import real_number
 from ...mechanics.gait.programme import _pose_values, _state_ok
+from ..validation import check_bool
 from .env import CubeGaitEnv
 from .tasks import GaitTask
 
@@ -181,39 +182,56 @@ class GaitShaping(_GaitState, gym.utils.RecordConstructorArgs):
 
 
 class GaitMoveMasks(_GaitState, gym.utils.RecordConstructorArgs):
-    """The gait environment with :meth:`action_masks`: the moves the rules allow now, for
-    sb3-contrib's ``MaskablePPO`` (only with ``optimal_grip=True``: ``CubeGaitMoves-v0``).
-    Rewards and steps are the environment's."""
+    """The gait environment with :meth:`action_masks`, for sb3-contrib's ``MaskablePPO``
+    (only with ``optimal_grip=True``: ``CubeGaitMoves-v0``). Rewards and steps are the
+    environment's.
 
-    def __init__(self, env: gym.Env) -> None:
-        gym.utils.RecordConstructorArgs.__init__(self)
+    Args:
+        env: ``grasp_env/CubeGaitMoves-v0`` (or ``CubeGaitEnv(optimal_grip=True)``), possibly
+            wrapped.
+        hold: False (the default): the moves the rules allow (those the environment does not
+            refuse). True: of those, the moves whose loaded set holds this pose (certified
+            margin >= 0, eq. 2, 4; the others slip at once and end the episode), all the
+            allowed ones where none holds. Which move keeps the turn going later is still the
+            agent's to learn.
+    """
+
+    def __init__(self, env: gym.Env, hold: bool = False) -> None:
+        gym.utils.RecordConstructorArgs.__init__(self, hold=hold)
         super().__init__(env)
         if not self.env.unwrapped.optimal_grip:
             raise ValueError(
                 "GaitMoveMasks masks Discrete moves: env must act with moves alone"
                 " (grasp_env/CubeGaitMoves-v0, optimal_grip=True)"
             )
+        self.hold = check_bool("hold", hold)
 
     def action_masks(self) -> np.ndarray:
-        """(M,) bool: True for the moves the rules allow from the current state at the current
-        pose (keep always; a lift that leaves three touching, a placement within reach on a
-        free site); all True once the episode has ended."""
+        """(M,) bool: True for the moves allowed now (see ``hold``); all True once the episode
+        has ended."""
         t, x = self.pose_state
         if self._base._done:
             return np.ones(self.task.n_moves, bool)
-        return legal_moves(self.task, t, x)
+        return legal_moves(self.task, t, x, self.hold)
 
 
-def legal_moves(task: GaitTask, t: int, x: int) -> np.ndarray:
+def legal_moves(task: GaitTask, t: int, x: int, hold: bool = False) -> np.ndarray:
     """(M,) bool, the moves the rules allow from state ``x`` at pose ``t``: those the
     environment does not refuse (keep, always; lifts that leave three touching; placements on
-    a free site within reach)."""
+    a free site within reach). With ``hold``, of those the moves whose loaded set's certified
+    margin at t is >= 0, if any (all allowed ones if none; a state with a contact out of
+    reach loses it whatever the move)."""
     allowed = task.csr[x] >= 0
     states, N = task.table.states, task.n_sites
     moves = np.flatnonzero(allowed[1:]) + 1
     f, s = np.divmod(moves - 1, N)
     placed = states[x, f] < 0
     allowed[moves[placed]] = task.solution.reach[t, f[placed], s[placed]]
+    if hold:
+        legal = np.flatnonzero(allowed)
+        margins = task.solution.values.margin[t, task.table.loaded[task.csr[x, legal]]]
+        if np.any(margins >= 0.0):
+            allowed[legal[margins < 0.0]] = False
     return allowed
 
 
