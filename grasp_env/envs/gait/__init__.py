@@ -15,7 +15,8 @@ Modules by concern: ``tasks`` (one configuration's tables, :func:`gait_task`), `
 :class:`GreedyGait`), ``env`` (:class:`CubeGaitEnv`), ``vector`` (:class:`CubeGaitVectorEnv`),
 ``render`` (``GaitView``: the frames of ``render_mode="rgb_array"``) and ``shaping``
 (:class:`GaitShaping`: potential-based shaping from the certified programme;
-:class:`GaitMoveMasks`: the legal moves as an action mask).
+:class:`GaitMoveMasks`: the legal moves as an action mask; :class:`GaitExpertStarts`:
+episodes started partway along the optimal gait).
 """
 
 from .env import CubeGaitEnv
@@ -23,6 +24,7 @@ from .experts import GaitExpert, GreedyGait
 from .kernels import check_moves, optimal_actions
 from .shaping import (
     POTENTIALS,
+    GaitExpertStarts,
     GaitMoveMasks,
     GaitShaping,
     legal_moves,
@@ -39,6 +41,7 @@ __all__ = [
     "CubeGaitEnv",
     "CubeGaitVectorEnv",
     "GaitExpert",
+    "GaitExpertStarts",
     "GaitMoveMasks",
     "GaitShaping",
     "GaitTask",

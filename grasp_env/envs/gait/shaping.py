@@ -40,6 +40,7 @@ from ...mechanics.checks import real_number
 from ...mechanics.gait.programme import _pose_values, _state_ok
 from ..validation import check_bool
 from .env import CubeGaitEnv
+from .kernels import optimal_actions
 from .tasks import GaitTask
 
 #: The potentials :class:`GaitShaping` takes (see the module docstring).
@@ -215,6 +216,53 @@ class GaitMoveMasks(_GaitState, gym.utils.RecordConstructorArgs):
         return legal_moves(self.task, t, x, self.hold)
 
 
+class GaitExpertStarts(_GaitState, gym.utils.RecordConstructorArgs):
+    """Episodes that start partway along the optimal gait: a curriculum over the length of the
+    trajectory left to the agent (after Salimans and Chen 2018, starts from a demonstration's
+    states). At a reset, with probability ``fraction``, the certified expert (the programme's
+    policy, docs/gait.md) makes the moves of the first k poses, k uniform in [1, T - 1], and
+    the agent takes over at pose k; otherwise the episode starts at the first pose. The steps
+    the expert makes are not the agent's (they are not returned); the agent's reward, its
+    observation and the episode's end are the environment's.
+
+    Evaluation (``grasp-env gait --models``) starts at the first pose: a policy trained with
+    expert starts must hold the whole turn itself.
+
+    Args:
+        env: a gait environment (``CubeGait-v0`` or ``CubeGaitMoves-v0``), possibly wrapped
+            (put shaping outside this wrapper, so that its potential starts at the pose the
+            agent starts at).
+        fraction: the share of episodes started partway, in [0, 1].
+    """
+
+    def __init__(self, env: gym.Env, fraction: float = 0.5) -> None:
+        gym.utils.RecordConstructorArgs.__init__(self, fraction=fraction)
+        super().__init__(env)
+        self.fraction = real_number("fraction", fraction, 0.0, 1.0)
+        self._grip = self._base.optimal_grip
+        self._policy = self.task.solution.optimal.policy
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[Any, dict[str, Any]]:
+        obs, info = self.env.reset(seed=seed, options=options)
+        rng = self._base.np_random
+        if self.fraction == 0.0 or rng.random() >= self.fraction:
+            return obs, info
+        task = self.task
+        for _ in range(int(rng.integers(1, task.n_poses))):
+            t, x = self.pose_state
+            move = int(task.table.move[self._policy[t, x]])
+            if self._grip:
+                action: Any = move
+            else:
+                action = optimal_actions(task, np.array([x]), np.array([t]), np.array([move]))[0]
+            obs, _, terminated, truncated, info = self.env.step(action)
+            if terminated or truncated:  # not along the optimal gait: start over
+                return self.env.reset(options=options)
+        return obs, info
+
+
 def legal_moves(task: GaitTask, t: int, x: int, hold: bool = False) -> np.ndarray:
     """(M,) bool, the moves the rules allow from state ``x`` at pose ``t``: those the
     environment does not refuse (keep, always; lifts that leave three touching; placements on
@@ -249,6 +297,7 @@ def shaped_gait_env(
 
 __all__ = [
     "POTENTIALS",
+    "GaitExpertStarts",
     "GaitMoveMasks",
     "GaitShaping",
     "legal_moves",
