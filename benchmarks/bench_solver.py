@@ -328,9 +328,20 @@ def general_lines(n: int, figures: dict, targets: Targets) -> list[str]:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--seconds", type=float, default=2.0, help="time per measurement")
+    parser.add_argument(
+        "--contacts",
+        default="3,4,5,6,7,8",
+        help="the numbers of contacts to measure, comma-separated (3 to 8; default all)",
+    )
     args = parser.parse_args()
+    try:
+        contacts = sorted({int(part) for part in args.contacts.split(",")})
+    except ValueError:
+        parser.error(f"--contacts takes numbers 3 to 8 separated by commas, not {args.contacts!r}")
+    if not contacts or not all(3 <= n <= 8 for n in contacts):
+        parser.error(f"--contacts takes numbers 3 to 8 separated by commas, not {args.contacts!r}")
     targets = Targets("solver")
-    for n in (3, 4):
+    for n in (n for n in (3, 4) if n in contacts):
         figures = measure(n, args.seconds)
         interior, boundary, not_pushing = figures["status"]
         print(
@@ -369,7 +380,7 @@ def main() -> int:
         )
         for line in figures["limit"].lines(figures):
             print(line, flush=True)
-    for n in GENERAL:
+    for n in (n for n in GENERAL if n in contacts):
         for line in general_lines(n, measure_general(n, args.seconds), targets):
             print(line, flush=True)
     return targets.exit_code()
