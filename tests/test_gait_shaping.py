@@ -14,6 +14,7 @@ import grasp_env  # noqa: F401  (registers the environments)
 from grasp_env.envs.gait import (
     POTENTIALS,
     GaitExpert,
+    GaitExpertStarts,
     GaitMoveMasks,
     GaitShaping,
     GreedyGait,
@@ -279,6 +280,34 @@ def test_hold_masks_keep_the_pose():
                 assert held[t, x] == 0
     with pytest.raises(ValueError, match="hold must be True or False"):
         GaitMoveMasks(moves_env(), hold=1)
+
+
+# ------------------------------------------------------------------------ expert starts
+
+
+@pytest.mark.parametrize("env_id", [MOVES_ID, "grasp_env/CubeGait-v0"])
+def test_expert_starts_begin_on_the_optimal_gait(env_id):
+    """fraction 1: every reset hands over at a pose k in [1, T - 1] in the optimal gait's state
+    there, with the observation the plain environment shows after the expert's k moves;
+    the same seed, the same start; fraction 0: the first pose."""
+    env = GaitExpertStarts(gym.make(env_id), fraction=1.0)
+    task = env.task
+    states = task.solution.optimal.states
+    starts = set()
+    for seed in range(6):
+        obs, _ = env.reset(seed=seed)
+        t, x = env.pose_state
+        assert 1 <= t < task.n_poses and x == states[t]
+        assert np.array_equal(obs, env.unwrapped._observation(x, t))
+        assert env.reset(seed=seed)[0].tobytes() == obs.tobytes()
+        starts.add(t)
+    assert len(starts) > 1
+    plain = GaitExpertStarts(gym.make(env_id), fraction=0.0)
+    plain.reset(seed=3)
+    assert plain.pose_state == (0, task.start)
+    for bad in (-0.1, 1.5, float("nan"), "half"):
+        with pytest.raises(ValueError, match=r"fraction must be a finite number in \[0, 1\]"):
+            GaitExpertStarts(gym.make(env_id), fraction=bad)
 
 
 # --------------------------------------------------------------------------- refusals
