@@ -228,6 +228,12 @@ def test_the_shaped_id():
     other = gym.make(SHAPED_ID, potential="holds", gamma=0.9, terminate_on_slip=False)
     assert other.env.env.potential == "holds" and not other.unwrapped.terminate_on_slip
     assert other.env.env.scale == pytest.approx(shaping.scale / 0.1)
+    started = gym.make(SHAPED_ID, expert_starts=1.0)
+    assert isinstance(started.env.env.env, GaitExpertStarts)
+    started.reset(seed=0)
+    assert started.env.env.pose_state[0] >= 1
+    with pytest.raises(ValueError, match=r"expert_starts must be a finite number in \[0, 1\]"):
+        gym.make(SHAPED_ID, expert_starts=2.0)
 
 
 # ----------------------------------------------------------------------------- the masks

@@ -287,12 +287,19 @@ def shaped_gait_env(
     potential: str = "held",
     scale: float | None = None,
     gamma: float = 0.99,
+    expert_starts: float = 0.0,
     **kwargs: Any,
 ) -> GaitShaping:
-    """``CubeGaitEnv(**kwargs)`` (``optimal_grip`` True unless given) wrapped in
-    :class:`GaitShaping` with ``potential``, ``scale`` and ``gamma``."""
+    """``CubeGaitEnv(**kwargs)`` (``optimal_grip`` True unless given), with
+    :class:`GaitExpertStarts` (``fraction=expert_starts``) if ``expert_starts`` > 0, in
+    :class:`GaitShaping` with ``potential``, ``scale`` and ``gamma``: the id
+    ``grasp_env/CubeGaitMovesShaped-v0``."""
     kwargs.setdefault("optimal_grip", True)
-    return GaitShaping(CubeGaitEnv(**kwargs), potential, scale, gamma)
+    env: gym.Env = CubeGaitEnv(**kwargs)
+    fraction = real_number("expert_starts", expert_starts, 0.0, 1.0)
+    if fraction > 0.0:
+        env = GaitExpertStarts(env, fraction)
+    return GaitShaping(env, potential, scale, gamma)
 
 
 __all__ = [
