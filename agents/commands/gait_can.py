@@ -6,13 +6,16 @@ fingertips round its side each reach a patch of it (``grasp_env.mechanics.gait.c
 every contact turns out of reach after a while and its finger must lift and be placed again.
 Prints the optimal gait beside the greedy one and the best fixed set, and writes ``gait.csv``
 (per pose: each finger's point on the can, its phase event, friction angles, the margin and
-the minimax status) and ``gait.png``. docs/gait.md, "The can", has the model.
+the minimax status) and ``gait.png``. docs/gait.md, "The can", has the model. ``--mujoco``
+carries the optimal gait's whole turn through one continuous MuJoCo rollout (one fingertip per
+finger, placed on its finger's new point at each placement) and ``--video`` writes it.
 """
 
 from __future__ import annotations
 
 import argparse
 import csv
+import os
 import time
 from pathlib import Path
 
@@ -29,6 +32,7 @@ from grasp_env.mechanics.gait.can import (
 )
 from grasp_env.mechanics.gait.can_programme import CanGait, CanGaitSolution, solve_can_gait
 from grasp_env.physics.can_gait import can_gait_schedule, check_can_gait
+from grasp_env.physics.gait import GaitRollout
 
 from ..progress import status
 
@@ -56,13 +60,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )  # fmt: skip
     parser.add_argument(
         "--mujoco", action="store_true",
-        help="--object can: carry the optimal gait through one continuous MuJoCo rollout and"
-        " print its verdict (one fingertip per placement: a window of at most 8 placements)",
+        help="--object can: carry the optimal gait's whole turn through one continuous MuJoCo"
+        " rollout (one fingertip per finger, placed again on new points) and print both"
+        " verdicts",
     )  # fmt: skip
     parser.add_argument(
         "--mujoco-window", type=str, default=None, metavar="START,STOP",
-        help="--object can: the poses [START, STOP) the rollout carries (default: the longest"
-        " window from pose 0 with at most 8 placements; implies --mujoco)",
+        help="--object can: the poses [START, STOP) the rollout carries (default: every pose,"
+        " the whole turn; implies --mujoco)",
     )  # fmt: skip
     parser.add_argument(
         "--video", type=Path, default=None, metavar="FILE.mp4",
@@ -112,14 +117,10 @@ def check_video(path: Path) -> None:
 
 
 def mujoco_window(solution: CanGaitSolution, text: str | None) -> tuple[int, int]:
-    """The poses [start, stop) of ``--mujoco-window`` (default: the longest window from pose 0
-    whose placements fit the model's 8 tips)."""
+    """The poses [start, stop) of ``--mujoco-window`` (default: every pose, the whole turn)."""
     n_poses = len(solution.turn)
     if text is None:
-        stop = 2
-        while stop < n_poses and len(can_gait_schedule(solution, stop=stop + 1).sites) <= 8:
-            stop += 1
-        return 0, stop
+        return 0, n_poses
     try:
         start, stop = (int(v) for v in text.split(","))
     except ValueError:
@@ -139,6 +140,7 @@ def run_mujoco(solution: CanGaitSolution, args: argparse.Namespace) -> None:
     cpu = time.process_time() - cpu
     report, alphas = rollout.report, solution.turn.alphas_deg[start:stop]
     events = [e for e in solution.optimal.events() if start <= e[0] < stop]
+    placements = len(can_gait_schedule(solution, start=start, stop=stop).sites)
 
     def where(x: float | None) -> str:
         """A pose coordinate of the window (t + s between poses t and t + 1) as alpha."""
@@ -148,17 +150,105 @@ def run_mujoco(solution: CanGaitSolution, args: argparse.Namespace) -> None:
 
     print(
         f"MuJoCo, alpha {alphas[0]:g} to {alphas[-1]:g} deg ({stop - start} poses,"
-        f" {len(events)} phase changes, {len(rollout.scene.contacts)} placements,"
+        f" {len(events)} phase changes, {placements} placements on"
+        f" {rollout.scene.n_contacts} fingertips,"
         f" {report.time:.1f} s simulated, {cpu:.1f} s CPU): {where(report.first_failure)};"
         f" analytic: {where(report.predicted_first_failure)}; margin"
         f" {report.margin_deg:.3f} deg, largest slip {np.nanmax(report.slip):.2e} m, drift"
         f" {report.drift.max():.2e} m, rotation {report.rotation_deg.max():.2e} deg"
     )
     if args.video is not None:
-        from ..studies.physics_plots import write_video
-
-        frames = write_video(args.video, rollout.scene, alphas, report)
+        frames = write_video(args.video, rollout, alphas, solution.hand.names)
         print(f"wrote {args.video} ({frames} frames)")
+
+
+#: The video's fingertips are drawn as spheres this many times the model's tip radius (a
+#: pad of 8 mm on the can), touching the side where the model's tip does; a lifted one is
+#: drawn pulled back a further :data:`DRAWN_LIFT` of its radii (the model parks its tip two
+#: tip radii, 2.6 mm, off the side: too little to see), grey and without an arrow.
+DRAWN_TIP, DRAWN_LIFT = 3.0, 1.5
+
+
+def write_video(
+    path: Path, rollout: GaitRollout, alphas: np.ndarray, names: tuple[str, ...], size: int = 480
+) -> int:
+    """Write a finger gait's rollout (one tip per finger, its point changing at placements)
+    as an MP4 of ``size`` x ``size`` pixels with the frames of ``physics_plots.write_video``
+    (FRAMES_PER_POSE a pose, evenly spaced in simulated time after the settle, at FPS; the
+    object turned by its pose; alpha, the largest friction angle and the margin written on
+    it) and the fingers lifted named. Each frame draws the friction cones and the pushes at
+    that frame's points, and the fingertips as spheres (:data:`DRAWN_TIP`,
+    :data:`DRAWN_LIFT`). Returns the frame count."""
+    from grasp_env.mechanics import Scene, matrix_quaternion, quaternion_matrix
+    from grasp_env.physics import GraspView
+    from grasp_env.physics.model import _z_to, length_unit
+
+    from ..studies.physics_plots import FPS, FRAMES_PER_POSE, _imageio, pose_alpha
+
+    imageio = _imageio()
+    scene, report = rollout.scene, rollout.report
+    motion, qpos, n = report.motion, report.trace.qpos, scene.n_contacts
+    limit = float(np.degrees(scene.friction_limit))
+    angles = np.degrees(motion.friction_angles(scene).max(axis=-1))
+    count = FRAMES_PER_POSE * len(alphas)
+    steps = np.linspace(motion.settle_steps, len(motion) - 1, count).round().astype(int)
+    # A run that diverged stands at its last finite state.
+    finite = np.all(np.isfinite(qpos), axis=1)
+    last_finite = np.maximum.accumulate(np.where(finite, np.arange(len(qpos)), 0))
+    length = length_unit(scene)
+
+    def scene_at(k: int) -> Scene:
+        """The scene whose contacts are the tips' points at step ``k``."""
+        return Scene(
+            shape=scene.shape, contacts=motion.points[k] * length, weight=scene.weight,
+            mu=scene.mu, cg_offset=scene.cg_offset,
+        )  # fmt: skip
+
+    view = GraspView(scene_at(steps[0]), width=size, height=size)
+    view.camera.elevation, view.camera.distance = -20.0, 2.4  # from above the can's side
+    drawn = np.zeros(n)  # the drawn tips' radii beyond the model's, set once it is built
+
+    def frame(k: int) -> np.ndarray:
+        # MuJoCo turns the load about the object; the picture turns the object instead.
+        rotation, state = motion.rotations[k], qpos[last_finite[k]].copy()
+        state[:3] = rotation @ state[:3]
+        state[3:7] = matrix_quaternion(rotation @ quaternion_matrix(state[3:7]))
+        touching = motion.contact[k]
+        normals = motion.normals[k] @ rotation.T  # inward, world frame
+        back = drawn * np.where(touching, 1.0, 1.0 + DRAWN_LIFT * DRAWN_TIP / (DRAWN_TIP - 1))
+        tips = state[7:].reshape(n, 3) @ rotation.T - back[:, None] * normals
+        state[7:] = tips.ravel()
+        lifted = ", ".join(names[f] for f in np.flatnonzero(~touching)) or "none"
+        text = (
+            f"alpha {pose_alpha(alphas, motion.pose[k]):+.2f} deg",
+            f"largest friction angle {angles[k]:.2f} deg",
+            f"margin {limit - angles[k]:+.2f} deg (atan mu {limit:.2f})",
+            f"lifted: {lifted}",
+        )
+        view.scene = scene_at(k)  # the pushes and colours at this step's points
+        if view.model is not None:  # and the cones
+            for i in range(n):
+                cone = view.model.geom(f"cone{i}").id
+                view.model.geom_pos[cone] = motion.points[k, i]
+                view.model.geom_quat[cone] = _z_to(-motion.normals[k, i])
+        forces = motion.forces[k] @ rotation.T
+        return view.render_state(state, rotation, forces, touching, text)
+
+    # Written beside it and renamed when complete: an interrupted run leaves no short video.
+    partial = path.with_name(f"{path.stem}.partial.mp4")
+    try:
+        frame(steps[0])  # builds the view's model: its tips are then drawn larger
+        tips = [view.model.geom(f"tip{i}").id for i in range(n)]
+        drawn[:] = (DRAWN_TIP - 1.0) * view.model.geom_size[tips, 0]
+        view.model.geom_size[tips, 0] *= DRAWN_TIP
+        with imageio.get_writer(partial, format="FFMPEG", fps=FPS, macro_block_size=16) as writer:
+            for k in steps:
+                writer.append_data(frame(k))
+        os.replace(partial, path)
+    finally:
+        view.close()
+        partial.unlink(missing_ok=True)
+    return count
 
 
 def _deg(x: float) -> str:
