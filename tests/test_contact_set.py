@@ -55,7 +55,6 @@ def permuted(env, obs: np.ndarray, perm: np.ndarray) -> np.ndarray:
     return out
 
 
-@pytest.mark.fast
 def test_the_equilibrating_forces_are_those_of_the_environment(draws):
     """At k = 0 the contact forces are the equilibrating forces: the set's F_i, turned back to
     the world frame and scaled by the weight, are the environment's (float32 inputs: 1e-4 w)."""
@@ -73,7 +72,6 @@ def test_the_equilibrating_forces_are_those_of_the_environment(draws):
         assert np.all(world[b, n:] == 0)
 
 
-@pytest.mark.fast
 def test_the_latents_and_the_grip_do_not_depend_on_the_fingers_order(draws):
     env, obs, _ = draws
     policy = policy_for(env)
@@ -107,7 +105,6 @@ def test_the_latents_and_the_grip_do_not_depend_on_the_fingers_order(draws):
                     assert k_p[q] == 0.0  # a pair with a padded contact is not used
 
 
-@pytest.mark.fast
 def test_one_network_serves_any_padding(draws):
     """The weights do not depend on N: a policy for six contacts, moved into one for eight,
     grips a grasp padded to eight as it gripped it padded to six: the same interaction forces
@@ -139,7 +136,6 @@ def test_one_network_serves_any_padding(draws):
         assert np.all(wide_forces[b, N:] == 0)
 
 
-@pytest.mark.fast
 def test_the_policy_refuses_what_it_cannot_read():
     from gymnasium import spaces
 
@@ -166,7 +162,6 @@ def test_sb3_ppo_trains_and_reloads_it(tmp_path, draws):
     )
 
 
-@pytest.mark.fast
 def test_padding_changes_neither_the_grip_nor_its_gradient(draws):
     """grip_along on a grasp padded with absent contacts: the real contacts' k and the
     gradient with respect to their directions are those of the unpadded grasp (1e-9)."""
@@ -223,7 +218,6 @@ def play(env, seed: int, action: np.ndarray) -> dict:
     return env.step(action.astype(np.float32))[4]
 
 
-@pytest.mark.fast
 def test_the_expert_releases_fingers_and_the_environment_counts_them_at_angle_0(releasing):
     """The diagnosis: on these scenes the certified optimum releases at least one finger in
     most poses, and the environment gives a released finger theta = 0 exactly."""
@@ -237,7 +231,6 @@ def test_the_expert_releases_fingers_and_the_environment_counts_them_at_angle_0(
         assert info["optimality_gap"] <= 1e-5  # the expert's own float32 action
 
 
-@pytest.mark.fast
 def test_the_loss_is_the_environments_reward(releasing):
     """reward_angles gives the environment's largest friction angle, theta_lim - reward, to
     2e-6 rad on the expert's actions (released fingers), on random actions inside and beyond
@@ -257,7 +250,6 @@ def test_the_loss_is_the_environments_reward(releasing):
                 np.testing.assert_allclose(theta[b].numpy(), expected, atol=2e-6, rtol=0)
 
 
-@pytest.mark.fast
 def test_the_head_represents_the_experts_grip_with_its_released_fingers(releasing):
     """Given the expert's directions P*_i / |P*_i|, magnitudes |P*_i| and released set, the
     gated least squares returns a grip the environment finds as good as the expert's own
@@ -293,7 +285,6 @@ def test_the_head_represents_the_experts_grip_with_its_released_fingers(releasin
     assert max(gaps[False]) > 1.0
 
 
-@pytest.mark.fast
 def test_the_gate_releases_at_most_all_but_three_contacts():
     logits = torch.tensor([[2.0, 1.0, 3.0, -1.0, 0.5, 4.0], [1.0, 1.0, 1.0, 1.0, 0.0, 0.0]])
     mask = torch.tensor([[1.0, 1, 1, 1, 1, 0], [1, 1, 1, 0, 0, 0]])
@@ -305,7 +296,6 @@ def test_the_gate_releases_at_most_all_but_three_contacts():
     ]
 
 
-@pytest.mark.fast
 def test_padding_changes_nothing_in_the_gated_grip(releasing):
     """grip_with_release on a grasp padded with absent contacts: the real pairs' k and the
     gradients with respect to the real contacts' directions and magnitudes are those of the
@@ -346,7 +336,6 @@ def test_padding_changes_nothing_in_the_gated_grip(releasing):
             np.testing.assert_allclose(mine.numpy(), alone.numpy(), rtol=1e-6, atol=1e-8)
 
 
-@pytest.mark.fast
 def test_the_fit_learns_the_experts_forces_and_refuses_nothing_to_fit(releasing):
     """fit_contact_set on twelve states: the imitation loss falls by a third in 40 epochs,
     and with the reward's gradient the loss is finite; no weights, or no expert actions for

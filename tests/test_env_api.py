@@ -22,7 +22,11 @@ from grasp_env.mechanics import FOUR_FINGER_FACES
 
 @pytest.mark.fast
 def test_registration():
-    gaits = {"grasp_env/CubeGait-v0", "grasp_env/CubeGaitMoves-v0"}
+    gaits = {
+        "grasp_env/CubeGait-v0",
+        "grasp_env/CubeGaitMoves-v0",
+        "grasp_env/CubeGaitMovesShaped-v0",
+    }
     gaits |= {"grasp_env/CanGait-v0", "grasp_env/CanGaitMoves-v0"}
     objects = {"grasp_env/ObjectGrasp-v0", "grasp_env/ObjectGraspRandom-v0"}
     assert set(FAST_IDS) | set(MUJOCO_IDS) | gaits | objects == set(grasp_env.ENV_IDS)

@@ -340,7 +340,6 @@ def test_no_module_of_the_agents_imports_itself_back():
     assert import_cycles(graph) == []
 
 
-@pytest.mark.fast
 def test_every_module_of_the_agents_imports_in_a_fresh_interpreter():
     """Each module alone, first thing in a new process: an import that only works after another
     module has loaded would fail here."""
