@@ -314,6 +314,30 @@ def test_expert_starts_begin_on_the_optimal_gait(env_id):
     for bad in (-0.1, 1.5, float("nan"), "half"):
         with pytest.raises(ValueError, match=r"fraction must be a finite number in \[0, 1\]"):
             GaitExpertStarts(gym.make(env_id), fraction=bad)
+    with pytest.raises(ValueError, match="among must be one of"):
+        GaitExpertStarts(gym.make(env_id), among="random")
+
+
+def test_holdable_starts_begin_where_a_gait_still_holds():
+    """among="holdable": the start is a state from which a gait holds to the end (H = T - k),
+    with the plain environment's observation there, and not only the optimal gait's; the
+    episode then steps on from it."""
+    env = GaitShaping(GaitExpertStarts(moves_env(), fraction=1.0, among="holdable"))
+    task = env.task
+    held, T = poses_held(task), task.n_poses
+    off_gait = 0
+    for seed in range(12):
+        obs, _ = env.reset(seed=seed)
+        t, x = env.pose_state
+        assert 1 <= t < T and held[t, x] == T - t
+        assert np.array_equal(obs, env.unwrapped._observation(x, t))
+        off_gait += x != task.solution.optimal.states[t]
+        _, _, _, _, info = env.step(expert(obs, env))
+        assert env.pose_state[0] == t + 1
+        assert info["shaping"] == pytest.approx(
+            env.gamma * env.phi[t + 1, env.pose_state[1]] - env.phi[t, x], abs=1e-12
+        )
+    assert off_gait > 0
 
 
 # --------------------------------------------------------------------------- refusals

@@ -24,6 +24,7 @@ from .experts import GaitExpert, GreedyGait
 from .kernels import check_moves, optimal_actions
 from .shaping import (
     POTENTIALS,
+    STARTS,
     GaitExpertStarts,
     GaitMoveMasks,
     GaitShaping,
@@ -38,6 +39,7 @@ from .vector import CubeGaitVectorEnv
 __all__ = [
     "PAPER_TURN_SPEC",
     "POTENTIALS",
+    "STARTS",
     "CubeGaitEnv",
     "CubeGaitVectorEnv",
     "GaitExpert",

@@ -45,6 +45,8 @@ from .tasks import GaitTask
 
 #: The potentials :class:`GaitShaping` takes (see the module docstring).
 POTENTIALS = ("held", "holds")
+#: The starts :class:`GaitExpertStarts` draws from.
+STARTS = ("expert", "holdable")
 
 
 @numba.njit(cache=True)
@@ -225,22 +227,33 @@ class GaitExpertStarts(_GaitState, gym.utils.RecordConstructorArgs):
     the expert makes are not the agent's (they are not returned); the agent's reward, its
     observation and the episode's end are the environment's.
 
+    With ``among="holdable"`` the start at pose k is any state from which a gait still holds
+    to the end (H_k(x) = T - k, :func:`poses_held`; 11 to 45 states a pose on the default
+    task), drawn uniformly, the environment put there directly (Kakade and Langford's restart
+    distribution): states off the optimal gait that the agent's own gaits pass through.
+
     Evaluation (``grasp-env gait --models``) starts at the first pose: a policy trained with
-    expert starts must hold the whole turn itself.
+    these starts must hold the whole turn itself.
 
     Args:
         env: a gait environment (``CubeGait-v0`` or ``CubeGaitMoves-v0``), possibly wrapped
-            (put shaping outside this wrapper, so that its potential starts at the pose the
-            agent starts at).
+            (shaping may lie inside or outside: it reads the pose and state each step).
         fraction: the share of episodes started partway, in [0, 1].
+        among: ``"expert"`` (the optimal gait's states) or ``"holdable"``.
     """
 
-    def __init__(self, env: gym.Env, fraction: float = 0.5) -> None:
-        gym.utils.RecordConstructorArgs.__init__(self, fraction=fraction)
+    def __init__(self, env: gym.Env, fraction: float = 0.5, among: str = "expert") -> None:
+        gym.utils.RecordConstructorArgs.__init__(self, fraction=fraction, among=among)
         super().__init__(env)
         self.fraction = real_number("fraction", fraction, 0.0, 1.0)
+        if among not in STARTS:
+            raise ValueError(f"among must be one of {STARTS}, got {among!r}")
+        self.among = among
         self._grip = self._base.optimal_grip
         self._policy = self.task.solution.optimal.policy
+        T = self.task.n_poses
+        full = poses_held(self.task) == (T - np.arange(T + 1))[:, None]
+        self._holdable = [np.flatnonzero(row) for row in full[:T]]
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
@@ -250,7 +263,12 @@ class GaitExpertStarts(_GaitState, gym.utils.RecordConstructorArgs):
         if self.fraction == 0.0 or rng.random() >= self.fraction:
             return obs, info
         task = self.task
-        for _ in range(int(rng.integers(1, task.n_poses))):
+        k = int(rng.integers(1, task.n_poses))
+        if self.among == "holdable":
+            base = self._base
+            base._t, base._x = k, int(rng.choice(self._holdable[k]))
+            return base._observation(base._x, k), info
+        for _ in range(k):
             t, x = self.pose_state
             move = int(task.table.move[self._policy[t, x]])
             if self._grip:
@@ -288,22 +306,25 @@ def shaped_gait_env(
     scale: float | None = None,
     gamma: float = 0.99,
     expert_starts: float = 0.0,
+    starts_among: str = "expert",
     **kwargs: Any,
 ) -> GaitShaping:
     """``CubeGaitEnv(**kwargs)`` (``optimal_grip`` True unless given), with
-    :class:`GaitExpertStarts` (``fraction=expert_starts``) if ``expert_starts`` > 0, in
+    :class:`GaitExpertStarts` (``fraction=expert_starts``, ``among=starts_among``) if
+    ``expert_starts`` > 0, in
     :class:`GaitShaping` with ``potential``, ``scale`` and ``gamma``: the id
     ``grasp_env/CubeGaitMovesShaped-v0``."""
     kwargs.setdefault("optimal_grip", True)
     env: gym.Env = CubeGaitEnv(**kwargs)
     fraction = real_number("expert_starts", expert_starts, 0.0, 1.0)
     if fraction > 0.0:
-        env = GaitExpertStarts(env, fraction)
+        env = GaitExpertStarts(env, fraction, starts_among)
     return GaitShaping(env, potential, scale, gamma)
 
 
 __all__ = [
     "POTENTIALS",
+    "STARTS",
     "GaitExpertStarts",
     "GaitMoveMasks",
     "GaitShaping",
