@@ -40,7 +40,7 @@ from ...mechanics.checks import real_number
 from ...mechanics.gait.programme import _pose_values, _state_ok
 from ..validation import check_bool
 from .env import CubeGaitEnv
-from .kernels import optimal_actions
+from .kernels import _allowed, optimal_actions
 from .tasks import GaitTask
 
 #: The potentials :class:`GaitShaping` takes (see the module docstring).
@@ -284,21 +284,30 @@ class GaitExpertStarts(_GaitState, gym.utils.RecordConstructorArgs):
 def legal_moves(task: GaitTask, t: int, x: int, hold: bool = False) -> np.ndarray:
     """(M,) bool, the moves the rules allow from state ``x`` at pose ``t``: those the
     environment does not refuse (keep, always; lifts that leave three touching; placements on
-    a free site within reach). With ``hold``, of those the moves whose loaded set's certified
-    margin at t is >= 0, if any (all allowed ones if none; a state with a contact out of
-    reach loses it whatever the move)."""
-    allowed = task.csr[x] >= 0
-    states, N = task.table.states, task.n_sites
-    moves = np.flatnonzero(allowed[1:]) + 1
-    f, s = np.divmod(moves - 1, N)
-    placed = states[x, f] < 0
-    allowed[moves[placed]] = task.solution.reach[t, f[placed], s[placed]]
-    if hold:
-        legal = np.flatnonzero(allowed)
-        margins = task.solution.values.margin[t, task.table.loaded[task.csr[x, legal]]]
-        if np.any(margins >= 0.0):
-            allowed[legal[margins < 0.0]] = False
-    return allowed
+    a free site within reach; the step kernel's rule). With ``hold``, of those the moves whose
+    loaded set's certified margin at t is >= 0, if any (all allowed ones if none; a state with
+    a contact out of reach loses it whatever the move)."""
+    out = np.empty(task.n_moves, np.bool_)
+    _legal_moves(
+        t, x, hold, task.csr, task.table.states, task.table.loaded, task.solution.reach,
+        task.solution.values.margin, out,
+    )  # fmt: skip
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _legal_moves(t, x, hold, csr, states, loaded, reach, margin, out):
+    """:func:`legal_moves` into ``out`` (M,)."""
+    M = csr.shape[1]
+    any_holds = False
+    for m in range(M):
+        out[m] = _allowed(x, t, m, csr, states, reach) >= 0
+        if out[m] and margin[t, loaded[csr[x, m]]] >= 0.0:
+            any_holds = True
+    if hold and any_holds:
+        for m in range(M):
+            if out[m] and margin[t, loaded[csr[x, m]]] < 0.0:
+                out[m] = False
 
 
 def shaped_gait_env(
