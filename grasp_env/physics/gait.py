@@ -219,13 +219,15 @@ def first_points(points: ArrayLike) -> np.ndarray:
     """(F, 3) each finger's first point of ``points`` (T, F, 3; NaN where it touches nothing),
     the scene's contacts for :func:`check_finger_gait`. A ValueError names a finger that
     touches nothing at any pose."""
-    points = np.asarray(points, dtype=float)
+    points = np.asarray(points, dtype=float) if is_numeric(points) else np.zeros(0)
+    if points.ndim != 3 or points.shape[-1] != 3:
+        raise ValueError(f"points must be real numbers of shape (T, F, 3), got {points.shape}")
     touching = np.all(np.isfinite(points), axis=-1)
-    if points.ndim != 3 or points.shape[-1] != 3 or not touching.any(axis=0).all():
-        never = np.flatnonzero(~touching.any(axis=0)) if points.ndim == 3 else []
+    never = np.flatnonzero(~touching.any(axis=0))
+    if len(never):
         raise ValueError(
-            f"points must be (T, F, 3) with every finger touching at some pose, got shape"
-            f" {points.shape}" + (f"; finger {never[0]} never touches" if len(never) else "")
+            f"finger {never[0]} never touches: every finger needs a point at some pose (the"
+            " place its tip waits)"
         )
     return points[touching.argmax(axis=0), np.arange(points.shape[1])]
 
