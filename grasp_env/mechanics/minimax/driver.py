@@ -158,8 +158,8 @@ def try_releases(a0, al, tau0, T, K, f, k_sqp, best, k_best):
             evaluate(k, a0, al, tau0, T, a, tau, rho, theta)
             sets_from_point(K, f, k, a, rho, Q, fixed)  # (which may move k onto the box)
             t_up, low, share = finish(
-                a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu, 12,
-                a, tau, rho, theta, False,
+                a0, al, tau0, T, K, f, k, S, R, Q, fixed, lam, eta, nu, np.int64(12),
+                a, tau, rho, theta, np.bool_(False),
             )  # fmt: skip
             best = fold(best, k_best, k, t_up, low, box_status(share), RELEASED)
             if closed(best):
