@@ -182,7 +182,7 @@ def test_random_draws_are_holdable_and_reproducible() -> None:
         # the pending poses' optimum is the optimum solved at reset (to the solver's gap)
         eager = build_episodes([episode.scene], env.k_max_ratio, 6)[0]
         np.testing.assert_allclose(episode.expert_reward, eager.expert_reward, atol=MAX_EXPERT_GAP)
-    assert kinds == {"box", "cylinder", "sphere"}
+    assert kinds == {"box", "cylinder", "sphere", "convex mesh"}
     assert counts <= {3, 4, 5, 6} and len(counts) >= 3  # 12 draws of 4 counts
 
 

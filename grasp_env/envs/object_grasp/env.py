@@ -23,6 +23,7 @@ from ..validation import (
 from .episodes import EpisodeStream, ObjectEpisode, ObjectLayout, build_episodes, solve_pending
 from .kernels import object_row
 from .scenes import (
+    SHAPE_KINDS,
     ObjectSampler,
     ObjectScene,
     default_contacts,
@@ -345,12 +346,15 @@ class ObjectGraspRandomEnv(_ObjectGraspEnv):
 
     ## Description
     As `grasp_env/ObjectGrasp-v0`, but every reset draws a scene: the shape uniformly from
-    `shapes` ("box", "cylinder", "sphere"), its sizes uniform in `size_range` metres (box
-    edges; a cylinder's diameter and height; a sphere's diameter), the contact count
+    `shapes` ("box", "cylinder", "sphere", "mesh"), its sizes uniform in `size_range` metres
+    (box edges; a cylinder's diameter and height; a sphere's diameter; a convex mesh's
+    three axes: the hull of 12 random directions scaled by them), the contact count
     uniformly from `contact_counts`, each contact on a random face of a box, on a
-    cylinder's side (70%) or a cap, or anywhere on a sphere, moved from the face centre by
-    up to `contact_offset` of the half-widths; the centre of gravity by up to `cg_offset_max` of
-    the half-widths per axis (inside the shape); weight and mu uniform in their ranges; the
+    cylinder's side (70%) or a cap, anywhere on a sphere, or on a random face of a mesh
+    (on a box moved from the face centre by up to `contact_offset` of the half-widths; on
+    a mesh's face each corner weighs at least (1 - `contact_offset`) / its corners); the
+    centre of gravity by up to `cg_offset_max` of the half-widths per axis (inside the
+    shape); weight and mu uniform in their ranges; the
     trajectory as the cube's random one (a uniform axis, alpha_start and alpha_end uniform
     in their ranges, by `alpha_step_deg`). Only draws that the minimax expert holds along the
     whole trajectory (every margin >= `min_expert_margin_deg`, every certificate gap <= 1e-5
@@ -366,7 +370,7 @@ class ObjectGraspRandomEnv(_ObjectGraspEnv):
 
     ## Arguments
     ```python
-    gym.make("grasp_env/ObjectGraspRandom-v0", shapes=("box", "cylinder", "sphere"),
+    gym.make("grasp_env/ObjectGraspRandom-v0", shapes=("box", "cylinder", "sphere", "mesh"),
              size_range=(0.05, 0.3), contact_counts=(3, 4, 5, 6), contact_offset=0.6,
              cg_offset_max=0.2, weight_range=(1.0, 10.0), mu_range=(0.4, 1.0),
              alpha_start_range_deg=(-20.0, -5.0), alpha_end_range_deg=(5.0, 20.0),
@@ -390,7 +394,7 @@ class ObjectGraspRandomEnv(_ObjectGraspEnv):
 
     def __init__(
         self,
-        shapes: Sequence[str] = ("box", "cylinder", "sphere"),
+        shapes: Sequence[str] = SHAPE_KINDS,
         size_range: tuple[float, float] = (0.05, 0.3),
         contact_counts: Sequence[int] = (3, 4, 5, 6),
         contact_offset: float = spec.OBJECT_DEFAULTS["contact_offset"],

@@ -61,7 +61,9 @@ from ..validation import (
 
 SCENE_KEYS = ("contacts", "cg_offset", "weight", "mu", "extra_force", "extra_torque", "trajectory")
 #: The shapes a random scene may be, by their :func:`parse_object` names.
-SHAPE_KINDS = ("box", "cylinder", "sphere")
+SHAPE_KINDS = ("box", "cylinder", "sphere", "mesh")
+#: A drawn convex mesh: the hull of this many directions, scaled by its three sizes.
+MESH_VERTICES = 12
 #: The smallest net load besides none, in units of w (w L for the torque), as the cube's.
 MIN_LOAD = 1e-6
 
@@ -393,6 +395,12 @@ class ObjectSampler:
             return Box(size=sizes)
         if kind == "cylinder":
             return Cylinder(radius=sizes[0] / 2, height=sizes[1])
+        if kind == "mesh":
+            # the hull's directions from a generator seeded by the candidate's own numbers,
+            # so that a candidate is the same however many are drawn at a time
+            directions = _generator(u[1:4]).normal(size=(MESH_VERTICES, 3))
+            directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+            return ConvexMesh(vertices=directions * sizes / 2)
         return Sphere(radius=sizes[0] / 2)
 
     def scene(self, u: np.ndarray) -> ObjectScene | None:
@@ -444,6 +452,21 @@ class ObjectSampler:
             room = np.where(side, (1 - np.abs(fraction)) * h / 2, (1 - fraction) * r)
             if np.any(room <= tol):
                 return None
+        elif isinstance(shape, ConvexMesh):
+            # a face by its share of the faces, then a point inside it: the convex
+            # combination with weights at least (1 - c) / k of its k corners' (c the offset)
+            faces = np.minimum((p[:, 0] * len(shape.faces)).astype(np.int64), len(shape.faces) - 1)
+            contacts = np.empty((n, 3))
+            for i, face in enumerate(faces):
+                corners = shape.vertices[list(shape.faces[face])]
+                spread = _generator(p[i]).random(len(corners))
+                weights = (1 - c) / len(corners) + c * spread / spread.sum()
+                contacts[i] = weights @ corners
+            normals = -shape.face_normals[faces]
+            others = contacts @ shape.face_normals.T - shape.face_offsets  # > 0 outside
+            others[np.arange(n), faces] = -np.inf
+            if np.any(others.max(axis=1) >= -tol):  # on (or by) an edge: as Scene's rule
+                return None
         else:  # uniform on the sphere
             z, angle = 2 * p[:, 2] - 1, 2 * np.pi * p[:, 3]
             rho = np.sqrt(np.maximum(1 - z * z, 0.0))
@@ -471,6 +494,11 @@ class ObjectSampler:
             return None
         trajectory = Trajectory(tuple(axis_), start, end, self.alpha_step_deg)
         return ObjectScene(shape, contacts, normals, cg, weight, mu, force, torque, trajectory)
+
+
+def _generator(numbers: np.ndarray) -> np.random.Generator:
+    """A generator seeded by a candidate's uniform numbers (their bits)."""
+    return np.random.default_rng(np.frombuffer(np.ascontiguousarray(numbers).tobytes(), np.uint32))
 
 
 #: As :class:`~grasp_env.mechanics.Scene`'s layout rule: in units of the largest bounding edge.
