@@ -288,6 +288,36 @@ def test_hold_masks_keep_the_pose():
         GaitMoveMasks(moves_env(), hold=1)
 
 
+def test_lookahead_masks_keep_the_next_pose_within_reach():
+    """lookahead: of the moves that hold, those into a state whose contacts are all within
+    reach at the next pose, where one is; e.g. the thumb on +y must lift at 80 deg (the last
+    pose it reaches +y), where keeping it holds the pose at a larger margin."""
+    task = moves_env().unwrapped.task
+    table, reach = task.table, task.solution.reach
+    rng = np.random.default_rng(2)
+    for _ in range(300):
+        t = int(rng.integers(task.n_poses - 1))
+        x = int(rng.integers(len(table.states)))
+        holding = legal_moves(task, t, x, hold=True)
+        mask = legal_moves(task, t, x, hold=True, lookahead=True)
+        moves = np.flatnonzero(holding)
+        states = table.states[table.next[task.csr[x, moves]]]
+        fingers = np.arange(task.n_fingers)
+        kept = np.array([np.all((a < 0) | reach[t + 1, fingers, np.maximum(a, 0)]) for a in states])
+        margins = task.solution.values.margin[t, table.loaded[task.csr[x, moves]]]
+        expected = np.zeros_like(mask)  # nothing holds: the allowed moves, unfiltered
+        expected[moves[kept] if kept.any() and np.any(margins >= 0) else moves] = True
+        assert np.array_equal(mask, expected)
+    x = int(table.code[int(np.dot(np.array([0, 5, 1, -1, 4]) + 1, 7 ** np.arange(5)))])
+    t = int(np.flatnonzero(task.alphas == 80.0)[0])
+    assert np.flatnonzero(legal_moves(task, t, x, hold=True)).tolist() == [0, 1, 12, 29]
+    assert np.flatnonzero(legal_moves(task, t, x, hold=True, lookahead=True)).tolist() == [29]
+    with pytest.raises(ValueError, match="set hold=True too"):
+        GaitMoveMasks(moves_env(), lookahead=True)
+    with pytest.raises(ValueError, match="lookahead must be True or False"):
+        GaitMoveMasks(moves_env(), hold=True, lookahead="yes")
+
+
 # ------------------------------------------------------------------------ expert starts
 
 

@@ -197,10 +197,13 @@ class GaitMoveMasks(_GaitState, gym.utils.RecordConstructorArgs):
             margin >= 0, eq. 2, 4; the others slip at once and end the episode), all the
             allowed ones where none holds. Which move keeps the turn going later is still the
             agent's to learn.
+        lookahead: with ``hold``, also mask the moves into a state that loses a contact at the
+            next pose (a finger kept on a site that leaves its reach), where another is left:
+            the greedy gait's one-pose lookahead, given to the hand.
     """
 
-    def __init__(self, env: gym.Env, hold: bool = False) -> None:
-        gym.utils.RecordConstructorArgs.__init__(self, hold=hold)
+    def __init__(self, env: gym.Env, hold: bool = False, lookahead: bool = False) -> None:
+        gym.utils.RecordConstructorArgs.__init__(self, hold=hold, lookahead=lookahead)
         super().__init__(env)
         if not self.env.unwrapped.optimal_grip:
             raise ValueError(
@@ -208,6 +211,9 @@ class GaitMoveMasks(_GaitState, gym.utils.RecordConstructorArgs):
                 " (grasp_env/CubeGaitMoves-v0, optimal_grip=True)"
             )
         self.hold = check_bool("hold", hold)
+        self.lookahead = check_bool("lookahead", lookahead)
+        if self.lookahead and not self.hold:
+            raise ValueError("lookahead=True masks among the moves that hold: set hold=True too")
 
     def action_masks(self) -> np.ndarray:
         """(M,) bool: True for the moves allowed now (see ``hold``); all True once the episode
@@ -215,7 +221,7 @@ class GaitMoveMasks(_GaitState, gym.utils.RecordConstructorArgs):
         t, x = self.pose_state
         if self._base._done:
             return np.ones(self.task.n_moves, bool)
-        return legal_moves(self.task, t, x, self.hold)
+        return legal_moves(self.task, t, x, self.hold, self.lookahead)
 
 
 class GaitExpertStarts(_GaitState, gym.utils.RecordConstructorArgs):
@@ -281,33 +287,57 @@ class GaitExpertStarts(_GaitState, gym.utils.RecordConstructorArgs):
         return obs, info
 
 
-def legal_moves(task: GaitTask, t: int, x: int, hold: bool = False) -> np.ndarray:
+def legal_moves(
+    task: GaitTask, t: int, x: int, hold: bool = False, lookahead: bool = False
+) -> np.ndarray:
     """(M,) bool, the moves the rules allow from state ``x`` at pose ``t``: those the
     environment does not refuse (keep, always; lifts that leave three touching; placements on
     a free site within reach; the step kernel's rule). With ``hold``, of those the moves whose
     loaded set's certified margin at t is >= 0, if any (all allowed ones if none; a state with
-    a contact out of reach loses it whatever the move)."""
+    a contact out of reach loses it whatever the move). With ``lookahead`` too, of those the
+    moves into a state whose every contact is within reach at t + 1, if any (the greedy gait's
+    one-pose lookahead: a finger is not kept on a site it loses at the next pose)."""
     out = np.empty(task.n_moves, np.bool_)
     _legal_moves(
-        t, x, hold, task.csr, task.table.states, task.table.loaded, task.solution.reach,
-        task.solution.values.margin, out,
+        t, x, hold, lookahead, task.csr, task.table.states, task.table.loaded, task.table.next,
+        task.solution.reach, task.solution.values.margin, out,
     )  # fmt: skip
     return out
 
 
 @numba.njit(cache=True, nogil=True)
-def _legal_moves(t, x, hold, csr, states, loaded, reach, margin, out):
+def _legal_moves(t, x, hold, lookahead, csr, states, loaded, nxt, reach, margin, out):
     """:func:`legal_moves` into ``out`` (M,)."""
     M = csr.shape[1]
+    F = states.shape[1]
+    T = reach.shape[0]
     any_holds = False
     for m in range(M):
         out[m] = _allowed(x, t, m, csr, states, reach) >= 0
         if out[m] and margin[t, loaded[csr[x, m]]] >= 0.0:
             any_holds = True
-    if hold and any_holds:
+    if not (hold and any_holds):
+        return
+    for m in range(M):
+        if out[m] and margin[t, loaded[csr[x, m]]] < 0.0:
+            out[m] = False
+    if not lookahead or t + 1 >= T:
+        return
+    kept = np.zeros(M, np.bool_)
+    any_kept = False
+    for m in range(M):
+        if out[m]:
+            y = nxt[csr[x, m]]
+            ok = True
+            for f in range(F):
+                site = states[y, f]
+                if site >= 0 and not reach[t + 1, f, site]:
+                    ok = False
+            kept[m] = ok
+            any_kept = any_kept or ok
+    if any_kept:
         for m in range(M):
-            if out[m] and margin[t, loaded[csr[x, m]]] < 0.0:
-                out[m] = False
+            out[m] = out[m] and kept[m]
 
 
 def shaped_gait_env(
