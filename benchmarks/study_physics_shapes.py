@@ -15,8 +15,9 @@ angle of a loaded finger over every step of the run, is a chosen distance from t
 inside or outside (:data:`MARGINS_DEG`, alternately): so about half the grips hold and half
 slip, at known distances from the cone's edge. Each can scene also gives a grip with a
 deliberately wrong torque ("torque error"): the can's grip, checked on the same scene with an
-extra torque of :data:`TORQUE_ERROR` N m it does not balance (its margin 2 deg inside), which
-both verdicts must call a failure.
+extra torque it does not balance, :data:`TORQUE_ERROR` N m beyond what the grip's rolling and
+torsional friction can hold (:func:`torque_error`; its margin 2 deg inside), which both
+verdicts must call a failure.
 
 Prints a table per shape kind (agreement overall and at >= 0.05 deg from the edge, the
 confusion matrix, per n) and writes ``cases.csv`` (a row a trajectory) and ``summary.md`` into
@@ -65,8 +66,13 @@ K_MAX = 3.0
 #: A grip whose friction angles exceed this is left out (degrees): mu would be above 1 (and one
 #: whose margin outside would put atan(mu) below 0.1 deg).
 MAX_EXPERT_DEG = 45.0
-#: The wrong torque of the "torque error" grips on the can, N m (0.076 w L: the can's weight
-#: 3.43 N, its largest edge 0.115 m). Rolling friction of 1 mm holds about 0.01 N m.
+#: The wrong torque of the "torque error" grips on the can *beyond what the model's rolling and
+#: torsional friction can hold*, N m (0.076 w L: the can's weight 3.43 N, its largest edge
+#: 0.115 m). A contact's elliptic cone lets it resist a torque of at most its spin length
+#: (``SPIN_FRICTION`` tip radii, 0.40 mm on the can) times its normal force, so a grip resists
+#: at most that length times the sum of its normal forces: the error is this plus that
+#: capacity (:func:`torque_error`), or a squeezing grip (100 N: 0.04 N m) would legitimately
+#: hold it.
 TORQUE_ERROR = 0.03
 #: The can's weight, newtons (a full 330 ml can, 0.35 kg).
 CAN_WEIGHT = 0.35 * 9.81
@@ -142,6 +148,28 @@ def random_turn(rng: np.random.Generator) -> np.ndarray:
     return axis_angle_matrix(np.broadcast_to(axis, (len(alphas), 3)), alphas) @ start
 
 
+def rolling_capacity(scene: Scene, rotations: np.ndarray, forces: np.ndarray) -> float:
+    """The largest torque the model's torsional and rolling friction can hold against the
+    grip ``forces`` (T, n, 3; world frame, newtons) along ``rotations``, N m: the contacts'
+    spin length (:func:`grasp_env.physics.model.contact_friction`, metres) times the largest
+    sum of the normal forces over the poses (MuJoCo's elliptic cone bounds each contact's
+    torque by its length times its normal force); 0 on a shape without it (condim 3)."""
+    condim, friction = physics_model.contact_friction(scene)
+    if condim == 3:
+        return 0.0
+    spin = float(friction.split()[2]) * physics_model.length_unit(scene)
+    local = np.einsum("tji,tnj->tni", rotations, forces)  # R^T P: the object's frame
+    normal = np.einsum("tni,ni->tn", local, scene.normals)
+    return spin * float(np.clip(normal, 0.0, None).sum(axis=-1).max())
+
+
+def torque_error(scene: Scene, rotations: np.ndarray, forces: np.ndarray) -> float:
+    """The size of a torque error's wrong torque, N m: :data:`TORQUE_ERROR` beyond what the
+    grip's rolling and torsional friction can hold (:func:`rolling_capacity`), so that no
+    modelled friction can legitimately balance it."""
+    return TORQUE_ERROR + rolling_capacity(scene, rotations, forces)
+
+
 def run_largest_angle(scene: Scene, rotations: np.ndarray, forces: np.ndarray) -> float:
     """The largest friction angle of a loaded finger over the steps of the run of ``forces``
     (radians): what the analytic verdict judges."""
@@ -198,7 +226,8 @@ def shape_cases(
                 )
                 if kind == "can":
                     axis = rng.normal(size=3)
-                    torque = TORQUE_ERROR * axis / np.linalg.norm(axis)
+                    error = torque_error(scene, rotations, forces)
+                    torque = error * axis / np.linalg.norm(axis)
                     wrong = replace(
                         scene, mu=float(np.tan(largest + np.radians(2.0))), extra_torque=torque
                     )
