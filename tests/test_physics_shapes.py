@@ -33,6 +33,7 @@ from grasp_env.physics.model import (
     length_unit,
     model_cg,
     tip_radius,
+    world_qpos,
 )
 from grasp_env.physics.simulation import PhysicsModel
 from grasp_env_agents.benchmarks.study_physics_shapes import (
@@ -40,7 +41,9 @@ from grasp_env_agents.benchmarks.study_physics_shapes import (
     TORQUE_ERROR,
     agreement_row,
     check_cases,
+    rolling_capacity,
     shape_cases,
+    torque_error,
 )
 from grasp_env_agents.cli import main
 
@@ -178,6 +181,71 @@ def test_the_lever_arm_correction_is_where_mujoco_puts_the_contact():
         assert inside == pytest.approx(-data.contact[c].dist / 2, rel=0.01)
 
 
+def test_a_boxs_lever_arms_are_restored_too():
+    """Flat faces also put MuJoCo's contact d / 2 inside the face: a box's model restores its
+    lever arms as a curved object's (without, a three-finger box grip 0.1 deg inside turned
+    0.118 deg over a 15-pose run, past the 0.1 deg threshold)."""
+    box = Scene.on_faces(size=(0.26, 0.12, 0.06))
+    can = PhysicsModel(can_scene(), 0.002, 10.0)
+    physics = PhysicsModel(box, 0.002, 10.0)
+    assert physics.lever > 0
+    # the same soft contact: d / (2 N) = (1 - I) A / (2 I^2 K), A the contact's inverse inertia
+    assert physics.lever / physics._response[3] == pytest.approx(
+        can.lever / can._response[3], rel=1e-12
+    )
+
+
+def test_a_mesh_tip_touches_its_own_face_however_deep_it_sinks():
+    """On a convex mesh each tip's contact pair is with its face's half-space, so a tip sunk
+    deeper than its distance to the neighbouring face's plane (as a loaded tip near an edge
+    is: 2.5e-3 L per w) still pushes along its face's normal, not the neighbour's."""
+    corners = MESH.vertices[list(MESH.faces[0])]
+    near_edge = MESH.face_point(0, [1.0, 1.0, 0.02][: len(corners)])  # next to edge 0-1
+    scene = Scene(
+        shape=MESH,
+        contacts=[near_edge] + [MESH.face_point(f) for f in (1, 2, 4)],
+        weight=3.0,
+        cg_offset=(0.002, 0.0, 0.001),
+    )
+    model = mujoco.MjModel.from_xml_string(build_mjcf(scene))
+    pairs = {frozenset(model.geom(int(g)).name for g in pair)
+             for pair in zip(model.pair_geom1, model.pair_geom2, strict=True)}  # fmt: skip
+    assert pairs == {frozenset((f"tip{i}", f"face{i}")) for i in range(4)}
+    data = mujoco.MjData(model)
+    data.qpos[:] = world_qpos(scene, np.eye(3))
+    # sink every tip 3 tip radii (0.042 L) deeper along its inward normal: tip 0's contact
+    # lies 0.0058 L from the next face's plane (paired with the mesh itself, MuJoCo turned its
+    # normal 77 deg from 2 radii deep on)
+    depth = 3 * tip_radius(scene)
+    data.qpos[7:] += (depth * scene.normals).ravel()
+    mujoco.mj_forward(model, data)
+    assert data.ncon == 4
+    for c in range(data.ncon):
+        names = [model.geom(int(g)).name for g in data.contact[c].geom]
+        i = int(names[0][-1])
+        # MuJoCo's frame normal points from geom1 to geom2: inward if the tip is geom1
+        sign = 1.0 if names[0].startswith("tip") else -1.0
+        np.testing.assert_allclose(sign * data.contact[c].frame[:3], scene.normals[i], atol=1e-9)
+        assert -data.contact[c].dist == pytest.approx(depth, rel=1e-3)
+
+
+def test_a_torque_error_exceeds_what_the_grips_rolling_friction_can_hold():
+    """The study's torque errors are TORQUE_ERROR beyond the grip's rolling and torsional
+    capacity (the spin length times the normal forces' largest sum): a squeezing can grip
+    would otherwise legitimately hold a fixed 0.03 N m (100 N x 0.40 mm = 0.04 N m)."""
+    scene = can_scene()
+    forces, _ = expert(scene)
+    rotations = np.repeat(START_ROTATION[None], 2, axis=0)
+    grip = np.stack([forces, 2 * forces])  # the second pose squeezes twice as hard
+    normal = np.einsum("ij,ij->i", forces @ START_ROTATION, scene.normals)
+    spin = SPIN_FRICTION * tip_radius(scene) * length_unit(scene)  # metres
+    capacity = rolling_capacity(scene, rotations, grip)
+    assert capacity == pytest.approx(spin * 2 * normal.sum(), rel=1e-12)
+    assert torque_error(scene, rotations, grip) == pytest.approx(TORQUE_ERROR + capacity)
+    flat = mesh_scene()  # condim 3: no rolling friction, no capacity
+    assert rolling_capacity(flat, rotations[:1], expert(flat)[0][None]) == 0.0
+
+
 # -------------------------------------------------------------------------- holds and slips
 
 
@@ -210,7 +278,9 @@ def test_without_torsional_and_rolling_friction_the_can_rolls_under_its_fingerti
     """Why the curved shapes get condim 6: with the cube's condim 3 nothing resists the can
     turning under fingertips that push with fixed forces (its normals' lines barely move), and
     a grip 2 deg inside every cone rolls; with torsional and rolling friction it stays put.
-    (With the model's large rotational inertia the roll is slow: 2e-4 deg in 1.7 s here.)"""
+    (With the model's large rotational inertia and the lever arms restored the roll is slow,
+    3.4e-6 deg in 1.7 s here, and it keeps turning; before the lever arms were restored on
+    every shape their torque made it 2e-4 deg.)"""
     scene = can_scene()
     forces, largest = expert(scene)
     inside = with_margin(scene, largest, 2.0)
@@ -221,7 +291,7 @@ def test_without_torsional_and_rolling_friction_the_can_rolls_under_its_fingerti
     monkeypatch.setattr(physics_model, "CURVED", ())
     monkeypatch.setattr(physics_model, "FLAT_INERTIA_SCALE", physics_model.INERTIA_SCALE)
     rolled = TrajectoryChecker(inside).check(rotations, grip)
-    assert rolled.rotation_deg.max() > 1e-4
+    assert rolled.rotation_deg.max() > 1e-6
     assert rolled.rotation_deg[-1] > 2 * rolled.rotation_deg[5]  # and it keeps turning
 
 

@@ -226,7 +226,7 @@ def _controls(
     pushed = forces + inertial[..., None] * normals
     controls[..., :nu] = np.where(touching, pushed, 0.0).reshape(count, steps, nu)
     lever = np.array([p.lever for p in physics])
-    if lever.any():  # a curved object: its contacts' lever arms restored (PhysicsModel.lever)
+    if lever.any():  # the contacts' lever arms restored, on every shape (PhysicsModel.lever)
         applied = np.where(touching, forces, 0.0)
         normal = np.sum(applied * normals, axis=-1, keepdims=True)
         shift = lever[:, None, None, None] * normal * normals  # MuJoCo's contact point - c_i

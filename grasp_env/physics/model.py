@@ -93,6 +93,14 @@ SPIN_FRICTION = 0.3
 #: The shapes whose contact pairs get torsional and rolling friction (condim 6): the curved
 #: ones. A box and a convex mesh have flat faces and keep the cube's condim 3.
 CURVED = ("cylinder", "sphere")
+#: On a convex mesh each fingertip touches the half-space of its own face (a box geom this
+#: many L deep and twice as wide, whose outer side is the face's plane), not the mesh: the soft
+#: contact sinks a tip about 2.5e-3 L per w deep (:func:`contact_shift`), and near an edge
+#: of a thin mesh that depth reaches past the neighbouring face, which MuJoCo's convex
+#: collision then takes for the nearest (the tip's normal flips and it slides through: a
+#: six-finger grip 0.1 deg inside, a 6.7 w tip 0.0067 L from the next face's plane and 0.017 L
+#: deep, fell at the settle's end). The analytic contact is a point on its face, normal fixed.
+FACE_DEPTH = 1.0
 
 
 def _vec(values: ArrayLike) -> str:
@@ -139,8 +147,10 @@ def contact_shift(scene: Scene, inverse_inertia: float) -> float:
     width (0.001 L, about 0.4 w). About 2.5e-3 L per w, so a grip's lever arms are off by
     about 1e-2 L, and the torque by a few hundredths of w L: on a curved object the rolling
     friction takes it up and eats the sliding friction's budget (MuJoCo's elliptic cone shares
-    it), making false slips near the cone's edge. The controls take it back off the load
-    (``batch._controls``): the returned d / (2 N)."""
+    it), making false slips near the cone's edge; on a flat one nothing resists it and it
+    turns the object (a three-finger box grip 0.1 deg inside turned 0.118 deg, past the
+    0.1 deg threshold, over a 15-pose run; 0.0001 deg restored). The controls take it back
+    off the load on every shape (``batch._controls``): the returned d / (2 N)."""
     del scene  # the same soft contact for every scene (the shapes differ in A only)
     timeconst, dampratio = (float(v) for v in SOLREF.split())
     dmax = float(SOLIMP.split()[1])
@@ -185,6 +195,30 @@ def seam_geom(scene: Scene) -> str:
 def object_geom_name(scene: Scene) -> str:
     """The name of the object's geom in the model (see :func:`object_geom`)."""
     return "box" if isinstance(scene.shape, Box) else "object"
+
+
+def touches_faces(scene: Scene) -> bool:
+    """Whether the fingertips touch their faces' half-spaces (:func:`face_geoms`) rather than
+    the object's geom: on a convex mesh."""
+    return scene.shape.kind == "convex mesh"
+
+
+def face_geoms(scene: Scene) -> str:
+    """On a convex mesh (:func:`touches_faces`), each contact's face as a half-space: a box
+    geom ``face{i}`` on the object, :data:`FACE_DEPTH` L deep and 2 x :data:`FACE_DEPTH` L
+    wide, whose outer side lies in the face's plane through the contact (collision through
+    its contact pair only, invisible); "" otherwise."""
+    if not touches_faces(scene):
+        return ""
+    half = _vec([FACE_DEPTH, FACE_DEPTH, FACE_DEPTH / 2])
+    return "".join(
+        f'<geom name="face{i}" type="box" size="{half}"'
+        f' pos="{_vec(contact + 0.5 * FACE_DEPTH * normal)}" quat="{_vec(_z_to(normal))}"'
+        ' contype="0" conaffinity="0" group="3" rgba="0 0 0 0"/>'
+        for i, (contact, normal) in enumerate(
+            zip(model_contacts(scene), scene.normals, strict=True)
+        )
+    )
 
 
 def inertia_scale(scene: Scene) -> float:
@@ -343,8 +377,9 @@ def build_mjcf(scene: Scene, timestep: float = 2e-3, visual: bool = False) -> st
             ' contype="0" conaffinity="0"/>'
             "</body>"
         )
+        touched = f"face{i}" if touches_faces(scene) else target
         pairs.append(
-            f'<pair name="contact{i}" geom1="tip{i}" geom2="{target}" condim="{condim}"'
+            f'<pair name="contact{i}" geom1="tip{i}" geom2="{touched}" condim="{condim}"'
             f' friction="{friction}"'
             f' solref="{SOLREF}" solimp="{SOLIMP}"/>'
         )
@@ -385,6 +420,7 @@ def build_mjcf(scene: Scene, timestep: float = 2e-3, visual: bool = False) -> st
       <freejoint name="object"/>
       <inertial pos="{_vec(model_cg(scene))}" mass="{mass:.17g}" diaginertia="{_vec(inertia)}"/>
       {geom}
+      {face_geoms(scene)}
       {visuals}
     </body>
     {"".join(fingers)}
