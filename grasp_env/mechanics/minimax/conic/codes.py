@@ -34,3 +34,14 @@ LEVEL_GAP_CAREFUL = 1e-4
 
 #: A compiled kernel of the conic solver (numba's runtime: its arrays are heap arrays).
 kernel = njit(cache=True, nogil=True, error_model="numpy")
+#: The active-set attempt (``active``): its SQP's most steps, the predicted decrease of the
+#: largest angle (rad) below which it stops, and the share of the largest force below which
+#: a finger is released, and the push along its normal that holds it there (units of the
+#: load: its angle 0, within rounding of its cone's apex).
+ACTIVE_STEPS = 60
+ACTIVE_TOL = (1e-5, 1e-10)
+RELEASE_AT = 1e-3
+RELEASE_PUSH = 1e-10
+#: The force (share of the largest) with which a released finger pushes again where its
+#: multipliers say that pushing lowers the largest angle.
+UNRELEASE = 1e-2

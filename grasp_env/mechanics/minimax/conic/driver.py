@@ -45,6 +45,7 @@ from ..codes import (
 )
 from ..codes import UNCERTIFIED_STATUS as UNCERTIFIED
 from ..fingers import setup
+from .active import active_search
 from .barrier import level
 from .codes import BOUND_BELOW, CONVERGED, DINKELBACH_STEPS, POLISH_ROUNDS, kernel
 from .frames import finger_forces, force_coordinates, largest_angle, reduced, start_at
@@ -204,6 +205,19 @@ def solve_one(F, E, N, K_in, f_in, k, theta):
     al, T = al @ box, reduced(T, box)
     m = box.shape[1]
     P = np.empty((n, 3))
+    # first the active-set attempt (an SQP, then the KKT polish's certificate on its sets)
+    found = np.zeros(m)
+    found_lower, found_share = active_search(a0, al, tau0, T, box, K, f, found, theta)
+    finger_forces(found, a0, al, tau0, T, P)
+    t_found = largest_angle(P, f, theta)
+    if t_found < pi / 2 and t_found - found_lower <= GAP_TOL:
+        for j in range(pairs):
+            v = 0.0
+            for p in range(m):
+                v += box[j, p] * found[p]
+            k[j] = v * scale
+        return found_lower, BOUNDARY if found_share > 1e-6 else INTERIOR
+    # not certified: the barrier search as before, its result folded with the attempt's
     best = np.zeros(m)  # k = 0: the equilibrating forces alone
     lower, share = search(a0, al, tau0, T, box, K, f, best, theta, False)
     finger_forces(best, a0, al, tau0, T, P)
@@ -228,6 +242,12 @@ def solve_one(F, E, N, K_in, f_in, k, theta):
             best[:] = other
         if low > lower:
             lower, share = low, part
+    # (each bound is a proof and each grip attained, whichever attempt found them)
+    if t_found < t_best:
+        t_best = t_found
+        best[:] = found
+    if found_lower > lower:
+        lower, share = found_lower, found_share
     finger_forces(best, a0, al, tau0, T, P)
     t_best = largest_angle(P, f, theta)
     for j in range(pairs):
