@@ -7,17 +7,21 @@ machine sustains on the solver's own Newton step; a target above that limit cann
 with the conic package's modules added: it runs the conic kernels' own Python source with
 :class:`~.counting.Counted` floats (the same rules: one operation per addition,
 multiplication, division, square root or transcendental function, none for constants alone),
-``np.cos`` / ``np.sin`` counted as the ``math`` ones are. Two numpy calls it cannot count run
+``np.cos`` / ``np.sin`` counted as the ``math`` ones are. Four numpy calls it cannot count run
 on plain floats instead: the SVD of the force coordinates (once a solve, its operations added
-as :func:`svd_flops`, the Golub-Van Loan count of a thin SVD) and the least-squares step of a
-singular KKT system (rare; not counted). The leaf kernels' counts have closed forms
-(:func:`barrier_flops`, :func:`cholesky_flops`; tests/test_bench_limits.py checks them
-against the interpreter).
+as :func:`svd_flops`, the Golub-Van Loan count of a thin SVD), the least-squares step of a
+singular KKT system (rare; not counted), the active-set attempt's start (one solve of its
+d + 1 normal equations, not counted) and its least-norm correction that holds the released
+fingers (a least squares of 3 rows a released finger, not counted). The leaf kernels' counts
+have closed forms (:func:`barrier_flops`, :func:`cholesky_flops`; tests/test_bench_limits.py
+checks them against the interpreter).
 
 **The units of a solve.** A barrier Newton step (``centre``: the barrier's gradient and
 Hessian, the Jacobi scaling, a Cholesky solve, a backtracking line search of barrier values),
 a KKT Newton step (``polish``: the active rows, an LU solve, residuals of the damped step),
-a certificate (the barrier duals' weak-duality bound).
+a certificate (the barrier duals' weak-duality bound), an SQP step of the active-set attempt
+(``sqp``: the angles' and limits' derivatives, the convexified Hessian's inverse, a
+Goldfarb-Idnani QP, the line search on the largest angle).
 
 **The machine's rate.** :func:`barrier_steps` repeats the barrier Newton step (the barrier
 with derivatives, the scaling and the Cholesky solve: the work that dominates a solve)
@@ -39,6 +43,7 @@ import numpy as np
 
 from grasp_env.mechanics import Grasp
 from grasp_env.mechanics.minimax import _THREADS
+from grasp_env.mechanics.minimax.conic import active as conic_active
 from grasp_env.mechanics.minimax.conic import barrier as conic_barrier
 from grasp_env.mechanics.minimax.conic import codes as conic_codes
 from grasp_env.mechanics.minimax.conic import driver as conic_driver
@@ -57,7 +62,14 @@ from grasp_env_agents.benchmarks.counting import (
 #: The conic package's kernel modules, callees before callers.
 CONIC_MODULES = {
     module.__name__: module
-    for module in (conic_codes, conic_frames, conic_barrier, conic_polish, conic_driver)
+    for module in (
+        conic_codes,
+        conic_frames,
+        conic_barrier,
+        conic_polish,
+        conic_active,
+        conic_driver,
+    )
 }
 
 # ------------------------------------------------------- closed forms of the leaf kernels
@@ -132,6 +144,10 @@ class _ConicNumpy(_CountingNumpy):
             solution = np.linalg.lstsq(np.array(a, float), np.array(b, float), rcond=rcond)
             return (counted_array(solution[0]), *solution[1:])
 
+        @staticmethod
+        def solve(a, b):  # type: ignore[no-untyped-def]
+            return counted_array(np.linalg.solve(np.array(a, float), np.array(b, float)))
+
 
 class ConicInterpreter(Interpreter):
     """:class:`~.counting.Interpreter` over the parent package's kernels and the conic
@@ -162,15 +178,16 @@ UNITS = (
     ("barrier Newton step", ("centre", "cholesky_solve")),
     ("KKT Newton step", ("polish", "lu_solve")),
     ("level", "level"),
+    ("SQP step", ("sqp", "quadprog")),
 )
 
 
 class ConicCount:
     """The counted operations of conic solves, averaged over the grasps counted: ``flops``
     a solve (the SVD's estimate included), ``svd`` its share, ``units[name]`` per solve,
-    ``barrier_step`` and ``kkt_step`` the flops of one such step (inclusive of its line
-    search); ``counted`` scenes counted, ``departed`` left out (their interpreted path was
-    not the compiled one's)."""
+    ``barrier_step``, ``kkt_step`` and ``sqp_step`` the flops of one such step (inclusive
+    of its line search); ``counted`` scenes counted, ``departed`` left out (their
+    interpreted path was not the compiled one's)."""
 
     def __init__(self) -> None:
         self.flops = 0.0
@@ -178,6 +195,7 @@ class ConicCount:
         self.units: dict[str, float] = {}
         self.barrier_step = 0.0
         self.kkt_step = 0.0
+        self.sqp_step = 0.0
         self.counted = 0
         self.departed = 0
 
@@ -193,7 +211,7 @@ def count_conic(grasps: list[Grasp], k_max: np.ndarray, f_max: float = math.inf)
 
     result = ConicCount()
     units = dict.fromkeys((name for name, _ in UNITS), 0.0)
-    centre_flops = polish_flops = centre_steps = polish_steps = 0.0
+    centre_flops = polish_flops = centre_steps = polish_steps = sqp_flops = sqp_steps = 0.0
     totals: list[float] = []
     svds: list[float] = []
     for g, K in zip(grasps, k_max, strict=True):
@@ -216,6 +234,8 @@ def count_conic(grasps: list[Grasp], k_max: np.ndarray, f_max: float = math.inf)
         centre_steps += interpreter.edges[("centre", "cholesky_solve")]
         polish_flops += interpreter.inclusive["polish"]
         polish_steps += interpreter.edges[("polish", "lu_solve")]
+        sqp_flops += interpreter.inclusive["sqp"]
+        sqp_steps += interpreter.edges[("sqp", "quadprog")]
         result.counted += 1
     if not result.counted:
         raise RuntimeError(f"every interpreted conic solve departed from the compiled one "
@@ -225,6 +245,7 @@ def count_conic(grasps: list[Grasp], k_max: np.ndarray, f_max: float = math.inf)
     result.units = {name: calls / result.counted for name, calls in units.items()}
     result.barrier_step = centre_flops / max(centre_steps, 1)
     result.kkt_step = polish_flops / max(polish_steps, 1)
+    result.sqp_step = sqp_flops / max(sqp_steps, 1)
     return result
 
 
@@ -364,7 +385,7 @@ class ConicLimit:
             f"{c.counted} of the scenes, {c.departed} left out whose interpreted path departed; "
             f"the SVD's {c.svd:,.0f} estimated): {units}; a "
             f"barrier step {c.barrier_step:,.0f} flops with its line search, a KKT step "
-            f"{c.kkt_step:,.0f}",
+            f"{c.kkt_step:,.0f}, an SQP step {c.sqp_step:,.0f}",
             f"    the machine sustains {self.rate['single'] / 1e9:.2f} Gflop/s on the barrier "
             f"Newton step ({self.step_flops:,} flops, compiled, cached data) on one core, "
             f"{self.rate['batched'] / 1e9:.2f} on {self.threads} threads (best bursts "
