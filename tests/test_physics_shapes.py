@@ -195,28 +195,34 @@ def test_a_boxs_lever_arms_are_restored_too():
     )
 
 
-def test_a_mesh_tip_touches_its_own_face_however_deep_it_sinks():
-    """On a convex mesh each tip's contact pair is with its face's half-space, so a tip sunk
-    deeper than its distance to the neighbouring face's plane (as a loaded tip near an edge
-    is: 2.5e-3 L per w) still pushes along its face's normal, not the neighbour's."""
-    corners = MESH.vertices[list(MESH.faces[0])]
-    near_edge = MESH.face_point(0, [1.0, 1.0, 0.02][: len(corners)])  # next to edge 0-1
-    scene = Scene(
-        shape=MESH,
-        contacts=[near_edge] + [MESH.face_point(f) for f in (1, 2, 4)],
-        weight=3.0,
-        cg_offset=(0.002, 0.0, 0.001),
-    )
+def near_edge_scene(kind: str) -> tuple[Scene, float]:
+    """A scene whose tip 0 touches its face next to an edge, and that distance over L."""
+    if kind == "mesh":
+        contacts = [MESH.face_point(0, [1.0, 1.0, 0.02])] + [MESH.face_point(f) for f in (1, 2, 4)]
+        return Scene(
+            shape=MESH, contacts=contacts, weight=3.0, cg_offset=(0.002, 0.0, 0.001)
+        ), 0.0058
+    contacts = [(0.195, 0.0, 0.1), (-0.2, 0.05, 0.0), (0.0, -0.15, 0.02), (0.05, 0.0, -0.1)]
+    return Scene(shape=Box(size=(0.4, 0.3, 0.2)), contacts=contacts, weight=3.0), 0.0125
+
+
+@pytest.mark.parametrize("kind", ["mesh", "box"])
+def test_a_flat_faced_tip_touches_its_own_face_however_deep_it_sinks(kind):
+    """On a box or a convex mesh each tip's contact pair is with its face's half-space, so a
+    tip sunk deeper than its distance to the neighbouring face's plane (as a loaded tip near
+    an edge is: 2.5e-3 L per w) still pushes along its face's normal, not the neighbour's."""
+    scene, to_edge = near_edge_scene(kind)
     model = mujoco.MjModel.from_xml_string(build_mjcf(scene))
     pairs = {frozenset(model.geom(int(g)).name for g in pair)
              for pair in zip(model.pair_geom1, model.pair_geom2, strict=True)}  # fmt: skip
     assert pairs == {frozenset((f"tip{i}", f"face{i}")) for i in range(4)}
     data = mujoco.MjData(model)
     data.qpos[:] = world_qpos(scene, np.eye(3))
-    # sink every tip 3 tip radii (0.042 L) deeper along its inward normal: tip 0's contact
-    # lies 0.0058 L from the next face's plane (paired with the mesh itself, MuJoCo turned its
-    # normal 77 deg from 2 radii deep on)
+    # sink every tip 3 tip radii deeper along its inward normal: its centre then lies 2 radii
+    # inside, nearer tip 0's neighbouring face (paired with the object's own geom, MuJoCo
+    # turned tip 0's normal 77 deg on the mesh from 2 radii deep on, 90 deg on the box)
     depth = 3 * tip_radius(scene)
+    assert 2 * tip_radius(scene) > to_edge
     data.qpos[7:] += (depth * scene.normals).ravel()
     mujoco.mj_forward(model, data)
     assert data.ncon == 4

@@ -93,13 +93,15 @@ SPIN_FRICTION = 0.3
 #: The shapes whose contact pairs get torsional and rolling friction (condim 6): the curved
 #: ones. A box and a convex mesh have flat faces and keep the cube's condim 3.
 CURVED = ("cylinder", "sphere")
-#: On a convex mesh each fingertip touches the half-space of its own face (a box geom this
-#: many L deep and twice as wide, whose outer side is the face's plane), not the mesh: the soft
-#: contact sinks a tip about 2.5e-3 L per w deep (:func:`contact_shift`), and near an edge
-#: of a thin mesh that depth reaches past the neighbouring face, which MuJoCo's convex
-#: collision then takes for the nearest (the tip's normal flips and it slides through: a
-#: six-finger grip 0.1 deg inside, a 6.7 w tip 0.0067 L from the next face's plane and 0.017 L
-#: deep, fell at the settle's end). The analytic contact is a point on its face, normal fixed.
+#: On a flat-faced object (a box or a convex mesh) each fingertip touches the half-space of its
+#: own face (a box geom this many L deep and twice as wide, whose outer side is the face's
+#: plane), not the object's geom: the soft contact sinks a tip about 2.5e-3 L per w deep
+#: (:func:`contact_shift`), and near an edge that depth reaches past the neighbouring face,
+#: which MuJoCo's collision then takes for the nearest (the tip's normal flips and it slides
+#: through: a six-finger mesh grip 0.1 deg inside, a 6.7 w tip 0.0067 L from the next face's
+#: plane and 0.017 L deep, fell at the settle's end; a six-finger grip on a 0.05 x 0.05 x
+#: 0.39 m stick, a 7.6 w tip 0.019 L deep 0.014 L from an edge, fell mid-run). The analytic
+#: contact is a point on its face, its normal fixed.
 FACE_DEPTH = 1.0
 
 
@@ -199,12 +201,13 @@ def object_geom_name(scene: Scene) -> str:
 
 def touches_faces(scene: Scene) -> bool:
     """Whether the fingertips touch their faces' half-spaces (:func:`face_geoms`) rather than
-    the object's geom: on a convex mesh."""
-    return scene.shape.kind == "convex mesh"
+    the object's geom: on a flat-faced object (a box, the cube's included, or a convex
+    mesh)."""
+    return scene.shape.kind in ("box", "convex mesh")
 
 
 def face_geoms(scene: Scene) -> str:
-    """On a convex mesh (:func:`touches_faces`), each contact's face as a half-space: a box
+    """On a flat-faced object (:func:`touches_faces`), each contact's face as a half-space: a box
     geom ``face{i}`` on the object, :data:`FACE_DEPTH` L deep and 2 x :data:`FACE_DEPTH` L
     wide, whose outer side lies in the face's plane through the contact (collision through
     its contact pair only, invisible); "" otherwise."""

@@ -197,8 +197,9 @@ class PhysicsModel:
             return self
         if touches_faces(self.scene) and not np.allclose(motion.normals, self.scene.normals):
             raise ValueError(
-                "a tip on a convex mesh touches its own face's half-space (model.face_geoms):"
-                " its contact point may move along that face, not onto another face"
+                "a tip on a box or a convex mesh touches its own face's half-space"
+                " (model.face_geoms): its contact point may move along that face, not onto"
+                " another face"
             )
         moving = copy.copy(self)
         moving.contacts, moving.normals = motion.points, motion.normals
