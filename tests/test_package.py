@@ -29,12 +29,11 @@ def loaded_after(statement: str) -> set[str]:
     ("module", "allowed"),
     [
         ("grasp_env", set()),
-        ("grasp_env.mechanics", set()),
+        pytest.param("grasp_env.mechanics", set(), marks=pytest.mark.fast),
         ("grasp_env.physics", {"mujoco"}),
         ("grasp_env.envs", {"gymnasium"}),
     ],
 )
-@pytest.mark.fast
 def test_layers_import_one_way(module, allowed):
     """mechanics loads no gymnasium, mujoco or torch; physics only MuJoCo; envs only gymnasium."""
     assert loaded_after(f"import {module}") <= allowed
@@ -189,7 +188,6 @@ def test_the_library_imports_only_its_dependencies():
         assert third_party <= dependencies | OPTIONAL_IMPORTS.get(name, set()), name
 
 
-@pytest.mark.fast
 def test_the_library_works_without_torch_and_sb3():
     """In an interpreter where torch, SB3 and the agents extra's other modules cannot be
     imported: grasp_env, its mechanics, environments and physics import, a single and a vector
