@@ -3,6 +3,7 @@ between threads, taken for speed) give the same runs as the plain path."""
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import itertools
 
@@ -221,7 +222,8 @@ def contact_force_errors(physics, normal_forces, fed_forward):
     forces ``normal_forces`` (w, one per step), plus its inertia's share if ``fed_forward``
     (as the rollouts push): the contact's normal force against the commanded one, relative,
     after each step."""
-    model, data = physics.model, mujoco.MjData(physics.model)
+    model = copy.deepcopy(physics.model)  # made immovable once per call, not cumulatively
+    data = mujoco.MjData(model)
     model.body_mass[physics.object] *= 1e9
     model.body_inertia[physics.object] *= 1e9
     mujoco.mj_setState(
