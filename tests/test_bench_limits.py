@@ -240,17 +240,37 @@ def test_conic_leaf_kernels_match_their_closed_forms(n):
     assert step == dense + limits_conic.cholesky_flops(d) + 2 * d * d + 7 * d + 1
 
 
+#: A scene of general_scenes(5, ..., seed=5) whose active-set attempt leaves a gap that the
+#: barrier search closes.
+FALLBACK_SCENE = 17
+
+
 def test_interpreted_conic_solve_is_the_compiled_one_and_its_units_add_up():
     from grasp_env_agents.benchmarks import limits_conic
+    from grasp_env_agents.benchmarks.general_scenes import general_scenes
 
-    _, scenes = conic_inputs(5)
+    scenes = general_scenes(5, FALLBACK_SCENE + 1, seed=5)
+    m = 3 * 5 - 6
+    # the first scene: the active-set attempt certifies it (its SQP, then the KKT polish),
+    # no barrier level solved
     grasp, k_max, _ = scenes.one(0)
     count = limits_conic.count_conic([grasp], np.array([k_max]))
     assert count.counted == 1 and count.departed == 0  # the compiled path, interpreted
-    steps = count.units["barrier Newton step"]
-    assert steps > 0 and count.units["level"] >= 1
-    # the barrier's steps (each with its line search) are most of a solve, not all of it
-    assert 0.5 * count.flops < steps * count.barrier_step < count.flops
+    sqp, kkt = count.units["SQP step"], count.units["KKT Newton step"]
+    assert sqp >= 1 and kkt >= 1
+    assert count.units["barrier Newton step"] == 0 and count.units["level"] == 0
+    # the SQP's steps and the polish's are most of the solve, not all of it
+    assert 0.5 * count.flops < sqp * count.sqp_step + kkt * count.kkt_step < count.flops
     assert count.svd == limits_conic.svd_flops(15, 10)
-    m = 3 * 5 - 6
+    # FALLBACK_SCENE: the attempt leaves a gap, the barrier search runs after it
+    grasp, k_max, _ = scenes.one(FALLBACK_SCENE)
+    count = limits_conic.count_conic([grasp], np.array([k_max]))
+    assert count.counted == 1 and count.departed == 0
+    steps, sqp = count.units["barrier Newton step"], count.units["SQP step"]
+    kkt = count.units["KKT Newton step"]
+    assert steps > 0 and count.units["level"] >= 1 and sqp >= 1
+    # the attempt's steps and the barrier's (each with its line search) are most of that
+    # solve, not all of it
+    stepped = steps * count.barrier_step + sqp * count.sqp_step + kkt * count.kkt_step
+    assert 0.5 * count.flops < stepped < count.flops
     assert count.barrier_step > limits_conic.barrier_flops(5, m, 10, False, True)
