@@ -1,6 +1,6 @@
 """Speed of the certified minimax solver beside the cvxpy + Clarabel reference, in one run.
 
-    grasp-env bench solver [--seconds 2]
+    grasp-env bench solver [--seconds 2] [--contacts 3,4,5,6,7,8]
 
 Three and four fingers, scenes as in the solver's accuracy test: contact offsets up to 0.35
 of the face half-width, centre-of-gravity offsets up to 0.12, weights 1 to 20 N, alpha
@@ -63,8 +63,8 @@ from grasp_env.mechanics import (
     scene_grasp,
     solve_minimax,
 )
-from grasp_env.mechanics.minimax import fingers
-from grasp_env.mechanics.minimax.conic import barrier, driver, frames, polish
+from grasp_env.mechanics.minimax import fingers, linalg, sqp
+from grasp_env.mechanics.minimax.conic import active, barrier, driver, frames, polish
 from grasp_env_agents.benchmarks.general_scenes import general_scenes
 from grasp_env_agents.benchmarks.limits import Limit, count_along
 from grasp_env_agents.benchmarks.limits_conic import ConicLimit
@@ -209,13 +209,18 @@ def measure(n: int, seconds: float) -> dict[str, float]:
 def conic_steps(grasp: Grasp, k_max: float) -> tuple[Counter, float]:
     """The conic solver's kernel calls on one grasp, counted: the kernels' own Python source
     (``py_func``, what numba compiles) run with plain floats, each kernel's calls tallied by
-    name (``cholesky_solve``: a barrier Newton step; ``lu_solve``: a KKT Newton step;
-    ``level``: a level t tried). Returns (the tallies, the largest angle found). Seconds a
+    name (``cholesky_solve``: a barrier Newton step; ``lu_solve``: a KKT Newton step or a
+    step of the QP's projections; ``quadprog``: an SQP step's QP; ``level``: a level t
+    tried). Returns (the tallies, the largest angle found). Seconds a
     solve (about 2 s at n = 5, 15 s at n = 8)."""
     calls: Counter = Counter()
     names: dict = {}  # the conic modules' names in one namespace, so calls between them count
-    for module in (fingers, frames, barrier, polish, driver):  # (fingers: setup)
+    # (fingers: setup, the angles; linalg and sqp: the active-set attempt's QP)
+    for module in (linalg, fingers, sqp, frames, barrier, polish, active, driver):
         names.update(vars(module))
+    for name in ("stack_empty", "stack_zeros", "stack_large"):  # the stack arrays, on the heap
+        names[name] = np.zeros
+    names["stack_copy"] = np.copy
     for name, value in list(names.items()):
         if isinstance(value, Dispatcher):
             source = value.py_func
