@@ -165,6 +165,40 @@ def quadprog(Ginv, c, C, b, nc, meq, dim, x, u, GN, M, vec, active, is_active):
     return 4
 
 
+@inline
+def convexified_inverse(H, grads, lam, gmean, Hs, Hinv, Lc, Lic):
+    """Hinv = the inverse of H + aug sum_i lam_i (g_i - g_mean)(g_i - g_mean)' + shift I, the
+    SQP's Hessian convexified, with the smallest aug and shift (of a fixed schedule) that make
+    it positive definite; False where none does. The Lagrangian Hessian H is positive definite
+    only on the tangent space of the active angles; the added term is constant on the QP's
+    manifold of equal linearised angles (g_i the angles' gradients, g_mean their lam-weighted
+    mean, into gmean), so it convexifies without moving the QP's solution."""
+    n, m = grads.shape
+    big = 1e-8
+    for j in range(m):
+        big = max(big, abs(H[j, j]))
+    for j in range(m):
+        gmean[j] = 0.0
+        for i in range(n):
+            gmean[j] += lam[i] * grads[i, j]
+    shift = 1e-9 * big
+    for attempt in range(16):
+        aug = 0.0 if attempt == 0 else big * 10.0 ** (attempt - 1)
+        if attempt > 4:
+            aug = big * 1e3
+            shift *= 10.0
+        for p in range(m):
+            for q in range(m):
+                s = H[p, q]
+                for i in range(n):
+                    s += aug * lam[i] * (grads[i, p] - gmean[p]) * (grads[i, q] - gmean[q])
+                Hs[p, q] = s
+            Hs[p, p] += shift
+        if cholesky_inverse(Hs, m, Hinv, Lc, Lic):
+            return True
+    return False
+
+
 @kernel
 def sqp(a0, al, tau0, T, K, f, R, release, k, lam, nu, max_iter, tol):
     """SQP for min t s.t. theta_i(k) <= t, |k_j| <= K, |P_i| <= f, from k inside the box.
@@ -217,34 +251,7 @@ def sqp(a0, al, tau0, T, K, f, R, release, k, lam, nu, max_iter, tol):
                 finger_derivatives(False, i, lam[i], a, tau, rho, al, T, grads[i], H)
             if has_f:
                 P[i] = force_derivatives(i, nu[i], a, tau, al, T, fgrads[i], H)
-        big = 1e-8
-        for j in range(m):
-            big = max(big, abs(H[j, j]))
-        # The Lagrangian Hessian is positive definite only on the tangent space of the active
-        # angles; lam_i (g_i - g_mean)(g_i - g_mean)' is constant on the QP's manifold of
-        # equal linearised angles, so adding it convexifies without moving the QP solution.
-        for j in range(m):
-            gmean[j] = 0.0
-            for i in range(n):
-                gmean[j] += lam[i] * grads[i, j]
-        shift = 1e-9 * big
-        ok = False
-        for attempt in range(16):
-            aug = 0.0 if attempt == 0 else big * 10.0 ** (attempt - 1)
-            if attempt > 4:
-                aug = big * 1e3
-                shift *= 10.0
-            for p in range(m):
-                for q in range(m):
-                    s = H[p, q]
-                    for i in range(n):
-                        s += aug * lam[i] * (grads[i, p] - gmean[p]) * (grads[i, q] - gmean[q])
-                    Hs[p, q] = s
-                Hs[p, p] += shift
-            if cholesky_inverse(Hs, m, Hinv, Lc, Lic):
-                ok = True
-                break
-        if not ok:
+        if not convexified_inverse(H, grads, lam, gmean, Hs, Hinv, Lc, Lic):
             return -1
         for p in range(m):
             for q in range(m):

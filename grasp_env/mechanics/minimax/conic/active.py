@@ -28,8 +28,7 @@ import numpy as np
 
 from ..codes import GAP_TOL
 from ..fingers import evaluate, finger_derivatives, force_derivatives
-from ..linalg import cholesky_inverse
-from ..sqp import quadprog
+from ..sqp import convexified_inverse, quadprog
 from .codes import (
     ACTIVE_STEPS,
     ACTIVE_TOL,
@@ -153,33 +152,7 @@ def sqp(a0, al, tau0, T, box, K, f, R, y, lam, nu, mu, max_iter, tol):
                 finger_derivatives(False, i, lam[i], a, tau, rho, al, T, grads[i], H)
             if has_f:
                 size[i] = force_derivatives(i, nu[i], a, tau, al, T, fgrads[i], H)
-        big = 1e-8
-        for j in range(m):
-            big = max(big, abs(H[j, j]))
-        # lam_i (g_i - g_mean)(g_i - g_mean)' is constant on the QP's manifold of equal
-        # linearised angles: added, it convexifies without moving the QP's solution
-        for j in range(m):
-            gmean[j] = 0.0
-            for i in range(n):
-                gmean[j] += lam[i] * grads[i, j]
-        shift = 1e-9 * big
-        ok = False
-        for attempt in range(16):
-            aug = 0.0 if attempt == 0 else big * 10.0 ** (attempt - 1)
-            if attempt > 4:
-                aug = big * 1e3
-                shift *= 10.0
-            for p in range(m):
-                for q in range(m):
-                    s = H[p, q]
-                    for i in range(n):
-                        s += aug * lam[i] * (grads[i, p] - gmean[p]) * (grads[i, q] - gmean[q])
-                    Hs[p, q] = s
-                Hs[p, p] += shift
-            if cholesky_inverse(Hs, m, Hinv, Lc, Lic):
-                ok = True
-                break
-        if not ok:
+        if not convexified_inverse(H, grads, lam, gmean, Hs, Hinv, Lc, Lic):
             return -1
         for p in range(m):
             for q in range(m):
