@@ -108,6 +108,7 @@ def seed_argument() -> Callable[[str], int]:
 AGENTS_EXTRA = (
     "torch",
     "stable_baselines3",
+    "sb3_contrib",
     "matplotlib",
     "yaml",
     "pydantic",
