@@ -147,7 +147,11 @@ def pyproject_names(requirements: list[str]) -> set[str]:
 
 
 #: distribution -> import name, where they differ (the agents extra's)
-IMPORT_NAMES = {"stable-baselines3": "stable_baselines3", "pyyaml": "yaml"}
+IMPORT_NAMES = {
+    "stable-baselines3": "stable_baselines3",
+    "sb3-contrib": "sb3_contrib",
+    "pyyaml": "yaml",
+}
 
 
 @pytest.mark.fast
