@@ -9,20 +9,20 @@ CPU they took from an empty cache (numba 0.68, Python 3.11, one core each):
 
 | job | compiles | CPU |
 | --- | --- | --- |
-| ``solve_batch`` | the solver's kernels, then ``driver.solve_batch`` | 93 s |
-| ``solve_grasp`` | ``driver.solve_grasp`` (``solve_one`` inlined again), kernels cached | 15 s |
-| ``conic`` | ``conic.solve_batch``, the solver of five or more contacts | 36 s |
-| ``environments`` | the environments' step and pose kernels, float32 and float64 actions | 8 s |
-| ``mujoco`` | the MuJoCo check's kernels | 7 s |
+| ``solve_batch`` | the solver's kernels, then ``driver.solve_batch`` | 64 s |
+| ``conic`` | ``conic.solve_batch``, the solver of five or more contacts | 61 s |
+| ``solve_grasp`` | ``driver.solve_grasp`` (``solve_one`` inlined again), kernels cached | 11 s |
+| ``environments`` | the environments' step and pose kernels, float32 and float64 actions | 6 s |
+| ``mujoco`` | the MuJoCo check's kernels | 6 s |
 
-Every kernel is compiled once: in two processes side by side, ``solve_batch`` and
-``solve_grasp`` each compiled the 57 s of kernels they share (214 s of CPU, where 160 s did in
-one process, before the driver's later attempts became shared kernels: 108 s now). Here one
-process compiles ``solve_batch``; the other compiles the conic solver first, and by the time
-it reaches ``solve_grasp`` the first has cached most of those kernels,
-which it then loads (numba writes a cache entry atomically, so two processes may write one side
-by side). The environments' jobs solve with both entries, so they start once the solver's are
-done. On one core (``processes=1``) every job runs in one process, in turn.
+(December 8, measured in this order in one process, each job loading what the earlier ones
+cached.) Every kernel is compiled once: the first wave compiles the two solvers side by side,
+``solve_batch`` in one process and the conic solver (which links a few of the same kernels) in
+the other; the second compiles ``solve_grasp``, whose kernels are then all cached, beside the
+environments' jobs, which solve with ``solve_batch``. In two processes side by side,
+``solve_batch`` and ``solve_grasp`` would each compile the kernels they share. numba writes a
+cache entry atomically, so two processes may write one side by side. On one core
+(``processes=1``) every job runs in one process, in turn.
 """
 
 from __future__ import annotations
@@ -74,18 +74,6 @@ def _conic() -> None:
     solve_minimax(scene_grasp(scene, np.eye(3)), 6.8)
 
 
-def _barrier() -> None:
-    """The fallback's barrier search and bisection, compiled by their signatures: the kernels
-    ``solve_batch`` reaches last, so that its process loads them from the cache instead."""
-    from numba import types
-
-    from grasp_env.mechanics.minimax import barrier
-
-    v, m, c, x = types.float64[::1], types.float64[:, ::1], types.float64[:, :, ::1], types.float64
-    barrier.fallback.compile((v, m, m, c, x, x, v, x, v))  # (a0, al, tau0, T, K, f, k, gap, centre)
-    barrier.bisect.compile((v, m, m, c, x, x, v, v, x, x))  # (..., k_best, centre, lo, hi)
-
-
 def _step(env_ids: Sequence[str]) -> None:
     """One reset and step of each environment and of its vector version, with float32 actions
     (the action space's) and float64 ones (the expert's); then the expert reads an observation."""
@@ -110,7 +98,6 @@ def _step(env_ids: Sequence[str]) -> None:
 JOBS: dict[str, Callable[[], None]] = {
     "solve_batch": lambda: _solve(one_grasp=False),
     "solve_grasp": lambda: _solve(one_grasp=True),
-    "barrier": _barrier,
     "conic": _conic,
     "environments": lambda: _step(GRASP_IDS),
     "mujoco": lambda: _step(MUJOCO_IDS),
@@ -118,7 +105,7 @@ JOBS: dict[str, Callable[[], None]] = {
 
 #: Two processes at a time: the waves in turn, each process of a wave running its jobs in turn.
 WAVES: tuple[tuple[tuple[str, ...], ...], ...] = (
-    (("solve_batch",), ("barrier", "conic")),
+    (("solve_batch",), ("conic",)),
     (("solve_grasp",), ("environments", "mujoco")),
 )
 

@@ -121,23 +121,6 @@ def test_every_way_in_reaches_the_one_compiled_signature() -> None:
     assert len(driver.solve_grasp.signatures) == 1, driver.solve_grasp.signatures
 
 
-@pytest.mark.fast
-def test_the_warm_ups_barrier_job_compiles_what_the_solver_links() -> None:
-    """grasp_env.warm compiles the fallback's barrier kernels by their signatures in a second
-    process, so that solve_batch's process loads them: a signature that drifted from the
-    solver's calls would compile a copy nobody links (numba's cache index of the kernel would
-    then hold two), and the warm-up would lose its share of the compile."""
-    from grasp_env.mechanics.minimax import barrier
-    from grasp_env.mechanics.minimax.warm import warm
-    from grasp_env.warm import JOBS
-
-    warm()  # solve_batch's compile caches the barrier kernels it links
-    JOBS["barrier"]()
-    for kernel in (barrier.fallback, barrier.bisect):
-        index = kernel._cache._cache_file._load_index()  # numba's: keyed (signature, ...)
-        assert len({key[0] for key in index}) == 1, (kernel.__name__, list(index))
-
-
 def test_stack_arrays_behave_as_numpys() -> None:
     """The kernels' stack arrays (linalg.stack_*): numpy's shapes, dtypes and values, each call
     site its own memory, every item of a full room writable, and an array beyond its room
