@@ -199,6 +199,30 @@ def convexified_inverse(H, grads, lam, gmean, Hs, Hinv, Lc, Lic):
     return False
 
 
+@inline
+def predicted_change(theta, grads, x, R, tmax, nu, sizes, f, penalty, has_f):
+    """The QP step x's predicted change of the merit, max_i (theta_i + grad_i . x) minus the
+    merit now (tmax plus the penalty on force limits exceeded, |P_i| = sizes[i] > f; the
+    penalty raised to twice the largest limit multiplier nu_i first). Returns (pred, the
+    merit now, the penalty)."""
+    n, m = grads.shape
+    model = -inf
+    for i in range(n):
+        if not R[i]:
+            s = theta[i]
+            for j in range(m):
+                s += grads[i, j] * x[j]
+            model = max(model, s)
+    now = tmax
+    if has_f:
+        for i in range(n):
+            penalty = max(penalty, 2.0 * nu[i])
+        for i in range(n):
+            if sizes[i] > f:
+                now += penalty * (sizes[i] - f)
+    return model - now, now, penalty
+
+
 @kernel
 def sqp(a0, al, tau0, T, K, f, R, release, k, lam, nu, max_iter, tol):
     """SQP for min t s.t. theta_i(k) <= t, |k_j| <= K, |P_i| <= f, from k inside the box.
@@ -307,22 +331,7 @@ def sqp(a0, al, tau0, T, K, f, R, release, k, lam, nu, max_iter, tol):
                 row += 1
             if has_f:
                 nu[i] = u[meq + (n - nr) + 2 * m + i] / total
-        # predicted change of the merit
-        model = -inf
-        for i in range(n):
-            if not R[i]:
-                s = theta[i]
-                for j in range(m):
-                    s += grads[i, j] * x[j]
-                model = max(model, s)
-        now = tmax
-        if has_f:
-            for i in range(n):
-                penalty = max(penalty, 2.0 * nu[i])
-            for i in range(n):
-                if P[i] > f:
-                    now += penalty * (P[i] - f)
-        pred = model - now
+        pred, now, penalty = predicted_change(theta, grads, x, R, tmax, nu, P, f, penalty, has_f)
         if pred > -tol:
             return it
         alpha = 1.0

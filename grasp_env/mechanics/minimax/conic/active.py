@@ -28,7 +28,7 @@ import numpy as np
 
 from ..codes import GAP_TOL
 from ..fingers import evaluate, finger_derivatives, force_derivatives
-from ..sqp import convexified_inverse, quadprog
+from ..sqp import convexified_inverse, predicted_change, quadprog
 from .codes import (
     ACTIVE_STEPS,
     ACTIVE_TOL,
@@ -213,22 +213,7 @@ def sqp(a0, al, tau0, T, box, K, f, R, y, lam, nu, mu, max_iter, tol):
         for j in range(pairs):
             # row 2j: -(b_j . y) >= -K (held at +K); row 2j + 1: b_j . y >= -K (at -K)
             mu[j] = (u[first_box + 2 * j] - u[first_box + 2 * j + 1]) / total
-        # the merit's predicted change
-        model = -inf
-        for i in range(n):
-            if not R[i]:
-                s = theta[i]
-                for j in range(m):
-                    s += grads[i, j] * x[j]
-                model = max(model, s)
-        now = tmax
-        if has_f:
-            for i in range(n):
-                penalty = max(penalty, 2.0 * nu[i])
-            for i in range(n):
-                if size[i] > f:
-                    now += penalty * (size[i] - f)
-        pred = model - now
+        pred, now, penalty = predicted_change(theta, grads, x, R, tmax, nu, size, f, penalty, has_f)
         accepted = False
         alpha = 1.0
         for _ in range(40 if pred <= -tol else 0):
