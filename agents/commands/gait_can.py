@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import os
 import time
 from pathlib import Path
 
@@ -183,18 +182,12 @@ def write_video(
     from grasp_env.physics import GraspView
     from grasp_env.physics.model import _z_to, length_unit
 
-    from ..studies.physics_plots import FPS, FRAMES_PER_POSE, _imageio, pose_alpha
+    from ..studies.physics_plots import _imageio, pose_alpha, video_steps, write_frames
 
-    imageio = _imageio()
+    _imageio()  # before the view: say at once if the writer is missing
     scene, report = rollout.scene, rollout.report
     motion, qpos, n = report.motion, report.trace.qpos, scene.n_contacts
-    limit = float(np.degrees(scene.friction_limit))
-    angles = np.degrees(motion.friction_angles(scene).max(axis=-1))
-    count = FRAMES_PER_POSE * len(alphas)
-    steps = np.linspace(motion.settle_steps, len(motion) - 1, count).round().astype(int)
-    # A run that diverged stands at its last finite state.
-    finite = np.all(np.isfinite(qpos), axis=1)
-    last_finite = np.maximum.accumulate(np.where(finite, np.arange(len(qpos)), 0))
+    steps, last_finite, angles, limit = video_steps(scene, report, len(alphas))
     length = length_unit(scene)
 
     def scene_at(k: int) -> Scene:
@@ -234,21 +227,15 @@ def write_video(
         forces = motion.forces[k] @ rotation.T
         return view.render_state(state, rotation, forces, touching, text)
 
-    # Written beside it and renamed when complete: an interrupted run leaves no short video.
-    partial = path.with_name(f"{path.stem}.partial.mp4")
     try:
         frame(steps[0])  # builds the view's model: its tips are then drawn larger
         tips = [view.model.geom(f"tip{i}").id for i in range(n)]
         drawn[:] = (DRAWN_TIP - 1.0) * view.model.geom_size[tips, 0]
         view.model.geom_size[tips, 0] *= DRAWN_TIP
-        with imageio.get_writer(partial, format="FFMPEG", fps=FPS, macro_block_size=16) as writer:
-            for k in steps:
-                writer.append_data(frame(k))
-        os.replace(partial, path)
+        write_frames(path, (frame(k) for k in steps))
     finally:
         view.close()
-        partial.unlink(missing_ok=True)
-    return count
+    return len(steps)
 
 
 def _deg(x: float) -> str:

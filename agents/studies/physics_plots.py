@@ -4,6 +4,7 @@ rollouts' slip and drift, the agreement studies' margins, and the rollout video.
 from __future__ import annotations
 
 import os
+from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
@@ -91,46 +92,67 @@ def _imageio():
     return imageio
 
 
-def write_video(
-    path: Path, scene: Scene, alphas: np.ndarray, report: RolloutReport, size: int = 480
-) -> int:
-    """Write ``report``'s rollout as an MP4 of ``size`` x ``size`` pixels: FRAMES_PER_POSE
-    frames per pose, evenly spaced in simulated time after the settle, at FPS frames per
-    second, each with alpha, the largest friction angle and the margin. Returns the frame
-    count."""
-    imageio = _imageio()
-    motion, qpos, n = report.motion, report.trace.qpos, scene.n_contacts
+def video_steps(
+    scene: Scene, report: RolloutReport, n_poses: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """The frames of ``report``'s rollout video: FRAMES_PER_POSE per pose, evenly spaced in
+    simulated time after the settle. Returns their steps, the last finite state at each step
+    (a run that diverged stands at its last finite state), the largest friction angle at each
+    step and the friction limit (deg)."""
+    motion, qpos = report.motion, report.trace.qpos
     limit = float(np.degrees(scene.friction_limit))
     angles = np.degrees(motion.friction_angles(scene).max(axis=-1))
-    count = FRAMES_PER_POSE * len(alphas)
+    count = FRAMES_PER_POSE * n_poses
     steps = np.linspace(motion.settle_steps, len(motion) - 1, count).round().astype(int)
-    # A run that diverged stands at its last finite state.
     finite = np.all(np.isfinite(qpos), axis=1)
     last_finite = np.maximum.accumulate(np.where(finite, np.arange(len(qpos)), 0))
-    view = GraspView(scene, width=size, height=size)
-    # Written beside it and renamed when complete: an interrupted run leaves no short video.
+    return steps, last_finite, angles, limit
+
+
+def write_frames(path: Path, frames: Iterable[np.ndarray]) -> None:
+    """Write ``frames`` as an MP4 at FPS, beside ``path`` and renamed when complete: an
+    interrupted run leaves no short video."""
+    imageio = _imageio()
     partial = path.with_name(f"{path.stem}.partial.mp4")
     try:
         with imageio.get_writer(partial, format="FFMPEG", fps=FPS, macro_block_size=16) as writer:
-            for k in steps:
-                # MuJoCo turns the load about the object; the picture turns the object instead.
-                rotation, state = motion.rotations[k], qpos[last_finite[k]].copy()
-                state[:3] = rotation @ state[:3]
-                state[3:7] = matrix_quaternion(rotation @ quaternion_matrix(state[3:7]))
-                state[7:] = (state[7:].reshape(n, 3) @ rotation.T).ravel()
-                text = (
-                    f"alpha {pose_alpha(alphas, motion.pose[k]):+.2f} deg",
-                    f"largest friction angle {angles[k]:.2f} deg",
-                    f"margin {limit - angles[k]:+.2f} deg (atan mu {limit:.2f})",
-                )
-                forces = motion.forces[k] @ rotation.T
-                image = view.render_state(state, rotation, forces, motion.contact[k], text)
+            for image in frames:
                 writer.append_data(image)
         os.replace(partial, path)
     finally:
-        view.close()
         partial.unlink(missing_ok=True)
-    return count
+
+
+def write_video(
+    path: Path, scene: Scene, alphas: np.ndarray, report: RolloutReport, size: int = 480
+) -> int:
+    """Write ``report``'s rollout as an MP4 of ``size`` x ``size`` pixels (the frames of
+    :func:`video_steps`, at FPS frames per second), each with alpha, the largest friction
+    angle and the margin. Returns the frame count."""
+    _imageio()  # before the view: say at once if the writer is missing
+    motion, qpos, n = report.motion, report.trace.qpos, scene.n_contacts
+    steps, last_finite, angles, limit = video_steps(scene, report, len(alphas))
+
+    def frame(k: int) -> np.ndarray:
+        # MuJoCo turns the load about the object; the picture turns the object instead.
+        rotation, state = motion.rotations[k], qpos[last_finite[k]].copy()
+        state[:3] = rotation @ state[:3]
+        state[3:7] = matrix_quaternion(rotation @ quaternion_matrix(state[3:7]))
+        state[7:] = (state[7:].reshape(n, 3) @ rotation.T).ravel()
+        text = (
+            f"alpha {pose_alpha(alphas, motion.pose[k]):+.2f} deg",
+            f"largest friction angle {angles[k]:.2f} deg",
+            f"margin {limit - angles[k]:+.2f} deg (atan mu {limit:.2f})",
+        )
+        forces = motion.forces[k] @ rotation.T
+        return view.render_state(state, rotation, forces, motion.contact[k], text)
+
+    view = GraspView(scene, width=size, height=size)
+    try:
+        write_frames(path, (frame(k) for k in steps))
+    finally:
+        view.close()
+    return len(steps)
 
 
 def plot_rollouts(
