@@ -64,6 +64,9 @@ _ENVS = {
     # grip, and moves with the certified grip; no batched class (gym.make_vec: sync)
     "CanGait-v0": ("can_gait.env:CanGaitEnv", None, {}),
     "CanGaitMoves-v0": ("can_gait.env:CanGaitEnv", None, {"optimal_grip": True}),
+    # CanGaitMoves-v0 with the certified programme's potential-based shaping
+    # (envs/gait/shaping.py, which takes either gait); no batched class
+    "CanGaitMovesShaped-v0": ("gait.shaping:shaped_can_gait_env", None, {}),
     # any object (box, cylinder, sphere, convex mesh) by 3 to 8 contacts, padded with a mask
     # (envs/object_grasp/): one scene from keywords, and random shapes, sizes and counts
     "ObjectGrasp-v0": (
