@@ -204,6 +204,46 @@ def test_the_timing_keeps_the_force_path_and_bounds_the_normal_forces_rate(paper
     )  # fmt: skip
 
 
+def test_the_segments_ends_are_eased_so_the_forces_rate_does_not_jump(paper):
+    """Each segment's pace rises linearly from the dwell's standstill over ramp_time and falls
+    back to it over the last ramp_time, which the segment runs longer by: the path
+    coordinate's step grows from near zero by at most a fifth of the middle's pace per step
+    (ramp_time 0.01 s, 5 steps), where unramped it jumps from zero to the full pace in one
+    step; the middle keeps the unramped pace and the path's forces are the same."""
+    scene, rotations, forces = paper
+    ramp_steps = round(SETTINGS["ramp_time"] / SETTINGS["timestep"])
+    assert ramp_steps == 5
+
+    def paces(settings):
+        motion = plan_motion(scene, rotations[:2], forces[:2], None, settings)
+        first = motion.settle_steps + round(SETTINGS["pose_hold_time"] / SETTINGS["timestep"])
+        last = int(np.flatnonzero(motion.pose == 1.0)[0])
+        return motion, np.diff(motion.pose[first - 1 : last + 1])  # from the dwell's last step
+
+    eased, eased_pace = paces(SETTINGS)
+    unramped, unramped_pace = paces(dict(SETTINGS, ramp_time=1e-9))
+    assert len(eased) == len(unramped) + ramp_steps
+    assert len(eased_pace) == len(unramped_pace) + ramp_steps
+    middle = unramped_pace[len(unramped_pace) // 2]
+    assert np.ptp(unramped_pace) < 1e-6 * middle  # unramped: the full pace from the first step
+    assert eased_pace[len(eased_pace) // 2] == pytest.approx(middle, rel=1e-6)
+    for end in (eased_pace[:ramp_steps], eased_pace[::-1][:ramp_steps]):
+        np.testing.assert_allclose(end, (np.arange(ramp_steps) + 0.5) / ramp_steps * middle,
+                                   rtol=1e-6)  # fmt: skip
+    assert np.abs(np.diff(np.concatenate([[0.0], eased_pace, [0.0]]))).max() <= (
+        middle / ramp_steps * (1 + 1e-6)
+    )
+    # the same path: the forces at the eased steps are the path's at their coordinates
+    segment = (eased.pose > 0) & (eased.pose < 1)
+    dense = plan_motion(scene, rotations[:2], forces[:2], None, path_settings(SETTINGS, 64))
+    on_path = (dense.pose > 0) & (dense.pose < 1)
+    for finger in range(3):
+        for c in range(3):
+            expected = np.interp(eased.pose[segment], dense.pose[on_path],
+                                 dense.forces[on_path, finger, c])  # fmt: skip
+            np.testing.assert_allclose(eased.forces[segment, finger, c], expected, atol=1e-6)
+
+
 def test_an_unloading_finger_near_its_edge_holds_and_one_outside_slips():
     # Finger 0's force falls 70-fold towards 0.05 deg inside its cone: it holds (before the
     # tips' inertia was fed forward it slid unless the timing slowed the fall). The same

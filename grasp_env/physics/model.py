@@ -93,6 +93,22 @@ SPIN_FRICTION = 0.3
 #: The shapes whose contact pairs get torsional and rolling friction (condim 6): the curved
 #: ones. A box and a convex mesh have flat faces and keep the cube's condim 3.
 CURVED = ("cylinder", "sphere")
+#: On a curved object a touching tip's contact has its torsional and rolling friction
+#: (condim 6) only at the steps where its commanded normal force is at least this share of the
+#: grip's largest one; below it the pair is at condim 3 (:func:`rolling_contacts`). The tips
+#: cannot turn, so every rolling row of a grip has the object's inverse inertia and the same
+#: impedance, and MuJoCo's solver splits the torque that holds the object's slight roll among
+#: the rolling contacts about equally, whatever their normal forces; its elliptic cone takes
+#: each contact's share r from the budget its sliding friction has, (f_t / mu N)^2 +
+#: (r / s N)^2 <= 1 (s the spin length). The share does not shrink with N, so a contact being
+#: released loses its sliding budget to the roll (a finger at 0.003 w, its grip's largest
+#: 4.7 w, 3.7 deg inside its cone, crept 1.35e-5 L/s: docs/physics.md). With the lever arms
+#: restored the roll's shares are about 1e-5 w L, some 4e-4 of a 4 w contact's capacity
+#: s N: at 0.02 of the largest force a contact's share is then at most about 2% of its
+#: capacity, which costs its sliding budget 0.02% (1 - sqrt(1 - 0.02^2)), a tenth of what a
+#: margin of 0.05 deg is at 45 deg (0.17%). The largest contact always rolls, and so do the
+#: others above the share: they hold the roll.
+ROLLING_SHARE = 0.02
 #: On a flat-faced object (a box or a convex mesh) each fingertip touches the half-space of its
 #: own face (a box geom this many L deep and twice as wide, whose outer side is the face's
 #: plane), not the object's geom: the soft contact sinks a tip about 2.5e-3 L per w deep
@@ -134,6 +150,17 @@ def contact_friction(scene: Scene) -> tuple[int, str]:
         return 3, f"{mu} 0 0 0"
     spin = f"{SPIN_FRICTION * tip_radius(scene):.17g}"
     return 6, f"{mu} {spin} {spin} {spin}"
+
+
+def rolling_contacts(normal: np.ndarray, touching: np.ndarray) -> np.ndarray:
+    """Which touching contacts of a curved object roll (condim 6) at each step, (..., n):
+    those whose commanded normal force ``normal`` (..., n, units of w) is at least
+    :data:`ROLLING_SHARE` x the largest of the ``touching`` (..., n) contacts' at that step;
+    the others (and those that do not touch) are at condim 3. The rule and its reason are
+    :data:`ROLLING_SHARE`'s."""
+    loaded = np.where(touching, normal, 0.0)
+    largest = loaded.max(axis=-1, keepdims=True)
+    return touching & (loaded > 0.0) & (loaded >= ROLLING_SHARE * largest)
 
 
 def contact_shift(scene: Scene, inverse_inertia: float) -> float:

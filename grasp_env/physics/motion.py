@@ -182,6 +182,7 @@ def timed_segments(
     force_floor: float,
     force_rate: float,
     max_steps: int,
+    ramp_time: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray, bool]:
     """The path coordinates s in (0, 1] of every segment's steps, one segment after another,
     each segment's number of steps, and whether they fit in ``max_steps`` (if not, nothing
@@ -195,6 +196,17 @@ def timed_segments(
     ``normals`` (S, n, 3) are each segment's inward normals, ``touching`` (S, n) its fingers
     in contact. Each sample interval takes the time the bound needs (at least its base time),
     and the steps are spaced evenly in that clock (s interpolated between the samples).
+
+    **Eased ends** (``ramp_time`` r, seconds). The path's pace then jumps at each segment's
+    ends, from the dwell's standstill to the clock's pace and back, and a force whose rate of
+    change jumps kicks the soft contact (a critically damped filter of the commanded force,
+    5 ms): the tip's lag changes by about the jump times the time constant within a step,
+    which is a slide for a finger near its cone's edge (docs/physics.md, "Agreement on every
+    shape"). So each segment runs for r more seconds, its clock c taken up at a pace rising
+    linearly from zero over the first r and falling to zero over the last r (c = tau^2 / 2r,
+    then tau - r / 2, then C - (C + r - tau)^2 / 2r, for a clock of C seconds, r at most C):
+    the force's rate of change is continuous and never faster than the bound, and the
+    segment's middle keeps its pace. ``ramp_time`` 0 is the unramped timing.
 
     Only the timing changes: the steps are points of the same path, so the forces both
     verdicts judge are the path's. The soft contact needs this: a tip's penetration follows
@@ -232,12 +244,24 @@ def timed_segments(
                     size = max(min(magnitude[j, i], magnitude[j + 1, i]), force_floor)
                     need = max(need, abs(normal[j + 1, i] - normal[j, i]) / (force_rate * size))
             clock[j + 1] = clock[j] + need
-        steps_needed = max(1.0, np.rint(clock[-1] / timestep))
+        span = clock[-1]
+        ramp = min(ramp_time, span)
+        steps_needed = max(1.0, np.rint((span + ramp) / timestep))
         if total + steps_needed > max_steps:  # a mistyped setting: stop before allocating
             return np.empty(0), np.empty(0, dtype=np.int64), False
         steps = int(steps_needed)
         total += steps
-        s = np.interp(np.arange(1, steps + 1) * (clock[-1] / steps), clock, x)
+        times = np.arange(1, steps + 1) * ((span + ramp) / steps)
+        if ramp > 0.0:  # the clock taken up at a pace eased in and out over ramp seconds
+            for k in range(steps):
+                tau = times[k]
+                if tau < ramp:
+                    times[k] = tau * tau / (2.0 * ramp)
+                elif tau > span:
+                    times[k] = span - (span + ramp - tau) ** 2 / (2.0 * ramp)
+                else:
+                    times[k] = tau - 0.5 * ramp
+        s = np.interp(times, clock, x)
         s[-1] = 1.0
         counts[t] = steps
         parts.append(s)
@@ -535,6 +559,7 @@ def plan_motion(
         settings["force_floor"],
         settings["force_rate"],
         MAX_STEPS - total,
+        settings["ramp_time"],
     )
     if not fits:
         raise ValueError(

@@ -48,8 +48,10 @@ from .model import (
     TIP_PENETRATION,
     build_mjcf,
     contact_shift,
+    is_curved,
     model_cg,
     model_contacts,
+    rolling_contacts,
     tip_centres,
     tip_positions,
     tip_radius,
@@ -118,6 +120,10 @@ class PhysicsModel:
         self.model = mujoco.MjModel.from_xml_string(xml)
         self.settle_model = mujoco.MjModel.from_xml_string(xml)
         self.settle_model.pair_friction[:, :2] = settle_mu
+        # on a curved object, the models (and settle models) with some pairs at condim 3, per
+        # pattern of rolling contacts (:meth:`rolling`), made when first needed
+        self.curved = is_curved(scene)
+        self._rolling_models: dict[bytes, tuple[mujoco.MjModel, mujoco.MjModel]] = {}
         n = scene.n_contacts
         self.n = n
         self.nq, self.nv = self.model.nq, self.model.nv
@@ -167,6 +173,31 @@ class PhysicsModel:
             float(regulariser),
             float(regulariser * impedance / (1.0 - impedance)),
         )
+
+    def rolling(self, motion: Motion) -> np.ndarray | None:
+        """Which tips' contacts roll at each step of ``motion``, (N, n)
+        (:func:`~grasp_env.physics.model.rolling_contacts`, from the commanded normal forces);
+        None on a flat-faced object (condim 3 throughout)."""
+        if not self.curved:
+            return None
+        normals = self.normals if motion.normals is None else motion.normals
+        return rolling_contacts(np.sum(motion.forces * normals, axis=-1), motion.contact)
+
+    def models(self, rolling: np.ndarray | None) -> tuple[mujoco.MjModel, mujoco.MjModel]:
+        """The model and the settle model whose contact pairs roll (condim 6) where
+        ``rolling`` (n,) says and are at condim 3 elsewhere (None: the scene's own, cached per
+        pattern). MuJoCo reads ``pair_dim`` at every step, so a run switches between them at
+        the steps where the pattern changes."""
+        if rolling is None or rolling.all():
+            return self.model, self.settle_model
+        key = rolling.tobytes()
+        pair = self._rolling_models.get(key)
+        if pair is None:
+            pair = (copy.copy(self.model), copy.copy(self.settle_model))
+            for model in pair:
+                model.pair_dim[~rolling] = 3
+            self._rolling_models[key] = pair
+        return pair
 
     def data(self) -> mujoco.MjData:
         """The calling thread's MjData of this model, kept for reuse."""
@@ -291,16 +322,21 @@ def _simulate_serial(runs: Sequence[tuple[PhysicsModel, Motion]]) -> list[Trace]
     groups: dict[tuple, list[int]] = {}
     runs = [(physics.following(motion), motion) for physics, motion in runs]
     moves = [_moves(motion) for _, motion in runs]
+    rolls = [physics.rolling(motion) for physics, motion in runs]
     for r, (physics, motion) in enumerate(runs):
         place, lift = moves[r]
         steps = np.flatnonzero(np.any(place | lift, axis=-1)).tobytes()
-        groups.setdefault((physics.signature, motion.settle_steps, steps), []).append(r)
+        switches = b"" if rolls[r] is None else _switches(rolls[r]).tobytes()
+        key = (physics.signature, motion.settle_steps, steps, switches)
+        groups.setdefault(key, []).append(r)
     for which in groups.values():
         length = max(len(runs[r][1]) for r in which)
         per_batch = max(1, _ROWS_PER_BATCH // length)
         for start in range(0, len(which), per_batch):
             part = which[start : start + per_batch]
-            batch = _simulate_batch([runs[r] for r in part], [moves[r] for r in part])
+            batch = _simulate_batch(
+                [runs[r] for r in part], [moves[r] for r in part], [rolls[r] for r in part]
+            )
             for r, trace in zip(part, batch, strict=True):
                 traces[r] = trace
     return traces  # type: ignore[return-value]
@@ -328,12 +364,19 @@ def simulate_cases(
     return in_parallel(run, cases, threads, size=1)
 
 
+def _switches(rolling: np.ndarray) -> np.ndarray:
+    """The steps at which a run's pattern of rolling contacts (N, n) changes."""
+    return np.flatnonzero(np.any(rolling[1:] != rolling[:-1], axis=-1)) + 1
+
+
 def _simulate_batch(
     runs: list[tuple[PhysicsModel, Motion]],
     moves: list[tuple[np.ndarray, np.ndarray]],
+    rolls: list[np.ndarray | None] | None = None,
 ) -> list[Trace]:
-    """One batch of runs that share their model structure, settle and finger moves (their
-    :func:`_moves`)."""
+    """One batch of runs that share their model structure, settle, finger moves (their
+    :func:`_moves`) and the steps where their rolling contacts change (``rolls``, each run's
+    :meth:`PhysicsModel.rolling`; None: none changes)."""
     physics = [p for p, _ in runs]
     motions = [motion for _, motion in runs]
     physics0 = physics[0]
@@ -345,7 +388,10 @@ def _simulate_batch(
         raise ValueError("the runs of one batch must share the settle")
     place, lift = moves[0]  # fingers move at the same steps in every run of the batch
     events = set(np.flatnonzero(np.any(place | lift, axis=-1)).tolist())
-    bounds = sorted({0, settle, length, *events})
+    if rolls is None:
+        rolls = [None] * count
+    switches = set() if rolls[0] is None else set(_switches(rolls[0]).tolist())
+    bounds = sorted({0, settle, length, *events, *switches})
     if np.all(lengths == length):
         controls = _controls(
             physics,
@@ -363,18 +409,21 @@ def _simulate_batch(
             controls[r, steps:] = controls[r, steps - 1]
     state = np.stack([p._initial_state(motion.contact[0]) for p, motion in runs])
     runner, data = _runner(), [physics0.data()]
-    settle_models = [p.settle_model for p in physics]
-    models = [p.model for p in physics]
     chunks = []
     for a, b in itertools.pairwise(bounds):
         if a in events:
             for r, p in enumerate(physics):
                 _move_fingers(p.at_step(a), state[r], moves[r][0][a], moves[r][1][a])
+        # each run's models for this chunk: its contacts rolling as they do at its first step
+        chunk_models = [
+            p.models(None if roll is None else roll[min(a, len(roll) - 1)])
+            for p, roll in zip(physics, rolls, strict=True)
+        ]
         # Inputs are laid out as mujoco.rollout wants them (contiguous float64, one model and
         # initial state per run, the output allocated here), so its checks are skipped.
         states = np.empty((count, b - a, physics0.nstate))
         runner.rollout(
-            settle_models if a < settle else models,
+            [pair[0 if a >= settle else 1] for pair in chunk_models],
             data,
             state,
             np.ascontiguousarray(controls[:, a:b]),

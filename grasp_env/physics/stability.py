@@ -61,6 +61,9 @@ SETTINGS: dict[str, float] = {
     #: max(|P|, force_floor) per second (segments slowed where needed; docs/physics.md)
     "force_rate": 10.0,
     "force_floor": 0.03,  #: rollout: the floor of that bound's |P|, in units of w
+    #: rollout: seconds over which each segment's pace eases in and out (the forces' rate of
+    #: change continuous at the segments' ends; motion.timed_segments)
+    "ramp_time": 0.01,
 }
 #: The contact's time constant (model.SOLREF) must span at least two steps.
 MAX_TIMESTEP = 0.0025
