@@ -16,7 +16,7 @@ Modules by concern: ``tasks`` (one configuration's tables, :func:`gait_task`), `
 ``render`` (``GaitView``: the frames of ``render_mode="rgb_array"``) and ``shaping``
 (:class:`GaitShaping`: potential-based shaping from the certified programme;
 :class:`GaitMoveMasks`: the legal moves as an action mask; :class:`GaitExpertStarts`:
-episodes started partway along the optimal gait).
+episodes started partway along the optimal gait; each takes the can's gait envs too).
 """
 
 from .env import CubeGaitEnv
@@ -28,9 +28,11 @@ from .shaping import (
     GaitExpertStarts,
     GaitMoveMasks,
     GaitShaping,
+    expert_gait,
     legal_moves,
     poses_held,
     potential_table,
+    shaped_can_gait_env,
     shaped_gait_env,
 )
 from .tasks import PAPER_TURN_SPEC, GaitTask, gait_task
@@ -49,10 +51,12 @@ __all__ = [
     "GaitTask",
     "GreedyGait",
     "check_moves",
+    "expert_gait",
     "gait_task",
     "legal_moves",
     "optimal_actions",
     "poses_held",
     "potential_table",
+    "shaped_can_gait_env",
     "shaped_gait_env",
 ]

@@ -1,8 +1,12 @@
 """Learning the gait (docs/gait.md, "Learning the whole turn"): potential-based shaping of
 the reward from the certified programme (:class:`GaitShaping`), the moves the hand allows as
 an action mask for sb3-contrib's ``MaskablePPO`` (:class:`GaitMoveMasks`), and episodes
-started partway along the turn (:class:`GaitExpertStarts`); the id
-``grasp_env/CubeGaitMovesShaped-v0`` (:func:`shaped_gait_env`).
+started partway along the turn (:class:`GaitExpertStarts`); the ids
+``grasp_env/CubeGaitMovesShaped-v0`` (:func:`shaped_gait_env`) and
+``grasp_env/CanGaitMovesShaped-v0`` (:func:`shaped_can_gait_env`). Every wrapper takes the
+cube's gait envs and the can's (docs/gait.md, "The can"): both programmes' tables have the
+same form (states, moves in CSR form, each move's next state and loaded set), the can's
+margins being those of its configurations, the same at every pose.
 
 **Shaping** (Ng, Harada and Russell 1999). A shaping reward F(s, s') = gamma Phi(s') - Phi(s)
 added to every step leaves the optimal policies of the discounted task unchanged, for any
@@ -42,11 +46,17 @@ import numba
 import numpy as np
 
 from ...mechanics.checks import real_number
+from ...mechanics.gait.can_programme import _move_values
 from ...mechanics.gait.programme import _pose_values, _state_ok
+from ..can_gait.env import CanGaitEnv, CanGaitTask
 from ..validation import check_bool
 from .env import CubeGaitEnv
 from .kernels import _allowed, optimal_actions
 from .tasks import GaitTask
+
+#: The tasks the wrappers take: the cube's gait (:class:`GaitTask`) and the can's
+#: (:class:`~grasp_env.envs.can_gait.CanGaitTask`).
+AnyGaitTask = GaitTask | CanGaitTask
 
 #: The potentials :class:`GaitShaping` takes (see the module docstring).
 POTENTIALS = ("held", "holds")
@@ -74,20 +84,61 @@ def _poses_held(states, ptr, move, nxt, loaded, margin, reach):
     return held
 
 
-def poses_held(task: GaitTask) -> np.ndarray:
-    """H (T + 1, X) int64 of ``task`` (read-only, cached per task): H[t, x] is the most poses
-    that a gait from state x at pose t holds before the trajectory ends (a pose is held when
-    no touching finger has lost its site and the loaded set's certified margin is >= 0; the
-    moves allowed as in the programme, docs/gait.md); H[T] = 0. The optimal gait's start has
-    H[0, start] = T."""
-    if not isinstance(task, GaitTask):
-        raise ValueError(f"task must be a GaitTask (gait_task), got {type(task).__name__}")
-    return _held_table(task)
+@numba.njit(cache=True)
+def _table_poses_held(ptr, nxt, vals, T):
+    """(T + 1, X) int16: H_t(x) on move tables whose move k has the value vals[t, k] (vals of
+    one row: the same at every pose; -inf: unusable), a state without moves (a lost contact)
+    holding none: H_t(x) = max over k with vals[t, k] >= 0 of 1 + H_{t+1}(next[k]), H_T = 0."""
+    X = ptr.shape[0] - 1
+    one = vals.shape[0] == 1
+    held = np.zeros((T + 1, X), np.int16)
+    for t in range(T - 1, -1, -1):
+        row = 0 if one else t
+        for x in range(X):
+            best = 0
+            for k in range(ptr[x], ptr[x + 1]):
+                if vals[row, k] >= 0.0:
+                    best = max(best, 1 + held[t + 1, nxt[k]])
+            held[t, x] = best
+    return held
+
+
+def _check_task(task: Any) -> AnyGaitTask:
+    if not isinstance(task, (GaitTask, CanGaitTask)):
+        raise ValueError(
+            "task must be a GaitTask (gait_task) or a CanGaitTask (can_gait_task), got"
+            f" {type(task).__name__}"
+        )
+    return task
+
+
+def expert_gait(task: AnyGaitTask) -> Any:
+    """The certified optimal gait the task's expert follows (its ``policy`` acts from every
+    state, its ``margin`` is the bottleneck B, its ``states`` the states along it): the cube's
+    ``task.solution.optimal``, the can's ``task.expert`` (from the episodes' start)."""
+    return _check_task(task).expert if isinstance(task, CanGaitTask) else task.solution.optimal
+
+
+def poses_held(task: AnyGaitTask) -> np.ndarray:
+    """H (T + 1, X) of ``task`` (read-only, cached per task; int64 for the cube, int16 for the
+    can's 536,068 states): H[t, x] is the most poses that a gait from state x at pose t holds
+    before the trajectory ends (a pose is held when no touching finger has lost its site or
+    contact and the loaded set's certified margin is >= 0, eq. 2, 4; the moves allowed as in
+    the programme, docs/gait.md); H[T] = 0. The optimal gait's start has H[0, start] = T.
+    On the can a state is each finger's age and the margins are those of the configurations
+    (the same at every pose): H_t(x) = max over the table's moves k of x with margin >= 0 of
+    1 + H_{t+1}(next(k)), a state with a lost contact (age H + 1) holding none."""
+    return _held_table(_check_task(task))
 
 
 @lru_cache(maxsize=8)
-def _held_table(task: GaitTask) -> np.ndarray:
+def _held_table(task: AnyGaitTask) -> np.ndarray:
     table = task.table
+    if isinstance(task, CanGaitTask):
+        vals = _move_values(table, task.solution.margin)
+        held = _table_poses_held(table.ptr, table.next, vals, task.n_poses)
+        held.flags.writeable = False
+        return held
     solution = task.solution
     held = _poses_held(
         table.states, table.ptr, table.move, table.next, table.loaded,
@@ -97,13 +148,19 @@ def _held_table(task: GaitTask) -> np.ndarray:
     return held
 
 
-def potential_table(task: GaitTask, potential: str = "held", scale: float = 1.0) -> np.ndarray:
-    """Phi (T + 1, X) float64 of ``task`` for ``potential`` (one of :data:`POTENTIALS`) times
-    ``scale``; Phi[T] = 0 (the trajectory's end is an episode end: Ng et al.'s potential of an
-    absorbing state)."""
+def potential_table(task: AnyGaitTask, potential: str = "held", scale: float = 1.0) -> np.ndarray:
+    """Phi (T + 1, X) float64 of ``task`` (the cube's or the can's) for ``potential`` (one of
+    :data:`POTENTIALS`) times ``scale``; Phi[T] = 0 (the trajectory's end is an episode end:
+    Ng et al.'s potential of an absorbing state). Read-only, cached per (task, potential,
+    scale): every wrapper of a task shares one table (163 MB on the can)."""
     if potential not in POTENTIALS:
         raise ValueError(f"potential must be one of {POTENTIALS}, got {potential!r}")
     scale = real_number("scale", scale, 0.0, open_low=True)
+    return _potential_table(_check_task(task), potential, scale)
+
+
+@lru_cache(maxsize=8)
+def _potential_table(task: AnyGaitTask, potential: str, scale: float) -> np.ndarray:
     held = poses_held(task)
     if potential == "held":
         phi = held.astype(float)
@@ -111,7 +168,9 @@ def potential_table(task: GaitTask, potential: str = "held", scale: float = 1.0)
         left = task.n_poses - np.arange(task.n_poses + 1)
         phi = (held == left[:, None]).astype(float)
     phi[task.n_poses] = 0.0
-    return phi * scale
+    phi *= scale
+    phi.flags.writeable = False
+    return phi
 
 
 class _GaitState(gym.Wrapper):
@@ -119,14 +178,14 @@ class _GaitState(gym.Wrapper):
     (a ``Monitor``, gymnasium's checkers): one attribute read a step, no decoding."""
 
     def __init__(self, env: gym.Env) -> None:
-        if not isinstance(env, gym.Env) or not isinstance(env.unwrapped, CubeGaitEnv):
+        if not isinstance(env, gym.Env) or not isinstance(env.unwrapped, (CubeGaitEnv, CanGaitEnv)):
             raise ValueError(
-                "env must be a gait environment (grasp_env/CubeGait-v0 or"
-                f" grasp_env/CubeGaitMoves-v0, possibly wrapped), got {env!r}"
+                "env must be a gait environment (grasp_env/CubeGait-v0, CubeGaitMoves-v0,"
+                f" CanGait-v0 or CanGaitMoves-v0, possibly wrapped), got {env!r}"
             )
         super().__init__(env)
-        self._base: CubeGaitEnv = env.unwrapped
-        self.task: GaitTask = self._base.task
+        self._base: CubeGaitEnv | CanGaitEnv = env.unwrapped
+        self.task: AnyGaitTask = self._base.task
 
     @property
     def pose_state(self) -> tuple[int, int]:
@@ -139,12 +198,13 @@ class GaitShaping(_GaitState, gym.utils.RecordConstructorArgs):
     r + gamma Phi(t + 1, x') - Phi(t, x) (Ng, Harada and Russell 1999; module docstring).
 
     Args:
-        env: a gait environment (``grasp_env/CubeGait-v0`` or ``CubeGaitMoves-v0``), possibly
-            wrapped.
+        env: a gait environment (``grasp_env/CubeGait-v0``, ``CubeGaitMoves-v0``,
+            ``CanGait-v0`` or ``CanGaitMoves-v0``), possibly wrapped.
         potential: ``"held"`` (scale x the poses a gait from here still holds) or ``"holds"``
             (scale if a gait from here holds to the end, else 0).
         scale: radians per unit of potential, a number > 0; default: the optimal gait's
-            smallest margin B (6.97 deg on the default task) for ``"held"`` (one pose held is
+            smallest margin B (6.97 deg on the cube's default task, 8.89 deg on the can's) for
+            ``"held"`` (one pose held is
             worth a pose at the bottleneck), B / (1 - gamma) for ``"holds"`` (the discounted
             return of holding at B forever; 1e3 B at gamma = 1).
         gamma: the agent's discount factor, in (0, 1] (the shaping keeps the optimal policies
@@ -170,7 +230,7 @@ class GaitShaping(_GaitState, gym.utils.RecordConstructorArgs):
         if potential not in POTENTIALS:
             raise ValueError(f"potential must be one of {POTENTIALS}, got {potential!r}")
         self.gamma = real_number("gamma", gamma, 0.0, 1.0, open_low=True)
-        bottleneck = float(self.task.solution.optimal.margin)
+        bottleneck = float(expert_gait(self.task).margin)
         if scale is None:
             scale = bottleneck if potential == "held" else bottleneck / max(1.0 - self.gamma, 1e-3)
         self.potential = potential
@@ -191,19 +251,20 @@ class GaitShaping(_GaitState, gym.utils.RecordConstructorArgs):
 
 class GaitMoveMasks(_GaitState, gym.utils.RecordConstructorArgs):
     """The gait environment with :meth:`action_masks`, for sb3-contrib's ``MaskablePPO``
-    (only with ``optimal_grip=True``: ``CubeGaitMoves-v0``). Rewards and steps are the
-    environment's.
+    (only with ``optimal_grip=True``: ``CubeGaitMoves-v0``, ``CanGaitMoves-v0``). Rewards and
+    steps are the environment's.
 
     Args:
-        env: ``grasp_env/CubeGaitMoves-v0`` (or ``CubeGaitEnv(optimal_grip=True)``), possibly
-            wrapped.
+        env: ``grasp_env/CubeGaitMoves-v0`` or ``CanGaitMoves-v0`` (or the env class with
+            ``optimal_grip=True``), possibly wrapped.
         hold: False (the default): the moves the rules allow (those the environment does not
             refuse). True: of those, the moves whose loaded set holds this pose (certified
             margin >= 0, eq. 2, 4; the others slip at once and end the episode), all the
             allowed ones where none holds. Which move keeps the turn going later is still the
             agent's to learn.
         lookahead: with ``hold``, also mask the moves into a state that loses a contact at the
-            next pose (a finger kept on a site that leaves its reach), where another is left:
+            next pose (a finger kept on a site that leaves its reach; on the can, a contact past
+            its age H), where another is left:
             the greedy gait's one-pose lookahead, given to the hand.
     """
 
@@ -213,7 +274,7 @@ class GaitMoveMasks(_GaitState, gym.utils.RecordConstructorArgs):
         if not self.env.unwrapped.optimal_grip:
             raise ValueError(
                 "GaitMoveMasks masks Discrete moves: env must act with moves alone"
-                " (grasp_env/CubeGaitMoves-v0, optimal_grip=True)"
+                " (grasp_env/CubeGaitMoves-v0 or CanGaitMoves-v0, optimal_grip=True)"
             )
         self.hold = check_bool("hold", hold)
         self.lookahead = check_bool("lookahead", lookahead)
@@ -247,8 +308,9 @@ class GaitExpertStarts(_GaitState, gym.utils.RecordConstructorArgs):
     these starts must hold the whole turn itself.
 
     Args:
-        env: a gait environment (``CubeGait-v0`` or ``CubeGaitMoves-v0``), possibly wrapped
-            (shaping may lie inside or outside: it reads the pose and state each step).
+        env: a gait environment (``CubeGait-v0``, ``CubeGaitMoves-v0``, ``CanGait-v0`` or
+            ``CanGaitMoves-v0``), possibly wrapped (shaping may lie inside or outside: it
+            reads the pose and state each step).
         fraction: the share of episodes started partway, in [0, 1].
         among: ``"expert"`` (the optimal gait's states) or ``"holdable"``.
     """
@@ -261,7 +323,7 @@ class GaitExpertStarts(_GaitState, gym.utils.RecordConstructorArgs):
             raise ValueError(f"among must be one of {STARTS}, got {among!r}")
         self.among = among
         self._grip = self._base.optimal_grip
-        self._policy = self.task.solution.optimal.policy
+        self._policy = expert_gait(self.task).policy
         T = self.task.n_poses
         full = poses_held(self.task) == (T - np.arange(T + 1))[:, None]
         self._holdable = [np.flatnonzero(row) for row in full[:T]]
@@ -278,12 +340,20 @@ class GaitExpertStarts(_GaitState, gym.utils.RecordConstructorArgs):
         if self.among == "holdable":
             base = self._base
             base._t, base._x = k, int(rng.choice(self._holdable[k]))
+            if isinstance(base, CanGaitEnv):
+                base._shown = None
+                return task.observation(base._x, k), info
             return base._observation(base._x, k), info
         for _ in range(k):
             t, x = self.pose_state
-            move = int(task.table.move[self._policy[t, x]])
+            chosen = int(self._policy[t, x])
+            move = int(task.table.move[chosen])
             if self._grip:
                 action: Any = move
+            elif isinstance(task, CanGaitTask):  # the certified grip of the move's config
+                action = -np.ones(task.n_pairs + task.n_moves, np.float32)
+                action[: task.n_pairs] = task.optimal_grip(int(task.table.config[chosen]))
+                action[task.n_pairs + move] = 1.0
             else:
                 action = optimal_actions(task, np.array([x]), np.array([t]), np.array([move]))[0]
             obs, _, terminated, truncated, info = self.env.step(action)
@@ -293,7 +363,7 @@ class GaitExpertStarts(_GaitState, gym.utils.RecordConstructorArgs):
 
 
 def legal_moves(
-    task: GaitTask, t: int, x: int, hold: bool = False, lookahead: bool = False
+    task: AnyGaitTask, t: int, x: int, hold: bool = False, lookahead: bool = False
 ) -> np.ndarray:
     """(M,) bool, the moves the rules allow from state ``x`` at pose ``t``: those the
     environment does not refuse (keep, always; lifts that leave three touching; placements on
@@ -301,8 +371,22 @@ def legal_moves(
     loaded set's certified margin at t is >= 0, if any (all allowed ones if none; a state with
     a contact out of reach loses it whatever the move). With ``lookahead`` too, of those the
     moves into a state whose every contact is within reach at t + 1, if any (the greedy gait's
-    one-pose lookahead: a finger is not kept on a site it loses at the next pose)."""
+    one-pose lookahead: a finger is not kept on a site it loses at the next pose).
+
+    On the can (a :class:`~grasp_env.envs.can_gait.CanGaitTask`) the allowed moves are the
+    state's moves in the can's tables (what ``CanGaitEnv`` does not refuse: 3 to
+    ``max_loaded`` loaded, at most five touching); a state that has lost a contact (a finger
+    past age H) has none, and every move is then the same void one: keep (0) alone is
+    allowed. ``hold`` keeps the moves whose loaded configuration's margin is >= 0 and
+    ``lookahead`` the moves into a state whose every contact is at most H poses old."""
     out = np.empty(task.n_moves, np.bool_)
+    if isinstance(task, CanGaitTask):
+        table = task.table
+        _can_legal_moves(
+            t, x, hold, lookahead, table.ptr, table.move, table.next, table.config,
+            table.states, task.max_age, task.n_poses, task.solution.values.margin, out,
+        )  # fmt: skip
+        return out
     _legal_moves(
         t, x, hold, lookahead, task.csr, task.table.states, task.table.loaded, task.table.next,
         task.solution.reach, task.solution.values.margin, out,
@@ -345,6 +429,35 @@ def _legal_moves(t, x, hold, lookahead, csr, states, loaded, nxt, reach, margin,
             out[m] = out[m] and kept[m]
 
 
+@numba.njit(cache=True, nogil=True)
+def _can_legal_moves(t, x, hold, lookahead, ptr, move, nxt, config, states, H, T, margin, out):
+    """:func:`legal_moves` on the can's tables into ``out`` (M,)."""
+    out[:] = False
+    lo, hi = ptr[x], ptr[x + 1]
+    if hi == lo:  # a lost contact: the move is void
+        out[0] = True
+        return
+    any_holds = False
+    for k in range(lo, hi):
+        out[move[k]] = True
+        any_holds = any_holds or margin[config[k]] >= 0.0
+    if not (hold and any_holds):
+        return
+    for k in range(lo, hi):
+        if margin[config[k]] < 0.0:
+            out[move[k]] = False
+    if not lookahead or t + 1 >= T:
+        return
+    any_kept = False
+    for k in range(lo, hi):
+        if out[move[k]] and states[nxt[k]].max() <= H:
+            any_kept = True
+    if any_kept:
+        for k in range(lo, hi):
+            if states[nxt[k]].max() > H:
+                out[move[k]] = False
+
+
 def shaped_gait_env(
     potential: str = "held",
     scale: float | None = None,
@@ -366,14 +479,38 @@ def shaped_gait_env(
     return GaitShaping(env, potential, scale, gamma)
 
 
+def shaped_can_gait_env(
+    potential: str = "held",
+    scale: float | None = None,
+    gamma: float = 0.99,
+    expert_starts: float = 0.0,
+    starts_among: str = "expert",
+    **kwargs: Any,
+) -> GaitShaping:
+    """``CanGaitEnv(**kwargs)`` (``optimal_grip`` True unless given), with
+    :class:`GaitExpertStarts` (``fraction=expert_starts``, ``among=starts_among``) if
+    ``expert_starts`` > 0, in :class:`GaitShaping` with ``potential``, ``scale`` (default:
+    the can's optimal gait's smallest margin, 8.893 deg, a pose) and ``gamma``: the id
+    ``grasp_env/CanGaitMovesShaped-v0``."""
+    kwargs.setdefault("optimal_grip", True)
+    env: gym.Env = CanGaitEnv(**kwargs)
+    fraction = real_number("expert_starts", expert_starts, 0.0, 1.0)
+    if fraction > 0.0:
+        env = GaitExpertStarts(env, fraction, starts_among)
+    return GaitShaping(env, potential, scale, gamma)
+
+
 __all__ = [
     "POTENTIALS",
     "STARTS",
+    "AnyGaitTask",
     "GaitExpertStarts",
     "GaitMoveMasks",
     "GaitShaping",
+    "expert_gait",
     "legal_moves",
     "poses_held",
     "potential_table",
+    "shaped_can_gait_env",
     "shaped_gait_env",
 ]
