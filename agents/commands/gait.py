@@ -18,10 +18,8 @@ from __future__ import annotations
 import argparse
 import csv
 import time
-from dataclasses import dataclass
 from itertools import combinations
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -42,6 +40,16 @@ from grasp_env.mechanics.gait import _MAX_FINGERS, GAIT_CG_OFFSET, site_sets
 from ..cli import folder_argument, path_argument
 from ..progress import console, status
 from . import gait_can
+from .gait_models import (  # noqa: F401  (the --models part, under the names it had here)
+    Episode,
+    check_observes,
+    check_rliable,
+    compare_models,
+    env_kwargs,
+    load_models,
+    model_labels,
+    play,
+)
 from .scene_args import floats, friction, numbers, weight
 
 FINGERS = (3, _MAX_FINGERS)  # fingers a gait may have, the thumb included (the state tables)
@@ -115,10 +123,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     gait_can.add_arguments(parser)
     parser.add_argument(
         "--models", nargs="+", type=path_argument, default=[], metavar="MODEL",
-        help="trained agents (SB3 model files, e.g. rl-zoo3's)"
+        help="trained agents (SB3 model files, e.g. rl-zoo3's, or sb3-contrib's MaskablePPO)"
         " to play on grasp_env/CubeGait-v0 (CubeGaitMoves-v0 for those that choose only the"
-        " moves) beside the optimal and the greedy gait (the default hand, sites and weight;"
-        " --axis, --alpha-*, --mu, --cone, --k-max apply)",
+        " moves; MaskablePPO with the masks it was trained with, from its file or a"
+        " gait_masks.json beside it) beside the optimal and the greedy gait (the default hand,"
+        " sites and weight; --axis, --alpha-*, --mu, --cone, --k-max apply)",
     )  # fmt: skip
 
 
@@ -178,19 +187,6 @@ def make_hand(args: argparse.Namespace) -> Hand:
         for field, option in HAND_OPTIONS.items():  # the option, and the hand's field it sets
             message = message.replace(field, f"{option} ({field})")
         raise ValueError(message) from None
-
-
-def check_rliable(args: argparse.Namespace) -> None:
-    """ValueError naming the extra if ``--models`` gives several agents (their IQM and its
-    interval are rliable's) and rliable does not import: before any work, not after it."""
-    if len(args.models) > 1:
-        try:
-            import rliable.library  # noqa: F401
-        except ImportError as error:
-            raise ValueError(
-                f"--models with {len(args.models)} models reports their IQM with rliable, which"
-                f' does not import ({error}): pip install "grasp-env[results]"'
-            ) from None
 
 
 # ------------------------------------------------------------------------------ report
@@ -281,176 +277,6 @@ def no_gait(args: argparse.Namespace) -> str:
         f" --cone, move the fingers (--finger-azimuths, --finger-elevation{thumb}) or shorten"
         " or turn the trajectory (--alpha-start, --alpha-end, --axis)"
     )
-
-
-def env_kwargs(args: argparse.Namespace) -> dict[str, Any]:
-    """``grasp_env/CubeGait-v0``'s keywords for the options (ValueError for options that
-    environment cannot take: it has the default hand, sites and weight)."""
-    add_arguments(parser := argparse.ArgumentParser())
-    defaults = resolve(parser.parse_args([]))
-    resolve(args)
-    fixed = ["weight", "offsets", "cg_offset", "finger_azimuths", "finger_elevation", "no_thumb"]
-    changed = [name for name in fixed if getattr(args, name) != getattr(defaults, name)]
-    if changed:
-        options = ", ".join("--" + name.replace("_", "-") for name in changed)
-        raise ValueError(
-            f"--models plays on grasp_env/CubeGait-v0, whose hand, sites and weight are the"
-            f" defaults: drop {options}"
-        )
-    trajectory = {
-        "axis": tuple(args.axis),
-        "alpha_start_deg": args.alpha_start,
-        "alpha_end_deg": args.alpha_end,
-        "alpha_step_deg": args.alpha_step,
-    }
-    kwargs: dict[str, Any] = {"trajectory": trajectory, "mu": args.mu, "cone_deg": args.cone}
-    if args.k_max is not None:
-        kwargs["k_max_ratio"] = args.k_max / args.weight
-    return kwargs
-
-
-@dataclass(frozen=True)
-class Episode:
-    """One deterministic episode of a gait policy: the poses it held (no slip, no drop), the
-    alpha where it ended early (None if it held to the end) and its worst margin (radians)
-    over the poses it held."""
-
-    held: int
-    ended_deg: float | None
-    worst: float
-
-
-def check_observes(policy: Any, env: Any, name: str = "the model") -> None:
-    """ValueError unless ``policy`` (a trained agent; the gaits observe anything) observes what
-    ``env`` (a gait environment) observes and acts as ``grasp_env/CubeGait-v0`` or
-    ``grasp_env/CubeGaitMoves-v0`` with its configuration act."""
-    from gymnasium import spaces
-
-    task = env.unwrapped.task
-    grip_and_moves = (task.n_pairs + task.n_moves,)
-    model = getattr(policy, "model", None)
-    observes = getattr(model, "observation_space", env.observation_space)
-    acts = getattr(model, "action_space", None)
-    gait_actions = acts is None or (
-        acts == spaces.Discrete(task.n_moves)
-        or (isinstance(acts, spaces.Box) and acts.shape == grip_and_moves)
-    )
-    if observes.shape != env.observation_space.shape or not gait_actions:
-        raise ValueError(
-            f"{name} observes {observes.shape} and acts in {acts}; grasp_env/CubeGait-v0"
-            f" observes {env.observation_space.shape} and acts in Box(-1, 1, {grip_and_moves}),"
-            f" grasp_env/CubeGaitMoves-v0 in Discrete({task.n_moves}): not a gait agent"
-        )
-
-
-def load_models(args: argparse.Namespace) -> list[tuple[str, Any]]:
-    """The agents of ``--models``, labelled (:func:`model_labels`) and checked before any work:
-    each file is a model (:func:`grasp_env_agents.learning.models.load_agent`, which names
-    the file and the problem) that observes what ``grasp_env/CubeGait-v0`` with the options
-    observes."""
-    import gymnasium as gym
-
-    import grasp_env  # noqa: F401  (registers the environments)
-
-    from ..learning.models import load_agent
-
-    env = gym.make("grasp_env/CubeGait-v0", **env_kwargs(args))
-    agents = []
-    try:
-        for label, path in zip(model_labels(args.models), args.models, strict=True):
-            agent = load_agent(path)
-            check_observes(agent, env, f"{path}: the model")
-            agents.append((label, agent))
-    finally:
-        env.close()
-    return agents
-
-
-def play(policy: Any, kwargs: dict[str, Any]) -> Episode:
-    """Plays ``policy.predict`` (deterministic) on ``grasp_env/CubeGait-v0`` with ``kwargs``
-    (``grasp_env/CubeGaitMoves-v0`` for an agent that chooses only the moves: a discrete
-    action); the episode stops at the first slip or drop (the environment's default)."""
-    import gymnasium as gym
-    from gymnasium import spaces
-
-    acts = getattr(getattr(policy, "model", None), "action_space", None)
-    moves = isinstance(acts, spaces.Discrete)
-    env = gym.make(f"grasp_env/CubeGait{'Moves' if moves else ''}-v0", **kwargs)
-    try:
-        check_observes(policy, env)
-    except ValueError:
-        env.close()
-        raise
-    obs, _ = env.reset(seed=0)
-    rewards, terminated, truncated, info = [], False, False, {}
-    while not (terminated or truncated):
-        action = policy.predict(obs, deterministic=True)[0]
-        obs, reward, terminated, truncated, info = env.step(action)
-        rewards.append(reward)
-    env.close()
-    # a slip or a drop ends the episode: its last pose is not held
-    held = np.asarray(rewards[:-1] if terminated else rewards)
-    ended = float(info["alpha_deg"]) if terminated else None
-    return Episode(len(held), ended, float(held.min()) if len(held) else -np.inf)
-
-
-def model_labels(paths: list[Path]) -> list[str]:
-    """The shortest endings of ``paths`` (at least folder/file) that tell them apart.
-
-    rl-zoo3 saves every run as <env id>.zip in a folder <env id>_<n>, numbered within its log
-    folder, so runs of several seeds differ only further up.
-    """
-    parts = [Path(p).parts for p in paths]
-    for n in range(2, max(map(len, parts), default=2) + 1):
-        labels = ["/".join(p[-n:]) for p in parts]
-        if len(set(labels)) == len(labels):
-            return labels
-    return [str(p) for p in paths]
-
-
-def compare_models(
-    args: argparse.Namespace, loaded: list[tuple[str, Any]] | None = None
-) -> list[tuple[str, Episode]]:
-    """Prints the table of ``--models`` (``loaded``: their :func:`load_models`, loaded here if
-    not given): the optimal and greedy gaits and each trained agent, and across the agents the
-    IQM with its 95% bootstrap interval (rliable); returns its rows."""
-    from rich.table import Table
-
-    from grasp_env.envs.gait import GaitExpert, GreedyGait
-
-    kwargs = env_kwargs(args)
-    if loaded is None:
-        loaded = load_models(args)
-    rows = [("optimal gait (certified)", play(GaitExpert(**kwargs), kwargs))]
-    rows.append(("greedy gait", play(GreedyGait(**kwargs), kwargs)))
-    agents = [(label, play(agent, kwargs)) for label, agent in loaded]
-    table = Table(
-        title="On grasp_env/CubeGait-v0, agents of moves alone on CubeGaitMoves-v0"
-        " (deterministic, to the first slip or drop)"
-    )
-    for name in ("policy", "poses held", "ended at alpha (deg)", "worst margin held (deg)"):
-        left = name == "policy"
-        table.add_column(
-            name, justify="left" if left else "right", overflow="fold" if left else "ellipsis"
-        )
-    for name, episode in rows + agents:
-        table.add_row(
-            name,
-            str(episode.held),
-            "held to the end" if episode.ended_deg is None else f"{episode.ended_deg:g}",
-            f"{np.rad2deg(episode.worst):.3f}" if episode.held else "none held",
-        )
-    if len(agents) > 1:
-        from ..studies.results import iqm_interval
-
-        held = iqm_interval([e.held for _, e in agents])
-        worst = [np.rad2deg(e.worst) for _, e in agents if e.held]
-        table.add_row(
-            f"the {len(agents)} agents: IQM [95% CI]", held.format("{:.1f}"), "",
-            iqm_interval(worst).format("{:.3f}") if worst else "none held",
-        )  # fmt: skip
-    console().print(table)
-    return rows + agents
 
 
 def write_csv(solution: GaitSolution, path: Path) -> None:

@@ -39,6 +39,7 @@ normalisation): ``grasp-env evaluate`` and ``verify --policy`` load models throu
 from __future__ import annotations
 
 import base64
+import importlib
 import io
 import json
 import pickle
@@ -74,6 +75,14 @@ from .baselines import TrainedAgent
 
 #: The algorithms a model file may be loaded as; its policy class says which wrote it.
 ALGORITHMS: dict[str, type[BaseAlgorithm]] = {"ppo": PPO, "td3": TD3, "sac": SAC}
+#: sb3-contrib's algorithms a model file may be loaded as too, by name: (module, class). The
+#: package is in the ``agents`` extra and imported only for a file that needs it. MaskablePPO's
+#: agents act with the action masks they were trained with (``predict(..., action_masks=...)``):
+#: ``grasp-env gait --models`` plays them with theirs
+#: (:mod:`grasp_env_agents.commands.gait_models`).
+CONTRIB_ALGORITHMS = {"maskable_ppo": ("sb3_contrib", "MaskablePPO")}
+#: The modules of sb3-contrib a model file's pickles may name (:data:`ALLOWED`).
+CONTRIB_MODULES = ("sb3_contrib.common.maskable.policies", "sb3_contrib.common.maskable.buffers")
 
 #: Everything a model file's pickles may name, by module. Classes are only referenced or
 #: rebuilt (their __init__ is not what unpickling calls); the functions rebuild arrays, numpy
@@ -94,6 +103,8 @@ ALLOWED: dict[str, set[str]] = {
     "torch": {"device"},  # a replay buffer's (torch.device("cpu") is all unpickling calls)
     "torch.nn.modules.activation": {"Tanh", "ReLU", "SiLU"},  # config: policy.activation
     "stable_baselines3.common.policies": {"ActorCriticPolicy"},
+    "sb3_contrib.common.maskable.policies": {"MaskableActorCriticPolicy"},
+    "sb3_contrib.common.maskable.buffers": {"MaskableRolloutBuffer"},
     "stable_baselines3.td3.policies": {"TD3Policy"},
     "stable_baselines3.sac.policies": {"SACPolicy"},
     "stable_baselines3.common.buffers": {"RolloutBuffer", "ReplayBuffer"},
@@ -135,6 +146,19 @@ class ForbiddenName(pickle.UnpicklingError):
     """A pickle names something outside :data:`ALLOWED`."""
 
 
+class MissingExtra(pickle.UnpicklingError):
+    """A pickle names an allowed class of sb3-contrib, which does not import."""
+
+
+def contrib_error(what: str, error: BaseException) -> ValueError:
+    """The error for ``what`` (a file and its entry, or an algorithm) needing sb3-contrib,
+    which does not import: it names the extra that installs it."""
+    return ValueError(
+        f"{what} needs sb3-contrib (a MaskablePPO model), which does not import ({error}):"
+        ' pip install "grasp-env[agents]"'
+    )
+
+
 class SafeUnpickler(pickle.Unpickler):
     """An unpickler that resolves only the names in :data:`ALLOWED` (and :data:`RENAMED`)."""
 
@@ -142,6 +166,11 @@ class SafeUnpickler(pickle.Unpickler):
         module = RENAMED.get(module, module)
         if name not in ALLOWED.get(module, ()):
             raise ForbiddenName(f"{module}.{name}")
+        if module in CONTRIB_MODULES:
+            try:
+                return super().find_class(module, name)
+            except ImportError as error:  # the agents extra without sb3-contrib
+                raise MissingExtra(f"{module}.{name}: {error}") from None
         return super().find_class(module, name)
 
 
@@ -275,6 +304,8 @@ def decode_entries(path: Path, archive: zipfile.ZipFile) -> dict[str, Any]:
             decoded[key] = safe_loads(serialized, f"{path}: entry {key!r}")
         except NestedTooDeep:
             raise
+        except MissingExtra as error:
+            raise contrib_error(f"{path}: entry {key!r}", error) from None
         except ForbiddenName as error:
             if key not in SCHEDULES:
                 raise _refusal(path, f"entry {key!r}", str(error)) from None
@@ -312,10 +343,36 @@ def _check_needed(path: Path, entries: dict[str, Any]) -> None:
         )
 
 
+def algorithm(algo: str) -> type[BaseAlgorithm]:
+    """The class of ``algo``, a name of :data:`ALGORITHMS` or :data:`CONTRIB_ALGORITHMS`
+    (sb3-contrib's, imported here: a ValueError naming the extra if it does not import)."""
+    if algo in ALGORITHMS:
+        return ALGORITHMS[algo]
+    if algo not in CONTRIB_ALGORITHMS:
+        names = sorted([*ALGORITHMS, *CONTRIB_ALGORITHMS])
+        raise ValueError(f"algo must be one of {names}, got {algo!r}")
+    module, name = CONTRIB_ALGORITHMS[algo]
+    try:
+        return getattr(importlib.import_module(module), name)
+    except ImportError as error:
+        raise contrib_error(f"algo {algo!r}", error) from None
+
+
+def algorithm_name(algo: str) -> str:
+    """How messages name ``algo``: ``PPO``, ``TD3``, ``SAC``, ``MaskablePPO``."""
+    return CONTRIB_ALGORITHMS[algo][1] if algo in CONTRIB_ALGORITHMS else algo.upper()
+
+
 def written_by(policy: type[BasePolicy]) -> str | None:
-    """The algorithm of :data:`ALGORITHMS` whose policies ``policy`` is one of (None if none)."""
-    for algo, algorithm in ALGORITHMS.items():
-        if issubclass(policy, algorithm.policy_aliases["MlpPolicy"]):
+    """The algorithm of :data:`ALGORITHMS` or :data:`CONTRIB_ALGORITHMS` whose policies
+    ``policy`` is one of (None if none). sb3-contrib's come first: MaskablePPO's policy is a
+    subclass of PPO's, and is not PPO's (it predicts with masks)."""
+    if policy.__module__.split(".")[0] == "sb3_contrib":  # decoded, so sb3-contrib imports
+        for algo in CONTRIB_ALGORITHMS:
+            if issubclass(policy, algorithm(algo).policy_aliases["MlpPolicy"]):
+                return algo
+    for algo, known in ALGORITHMS.items():
+        if issubclass(policy, known.policy_aliases["MlpPolicy"]):
             return algo
     return None
 
@@ -325,12 +382,14 @@ def load_model(
 ) -> BaseAlgorithm:
     """The SB3 model saved at ``path`` (a ``.zip``), on the CPU, without running code from it.
 
-    The file's policy class says which algorithm of :data:`ALGORITHMS` wrote it; ``algo``, if
-    given, must be that one. ``env`` (optional) is checked against the model's spaces. Raises
-    ValueError naming the file and the problem.
+    The file's policy class says which algorithm of :data:`ALGORITHMS` (or sb3-contrib's
+    MaskablePPO, :data:`CONTRIB_ALGORITHMS`) wrote it; ``algo``, if given, must be that one.
+    ``env`` (optional) is checked against the model's spaces. Raises ValueError naming the file
+    and the problem (and the ``agents`` extra for a MaskablePPO file without sb3-contrib).
     """
-    if algo is not None and algo not in ALGORITHMS:
-        raise ValueError(f"algo must be one of {sorted(ALGORITHMS)}, got {algo!r}")
+    if algo is not None and algo not in ALGORITHMS and algo not in CONTRIB_ALGORITHMS:
+        names = sorted([*ALGORITHMS, *CONTRIB_ALGORITHMS])
+        raise ValueError(f"algo must be one of {names}, got {algo!r}")
     path = Path(path)
     raw, archive = read_archive(path)
     check_tensors(path, archive)
@@ -338,17 +397,16 @@ def load_model(
     policy = decoded["policy_class"]
     wrote = written_by(policy)
     if wrote is None:
-        raise ValueError(
-            f"{path}: its policy class {policy.__name__} is none of {', '.join(ALGORITHMS)}'s"
-        )
+        names = ", ".join([*ALGORITHMS, *CONTRIB_ALGORITHMS])
+        raise ValueError(f"{path}: its policy class {policy.__name__} is none of {names}'s")
     if algo is not None and algo != wrote:
         raise ValueError(
-            f"{path}: a {wrote.upper()} model (its policy class is {policy.__name__}), not"
-            f" {algo.upper()}"
+            f"{path}: a {algorithm_name(wrote)} model (its policy class is {policy.__name__}),"
+            f" not {algorithm_name(algo)}"
         )
-    algo = wrote
+    loader = algorithm(wrote)
     try:
-        return ALGORITHMS[algo].load(io.BytesIO(raw), env=env, device="cpu", custom_objects=decoded)
+        return loader.load(io.BytesIO(raw), env=env, device="cpu", custom_objects=decoded)
     except Exception as error:  # the tensors do not fit the network, or the network cannot be built
         lines = str(error).strip().splitlines() or [type(error).__name__]
         raise ValueError(f"{path}: cannot rebuild the model it describes ({lines[0]})") from None
