@@ -15,13 +15,14 @@ gait, the reward gains gamma Phi(s') - Phi(s) with Phi the poses a gait can stil
 (scaled by the optimal gait's smallest margin), and the moves that slip at this pose or lose
 a contact at the next are masked. Scoring: one deterministic episode of the unshaped
 environment from its first pose (reset seed 0) to the first slip or drop, with the same
-masks (they are part of the policy), as ``grasp-env gait --models`` plays the others: poses
+masks (they are part of the policy), as ``grasp-env gait --models`` plays the cube's: poses
 held of 181 (37 on the can) and the worst margin held, and their IQM with rliable's 95%
-interval over seeds. Writes DIR/seed{S}/model.zip and DIR/seed{S}/curve.csv (steps, held,
-worst margin, CPU s, every 25,000 steps; 10,000 on the can); prints the baselines on the same
-environment (the certified expert, the greedy gait, the best fixed set), one row per seed and
-the IQM. ``--no-shaping``, ``--no-starts`` and ``--no-lookahead`` (hold masks only) are the
-ablations.
+interval over seeds. Writes DIR/seed{S}/model.zip (the masks' settings in its data, its
+``gait_masks`` entry: ``grasp-env gait --models`` plays the model with them) and
+DIR/seed{S}/curve.csv (steps, held, worst margin, CPU s, every 25,000 steps; 10,000 on the
+can); prints the baselines on the same environment (the certified expert, the greedy gait,
+the best fixed set), one row per seed and the IQM. ``--no-shaping``, ``--no-starts`` and
+``--no-lookahead`` (hold masks only) are the ablations.
 """
 
 from __future__ import annotations
