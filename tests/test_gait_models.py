@@ -206,3 +206,18 @@ def test_damaged_foreign_and_mislabelled_files_get_the_clear_errors(
     extra = r'needs sb3-contrib .* pip install "grasp-env\[agents\]"'
     with pytest.raises(ValueError, match=extra):
         load_model(trained / "model.zip")
+
+
+def test_the_gait_rl_studys_models_play_as_the_study_scores_them(tmp_path):
+    """benchmarks/study_gait_rl.py saves its masks' settings in each model: --models finds
+    them in the file and plays the study's own episode (181 poses, with the masks)."""
+    from grasp_env_agents.benchmarks.study_gait_rl import train
+
+    held, worst, _ = train(0, 2048, tmp_path / "seed0")
+    parser = argparse.ArgumentParser()
+    gait.add_arguments(parser)
+    args = parser.parse_args(["--models", str(tmp_path / "seed0" / "model.zip")])
+    ((label, agent),) = gait_models.load_models(args)
+    assert label == "seed0/model.zip" and agent.masks == MASKS
+    episode = gait_models.play(agent, gait_models.env_kwargs(args))
+    assert episode.held == held and abs(np.rad2deg(episode.worst) - worst) < 1e-9
