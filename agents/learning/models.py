@@ -33,7 +33,10 @@ inside it likewise, and ``data`` JSON or a pickle nested deeper than
 :data:`~grasp_env_agents.safe_files.MAX_NESTING` levels before Python's recursion fails on it.
 
 :func:`load_agent` is the entry point (a model file or a run directory, with its observation
-normalisation): ``grasp-env evaluate`` and ``verify --policy`` load models through it.
+normalisation): ``grasp-env evaluate``, ``verify --policy`` and ``gait --models`` load models
+through it. sb3-contrib's MaskablePPO files load too (:data:`CONTRIB_ALGORITHMS`: its policy
+and rollout buffer classes are allowed names), sb3-contrib imported only for them; without it
+the error names the ``agents`` extra.
 """
 
 from __future__ import annotations
@@ -468,7 +471,10 @@ def load_replay_buffer(path: str | Path) -> ReplayBuffer:
 def load_agent(path: str | Path, algo: str | None = None) -> TrainedAgent:
     """A trained agent from a model file or a ``grasp-env train`` run directory.
 
-    A run directory's ``model.zip`` is loaded (as :func:`load_model`, ``algo`` likewise);
+    A run directory's ``model.zip`` is loaded (as :func:`load_model`, ``algo`` likewise; a
+    MaskablePPO model too, whose agent predicts without masks unless given them: ``grasp-env
+    gait --models`` plays it with those it was trained with,
+    :class:`grasp_env_agents.commands.gait_models.MaskedAgent`);
     ``vecnormalize.pkl`` beside the model file, if there is one, normalises the observations
     (not updated while playing). A run whose ``config.yaml`` says ``normalize: true`` without
     that file is refused: its model would see observations it was never trained on.
