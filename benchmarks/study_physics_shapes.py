@@ -1,7 +1,7 @@
 """Study: does MuJoCo's verdict agree with the analytic one on every shape?
 
     python -m grasp_env_agents.benchmarks.study_physics_shapes [--per-cell 40] [--seed 0]
-        [--out study_physics_shapes] [--condim6 cylinder,sphere]
+        [--out study_physics_shapes] [--condim6 cylinder,sphere] [--rolling-share 0.02]
 
 For each shape kind of :data:`KINDS` (a random box, cylinder, sphere or convex mesh of
 :mod:`.general_scenes`, and the paper's coke can with contacts up to 1 mm from its rims) and
@@ -24,7 +24,9 @@ confusion matrix, per n) and writes ``cases.csv`` (a row a trajectory) and ``sum
 ``--out``. Exits with status 1 if the targets are missed: >= 99% agreement overall and 100% at
 >= 0.05 deg from the edge. ``--condim6`` names the shape kinds whose contacts get torsional and
 rolling friction (:data:`grasp_env.physics.model.CURVED`; ``none`` for the cube's condim 3 on
-every shape, to see why the curved ones need it).
+every shape, to see why the curved ones need it); ``--rolling-share`` the share of the grip's
+largest normal force below which a curved object's contact does not roll
+(:data:`grasp_env.physics.model.ROLLING_SHARE`; 0: every touching contact rolls).
 """
 
 from __future__ import annotations
@@ -340,7 +342,19 @@ def main(argv: list[str] | None = None) -> int:
         help="torsional and rolling friction on curved shapes, in tip radii (default: the"
         " model's SPIN_FRICTION)",
     )
+    parser.add_argument(
+        "--rolling-share",
+        type=float,
+        default=None,
+        help="on curved shapes a contact rolls only where its normal force is at least this"
+        " share of the grip's largest (default: the model's ROLLING_SHARE; 0: every touching"
+        " contact rolls)",
+    )
     args = parser.parse_args(argv)
+    if args.rolling_share is not None:
+        if not 0.0 <= args.rolling_share <= 1.0:
+            parser.error(f"--rolling-share must be in [0, 1], got {args.rolling_share}")
+        physics_model.ROLLING_SHARE = args.rolling_share  # a study knob, read per run
     if args.spin is not None:
         physics_model.SPIN_FRICTION = args.spin  # a study knob: the model reads it per scene
     if args.condim6 is not None:
@@ -358,7 +372,9 @@ def main(argv: list[str] | None = None) -> int:
     steps = sum(len(r.motion) for r in reports)
     summary = (
         f"seed {args.seed}, {args.per_cell} scenes per shape and n, condim 6 on"
-        f" {physics_model.CURVED or 'nothing'} ({physics_model.SPIN_FRICTION:g} tip radii):"
+        f" {physics_model.CURVED or 'nothing'} ({physics_model.SPIN_FRICTION:g} tip radii,"
+        f" rolling where a contact's normal force is at least {physics_model.ROLLING_SHARE:g}"
+        " of the grip's largest):"
         f" {len(cases)} trajectories, {steps} MuJoCo"
         f" steps; cases {made:.1f} s ({made_cpu:.1f} s CPU), MuJoCo {ran:.1f} s wall"
         f" ({ran_cpu:.1f} s CPU, {1000 * ran_cpu / len(cases):.1f} ms CPU a trajectory)"
