@@ -6,8 +6,10 @@ own thread: one part's Python then overlaps another's stepping, where a rollout 
 alone would leave the cores idle while the Python plans and measures.
 
 A batch of runs steps in lockstep through chunks of steps. Chunks end where the settle ends (the
-settle runs on a copy of the model with a high friction coefficient) and where a finger is
-placed or lifted in any run: between chunks those fingertips are moved (a placed one to its
+settle runs on a copy of the model with a high friction coefficient), where a finger is
+placed or lifted in any run, and, on a curved object, where a contact starts or stops rolling
+(:meth:`PhysicsModel.rolling`: each chunk runs on the model whose pairs roll as the run's
+contacts do at its first step): between chunks those fingertips are moved (a placed one to its
 contact, just inside the face; a lifted one to its parking place off the face). A touching
 fingertip's motor pushes with its commanded force plus what its own mass needs to follow it
 (:func:`~.batch._tip_inertia`), so that its contact pushes with the commanded force. The forces of
