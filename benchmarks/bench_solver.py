@@ -64,7 +64,7 @@ from grasp_env.mechanics import (
     solve_minimax,
 )
 from grasp_env.mechanics.minimax import fingers, linalg, sqp
-from grasp_env.mechanics.minimax.conic import active, barrier, driver, frames, polish
+from grasp_env.mechanics.minimax.conic import active, barrier, driver, frames, polish, qp
 from grasp_env_agents.benchmarks.general_scenes import general_scenes
 from grasp_env_agents.benchmarks.limits import Limit, count_along
 from grasp_env_agents.benchmarks.limits_conic import ConicLimit
@@ -210,13 +210,13 @@ def conic_steps(grasp: Grasp, k_max: float) -> tuple[Counter, float]:
     """The conic solver's kernel calls on one grasp, counted: the kernels' own Python source
     (``py_func``, what numba compiles) run with plain floats, each kernel's calls tallied by
     name (``cholesky_solve``: a barrier Newton step; ``lu_solve``: a KKT Newton step or a
-    step of the QP's projections; ``quadprog``: an SQP step's QP; ``level``: a level t
+    step of the QP's projections; ``dual_qp``: an SQP step's QP; ``level``: a level t
     tried). Returns (the tallies, the largest angle found). Seconds a
     solve (about 2 s at n = 5, 15 s at n = 8)."""
     calls: Counter = Counter()
     names: dict = {}  # the conic modules' names in one namespace, so calls between them count
     # (fingers: setup, the angles; linalg and sqp: the active-set attempt's QP)
-    for module in (linalg, fingers, sqp, frames, barrier, polish, active, driver):
+    for module in (linalg, fingers, sqp, frames, barrier, polish, qp, active, driver):
         names.update(vars(module))
     for name in ("stack_empty", "stack_zeros", "stack_large"):  # the stack arrays, on the heap
         names[name] = np.zeros

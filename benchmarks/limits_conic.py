@@ -21,7 +21,8 @@ Hessian, the Jacobi scaling, a Cholesky solve, a backtracking line search of bar
 a KKT Newton step (``polish``: the active rows, an LU solve, residuals of the damped step),
 a certificate (the barrier duals' weak-duality bound), an SQP step of the active-set attempt
 (``sqp``: the angles' and limits' derivatives, the convexified Hessian's inverse, a
-Goldfarb-Idnani QP, the line search on the largest angle).
+Goldfarb-Idnani QP (``qp.dual_qp``, warm-started from the last step's active rows), the line
+search on the largest angle).
 
 **The machine's rate.** :func:`barrier_steps` repeats the barrier Newton step (the barrier
 with derivatives, the scaling and the Cholesky solve: the work that dominates a solve)
@@ -49,6 +50,7 @@ from grasp_env.mechanics.minimax.conic import codes as conic_codes
 from grasp_env.mechanics.minimax.conic import driver as conic_driver
 from grasp_env.mechanics.minimax.conic import frames as conic_frames
 from grasp_env.mechanics.minimax.conic import polish as conic_polish
+from grasp_env.mechanics.minimax.conic import qp as conic_qp
 from grasp_env.mechanics.minimax.conic.barrier import barrier
 from grasp_env.mechanics.minimax.conic.frames import cholesky_solve, force_coordinates, reduced
 from grasp_env.mechanics.minimax.fingers import setup
@@ -67,6 +69,7 @@ CONIC_MODULES = {
         conic_frames,
         conic_barrier,
         conic_polish,
+        conic_qp,
         conic_active,
         conic_driver,
     )
@@ -178,7 +181,7 @@ UNITS = (
     ("barrier Newton step", ("centre", "cholesky_solve")),
     ("KKT Newton step", ("polish", "lu_solve")),
     ("level", "level"),
-    ("SQP step", ("sqp", "quadprog")),
+    ("SQP step", ("sqp", "dual_qp")),
 )
 
 
@@ -235,7 +238,7 @@ def count_conic(grasps: list[Grasp], k_max: np.ndarray, f_max: float = math.inf)
         polish_flops += interpreter.inclusive["polish"]
         polish_steps += interpreter.edges[("polish", "lu_solve")]
         sqp_flops += interpreter.inclusive["sqp"]
-        sqp_steps += interpreter.edges[("sqp", "quadprog")]
+        sqp_steps += interpreter.edges[("sqp", "dual_qp")]
         result.counted += 1
     if not result.counted:
         raise RuntimeError(f"every interpreted conic solve departed from the compiled one "

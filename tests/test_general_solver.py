@@ -325,3 +325,73 @@ def test_the_active_set_attempt_certifies_alone_and_agrees_with_the_barrier_sear
             assert result.lower_bound[b] == pytest.approx(lower, abs=1e-15), f"scene {b}"
             assert result.max_angle[b] == pytest.approx(angle, abs=1e-12), f"scene {b}"
     assert certified >= 2, f"the active-set attempt certified {certified} of {len(scenes)}"
+
+
+def _solve_qp(Ginv, c, C, b, meq, first_pair, pairs, guess=()):
+    """conic.qp.dual_qp on a QP (copies of C and b, which it may negate in place): (code, x,
+    u, the active rows)."""
+    from grasp_env.mechanics.minimax.conic.qp import dual_qp
+
+    nc, dim = C.shape
+    C, b = C.copy(), b.copy()
+    x, u = np.empty(dim), np.empty(nc)
+    GN, M, L = np.empty((dim, dim)), np.empty((dim, dim)), np.empty((dim, dim))
+    active, is_active = np.zeros(dim, np.int64), np.empty(nc, np.bool_)
+    active[: len(guess)] = guess
+    vec = np.empty((7, max(dim, nc)))
+    code = dual_qp(
+        Ginv, c, C, b, nc, meq, first_pair, pairs, len(guess), dim, x, u, GN, M, L, vec, active,
+        is_active,
+    )  # fmt: skip
+    return code, x, u, np.flatnonzero(is_active)
+
+
+@pytest.mark.parametrize("dim", [4, 13, 19])
+def test_the_active_set_qp_meets_the_kkt_conditions_cold_and_warm(dim):
+    # conic/qp.py's dual_qp (Goldfarb-Idnani, its Cholesky factor updated row by row, box
+    # rows in +- pairs, a warm start from a guessed active set) on random strictly convex
+    # QPs with equalities, paired rows and many inequalities: cold, its x and multipliers
+    # meet the KKT conditions (which fix x: G is positive definite); warm from the solution's
+    # active rows and from a wrong guess, the same x and multipliers to rounding (1e-9 of the
+    # largest); a QP whose rows contradict each other is refused (code 2)
+    rng = np.random.default_rng(dim)
+    solved = 0
+    for trial in range(20):
+        A = rng.normal(size=(dim, dim))
+        G = A @ A.T + 0.1 * np.eye(dim)
+        Ginv = np.linalg.inv(G)
+        c = rng.normal(size=dim)
+        meq, pairs = trial % 3, dim
+        first_pair = meq + dim // 2
+        nc = first_pair + 2 * pairs + dim // 2
+        C = rng.normal(size=(nc, dim))
+        C[first_pair + 1 : first_pair + 2 * pairs : 2] = -C[first_pair : first_pair + 2 * pairs : 2]
+        # (x = 0 strictly inside the inequalities, the equalities' planes near it: feasible)
+        b = -0.1 - np.abs(rng.normal(size=nc))
+        b[:meq] = 0.01 * rng.normal(size=meq)
+        qp = (Ginv, c, C, b, meq, first_pair, pairs)
+        code, x_cold, u_cold, rows = _solve_qp(*qp)
+        assert code == 0, f"trial {trial}"
+        solved += 1
+        scale = 1.0 + np.abs(x_cold).max() + np.abs(u_cold).max()
+        # KKT: G x + c = C' u, C x >= b (= on the equalities), u >= 0 on the inequalities
+        # and zero off the active rows
+        np.testing.assert_allclose(G @ x_cold + c, C.T @ u_cold, rtol=0, atol=1e-8 * scale)
+        slack = C @ x_cold - b
+        np.testing.assert_allclose(slack[:meq], 0.0, rtol=0, atol=1e-9 * scale)
+        assert slack[meq:].min() >= -1e-9 * scale
+        assert u_cold[meq:].min() >= 0.0
+        np.testing.assert_allclose(u_cold * slack, 0.0, rtol=0, atol=1e-8 * scale)
+        assert np.all(u_cold[np.setdiff1d(np.arange(nc), rows)] == 0.0)
+        wrong = np.sort(rng.choice(nc, size=dim // 2, replace=False))
+        for guess in (tuple(rows), tuple(wrong)):
+            code, x, u, _ = _solve_qp(*qp, guess)
+            assert code == 0, f"trial {trial}, guess {guess}"
+            np.testing.assert_allclose(x, x_cold, rtol=0, atol=1e-9 * scale)
+            np.testing.assert_allclose(u, u_cold, rtol=0, atol=1e-9 * scale)
+    assert solved == 20
+    # contradicting rows: x_0 >= 1 and -x_0 >= 0
+    C = np.zeros((2, dim))
+    C[0, 0], C[1, 0] = 1.0, -1.0
+    code, *_ = _solve_qp(np.eye(dim), np.zeros(dim), C, np.array([1.0, 0.0]), 0, 0, 0)
+    assert code == 2

@@ -10,8 +10,9 @@ pair scalars), as the three- and four-finger SQP (``minimax.sqp``) solves it:
                          |P_i(y)| <= f               (the force limits, if any)
 
 Each step solves the QP of the linearised constraints and the convexified Lagrangian
-Hessian by Goldfarb and Idnani's dual active-set method (``minimax.sqp.quadprog``), with a
-line search on max_i theta_i. A finger whose force falls below RELEASE_AT of the largest is
+Hessian by Goldfarb and Idnani's dual active-set method (``qp.dual_qp``: the three- and
+four-finger QP's iterates, its factorisation updated row by row), with a line search on
+max_i theta_i. A finger whose force falls below RELEASE_AT of the largest is
 released (held at a push of RELEASE_PUSH along its normal, its angle 0); where the SQP
 stops, a released finger whose rows' multipliers say that pushing lowers the largest angle
 pushes again. The last QP's active rows are the sets of Newton's method on the cone
@@ -28,7 +29,7 @@ import numpy as np
 
 from ..codes import GAP_TOL
 from ..fingers import evaluate, finger_derivatives, force_derivatives
-from ..sqp import convexified_inverse, predicted_change, quadprog
+from ..sqp import convexified_inverse, predicted_change
 from .codes import (
     ACTIVE_STEPS,
     ACTIVE_TOL,
@@ -41,6 +42,7 @@ from .codes import (
 )
 from .frames import finger_forces, largest_angle, weights
 from .polish import polish
+from .qp import dual_qp
 
 
 @kernel
@@ -105,7 +107,9 @@ def sqp(a0, al, tau0, T, box, K, f, R, y, lam, nu, mu, max_iter, tol):
     force falls below RELEASE_AT of the largest after a step is released. Each step solves
     min z + z^2 / 2 + d'Hd / 2 subject to theta_i + grad_i . d <= theta_max + z, the box
     rows, the linearised force limits and the released fingers' rows (H: the Lagrangian
-    Hessian of the angles and the limits, convexified as ``minimax.sqp`` does), then
+    Hessian of the angles and the limits, convexified as ``minimax.sqp`` does; the QP by
+    ``qp.dual_qp``, started from the last QP's active rows while no finger was released or
+    pushed again since), then
     backtracks on the merit. Where it converges, a released finger whose multipliers say
     that pushing would lower the largest angle pushes again (twice at most). Fills lam (the angle
     multipliers, summing to 1), nu (the limits') and mu (the box rows', signed: + on
@@ -135,7 +139,10 @@ def sqp(a0, al, tau0, T, box, K, f, R, y, lam, nu, mu, max_iter, tol):
     gmean = np.empty(m)
     GN = np.empty((dim, dim))
     Mq = np.empty((dim, dim))
-    vec = np.empty((6, max(dim, most)))
+    Lq = np.empty((dim, dim))
+    vec = np.empty((7, max(dim, most)))
+    was_active = np.zeros(most, dtype=np.bool_)  # the last QP's active rows
+    warm = False  # whether they start the next QP (the rows the same: no release since)
     active = np.empty(dim, dtype=np.int64)
     is_active = np.empty(most, dtype=np.bool_)
     kept = np.zeros(n, dtype=np.int64)  # how often a finger pushed again after a release
@@ -195,9 +202,19 @@ def sqp(a0, al, tau0, T, box, K, f, R, y, lam, nu, mu, max_iter, tol):
                 b[row] = size[i] - f
                 row += 1
         nc = row
-        code = quadprog(Ginv, c, C, b, nc, meq, dim, x, u, GN, Mq, vec, active, is_active)
+        guess = 0  # the QP from the last one's active rows
+        for r_ in range(nc if warm else 0):
+            if was_active[r_]:
+                active[guess] = r_
+                guess += 1
+        code = dual_qp(
+            Ginv, c, C, b, nc, meq, first_box, pairs, guess, dim, x, u, GN, Mq, Lq, vec, active,
+            is_active,
+        )  # fmt: skip
         if code != 0:
             return -10 - code
+        was_active[:nc] = is_active[:nc]
+        warm = True
         total = 0.0
         for r_ in range(first_angle, first_box):
             total += u[r_]
@@ -260,6 +277,7 @@ def sqp(a0, al, tau0, T, box, K, f, R, y, lam, nu, mu, max_iter, tol):
             hold_released(y, a0, al, tau0, T, box, K, R, push)
             push[back, 0], push[back, 1], push[back, 2] = RELEASE_PUSH, 0.0, 0.0
             R[back] = False
+            warm = False
             kept[back] += 1
             lam[back] = 0.0
             continue
@@ -273,6 +291,7 @@ def sqp(a0, al, tau0, T, box, K, f, R, y, lam, nu, mu, max_iter, tol):
         for i in range(n):
             if not R[i] and size[i] < RELEASE_AT * largest:
                 R[i] = True
+                warm = False
                 lam[i] = 0.0
             released = released or R[i]
         # (a partial step, or rounding, moves them off their push; the QP's rounding may
