@@ -22,6 +22,7 @@ from grasp_env_agents.learning.contact_set import (
     transfer,
 )
 from grasp_env_agents.learning.contact_set_fit import fit_contact_set
+from grasp_env_agents.learning.contact_set_tokens import EQUAL_K, mechanics_tokens
 
 N = 6
 
@@ -70,6 +71,62 @@ def test_the_equilibrating_forces_are_those_of_the_environment(draws):
         weight = np.linalg.norm(expected.sum(0))  # the load is the weight (no extra force)
         np.testing.assert_allclose(world[b, :n] * weight, expected, atol=1e-4 * weight)
         assert np.all(world[b, n:] == 0)
+
+
+def test_the_mechanics_tokens_are_the_numpy_mechanics(draws):
+    """The tokens' F_i and equal-k force P^eq_i (normal part, tangential size, friction angle,
+    tangential part turned back to the world frame) against grasp_env.mechanics on the same
+    float64 world-frame geometry and load (1e-7 of w and 1e-7 rad: the tokens are computed in
+    the object's frame, whose float32 columns are orthonormal to about 1e-7; the tangential
+    part 1e-6 w); against the environment playing the equal-k grip (float32 observation:
+    1e-4 w, 1e-5 rad); zeros at padded contacts."""
+    from grasp_env.mechanics.forces import (
+        equilibrating_forces,
+        friction_angles,
+        interaction_basis,
+        net_forces,
+    )
+
+    env, obs, _ = draws
+    layout = env.layout
+    positions, normals, forces, mask, _ = object_frame_set(torch.as_tensor(obs), N, double=True)
+    tokens = mechanics_tokens(positions, normals, forces, mask).numpy()
+    assert tokens.dtype == np.float64 and tokens.shape == (len(obs), N, 12)
+    columns = obs[:, :6].astype(float).reshape(-1, 2, 3)
+    rotation = np.stack([columns[:, 0], columns[:, 1], np.cross(columns[:, 0], columns[:, 1])], -1)
+    for b in range(len(obs)):
+        n = int(mask[b].sum())
+        world_p = obs[b, layout.positions].astype(float).reshape(N, 3)[:n]
+        world_n = obs[b, layout.normals].astype(float).reshape(N, 3)[:n]
+        tail = obs[b, layout.tail].astype(float)
+        f = equilibrating_forces(world_p, tail[:6])
+        m = n * (n - 1) // 2
+        p_eq = net_forces(f, interaction_basis(world_p), np.full(m, EQUAL_K))
+        for part, force in ((slice(0, 6), f), (slice(6, 12), p_eq)):
+            mine = tokens[b, :n, part]
+            normal = np.sum(force * world_n, -1)
+            tangential = force - normal[:, None] * world_n
+            np.testing.assert_allclose(mine[:, 0], normal, atol=1e-7, rtol=0)
+            across = np.linalg.norm(np.cross(force, world_n), axis=-1)  # eq. 2's |P x n|
+            np.testing.assert_allclose(mine[:, 1], across, atol=1e-7, rtol=0)
+            np.testing.assert_allclose(
+                mine[:, 2], friction_angles(force, world_n), atol=1e-7, rtol=0
+            )
+            world_t = mine[:, 3:] @ rotation[b].T
+            np.testing.assert_allclose(world_t, tangential, atol=1e-6, rtol=0)
+        assert np.all(tokens[b, n:] == 0.0)
+        # the environment's equal-k grip: the same forces, the same friction angles
+        env.reset(seed=0)
+        reset, _ = env.reset()
+        for _ in range(b):
+            reset, _ = env.reset()
+        assert np.array_equal(reset, obs[b])
+        action = np.full(env.action_space.shape, EQUAL_K / env.k_max_ratio, np.float32)
+        info = env.step(action)[4]
+        weight = np.linalg.norm(np.asarray(info["equilibrating_forces"]).sum(0))
+        played = np.asarray(info["contact_forces"])[:n] / weight
+        np.testing.assert_allclose(p_eq, played, atol=1e-4, rtol=0)
+        np.testing.assert_allclose(tokens[b, :n, 8], np.asarray(info["theta"])[:n], atol=1e-5)
 
 
 def test_the_latents_and_the_grip_do_not_depend_on_the_fingers_order(draws):

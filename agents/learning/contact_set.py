@@ -5,14 +5,16 @@ observation holds N contact positions and normals with a mask, and the action th
 scalars of the N (N - 1) / 2 pairs (those of padded contacts unused). A policy for every grasp
 must not care in which order the fingers are listed, nor how many there are.
 
-:class:`ContactSetPolicy` (an SB3 ``ActorCriticPolicy``) reads the grasp as a set of tokens, one
-per real contact, in the object's frame (the friction angles do not depend on the frame, eq.
-2): the contact's position p_i, its inward normal n_i and its equilibrating force F_i (the
-minimum-norm forces that balance the load, computed from the observation in closed form), with
-the friction limit. A per-token MLP and masked self-attention layers (no positional encoding)
-make each contact's latent depend on the whole set and not on the order, so the network is
-equivariant to permutations of the fingers and takes any n up to N; its weights do not depend
-on N, so a policy trained with one N loads into another (:func:`transfer`).
+:class:`ContactSetPolicy` (an SB3 ``ActorCriticPolicy``) reads the grasp as a set of tokens, one per
+real contact, in the object's frame (the friction angles do not depend on the frame, eq. 2): the
+contact's position p_i, its inward normal n_i and its equilibrating force F_i (the minimum-norm
+forces that balance the load, computed from the observation in closed form), with the friction
+limit, and its mechanics tokens (:mod:`.contact_set_tokens`: F_i and the paper's equal-k grip force
+in the contact's frame, normal and tangential parts and friction angle), so that the network learns
+a correction of the mechanics. A per-token MLP and masked self-attention layers (no positional
+encoding) make each contact's latent depend on the whole set and not on the order, so the network is
+equivariant to permutations of the fingers and takes any n up to N; its weights do not depend on N,
+so a policy trained with one N loads into another (:func:`transfer`).
 
 Its mean action is a force-direction head with a release gate. Each contact's latent gives
 the direction of its force, d_i = (n_i + v_i) / |n_i + v_i|, and a release logit. With five or
@@ -56,12 +58,17 @@ from grasp_env.envs.validation import DEFAULT_K_MAX_RATIO
 from grasp_env.mechanics import contact_pairs
 from grasp_env.mechanics.directions import MIN_FORCE, RIDGE, SOLVES
 
+from .contact_set_tokens import MECHANICS, mechanics_tokens
 from .policy import force_directions
 
 #: The random objects' environment the policy is trained on.
 ENV_ID = "grasp_env/ObjectGraspRandom-v0"
-#: Floats per contact token: p_i, n_i and F_i in the object's frame, and the friction limit.
+#: Floats per contact of the geometry: p_i, n_i and F_i in the object's frame, and the
+#: friction limit.
 TOKEN = 10
+#: Floats per contact token: the geometry, then the mechanics tokens (F_i and the equal-k
+#: grip's force in the contact's frame, :mod:`.contact_set_tokens`).
+FULL_TOKEN = TOKEN + MECHANICS
 #: Weight of a released contact's three equations P_i = 0 in the least squares, against the
 #: held contacts' unit-weighted ones: its force is left at about RELEASE_WEIGHT^-2 of their
 #: misfit, far below the environment's RELEASE threshold.
@@ -251,35 +258,49 @@ def expert_forces(
 
 
 class ContactSetFeatures(BaseFeaturesExtractor):
-    """The set's tokens, flattened: (p_i, n_i, F_i, theta_lim) per contact in the object's
-    frame (N x 10), then the mask (N): 11 N features, no parameters."""
+    """The set's tokens, flattened: per contact (p_i, n_i, F_i, theta_lim) in the object's
+    frame and its :func:`~.contact_set_tokens.mechanics_tokens` (N x 22, computed in float64),
+    then the mask (N): 23 N features, no parameters."""
 
     def __init__(self, observation_space: gym.spaces.Box) -> None:
         big = max_contacts_of(observation_space.shape[0])
-        super().__init__(observation_space, features_dim=(TOKEN + 1) * big)
+        super().__init__(observation_space, features_dim=(FULL_TOKEN + 1) * big)
         self.max_contacts = big
 
     def forward(self, observations: torch.Tensor) -> torch.Tensor:
-        positions, normals, forces, mask, limit = object_frame_set(observations, self.max_contacts)
+        big = self.max_contacts
+        positions, normals, forces, mask, limit = object_frame_set(observations, big, double=True)
         tokens = torch.cat(
-            [positions, normals, forces, limit[:, None].expand(-1, self.max_contacts, 1)], -1
+            [
+                positions,
+                normals,
+                forces,
+                limit[:, None].expand(-1, big, 1),
+                mechanics_tokens(positions, normals, forces, mask),
+            ],
+            -1,
         )
-        return torch.cat([(tokens * mask[..., None]).flatten(1), mask], 1)
+        return torch.cat([(tokens * mask[..., None]).flatten(1), mask], 1).float()
 
 
 def split_features(features: torch.Tensor, max_contacts: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """Tokens (B, N, 10) and mask (B, N) of :class:`ContactSetFeatures`' output."""
-    tokens = features[:, : TOKEN * max_contacts].reshape(len(features), max_contacts, TOKEN)
-    return tokens, features[:, TOKEN * max_contacts :]
+    """Tokens (B, N, 22) and mask (B, N) of :class:`ContactSetFeatures`' output."""
+    size = FULL_TOKEN * max_contacts
+    tokens = features[:, :size].reshape(len(features), max_contacts, FULL_TOKEN)
+    return tokens, features[:, size:]
 
 
 class SetEncoder(nn.Module):
-    """Tokens (B, N, 10) -> latents (B, N, width): a per-token MLP, then ``layers`` masked
-    self-attention blocks (pre-norm, no positional encoding: equivariant to the order)."""
+    """Tokens (B, N, 22) -> latents (B, N, width): a per-token MLP, then ``layers`` masked
+    self-attention blocks (pre-norm, no positional encoding: equivariant to the order).
+    With ``mechanics`` False it reads the geometry alone (the tokens' first 10 floats)."""
 
-    def __init__(self, width: int, layers: int, heads: int) -> None:
+    def __init__(self, width: int, layers: int, heads: int, mechanics: bool = True) -> None:
         super().__init__()
-        self.embed = nn.Sequential(nn.Linear(TOKEN, width), nn.SiLU(), nn.Linear(width, width))
+        self.inputs = FULL_TOKEN if mechanics else TOKEN
+        self.embed = nn.Sequential(
+            nn.Linear(self.inputs, width), nn.SiLU(), nn.Linear(width, width)
+        )
         block = partial(
             nn.TransformerEncoderLayer,
             width,
@@ -293,7 +314,7 @@ class SetEncoder(nn.Module):
         self.blocks = nn.ModuleList(block() for _ in range(layers))
 
     def forward(self, tokens: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-        latent = self.embed(tokens)
+        latent = self.embed(tokens[..., : self.inputs])
         padded = mask < 0.5
         for layer in self.blocks:
             latent = layer(latent, src_key_padding_mask=padded)
@@ -304,12 +325,15 @@ class _SetExtractor(nn.Module):
     """SB3's ``mlp_extractor`` for the set: the actor's latent is every contact's latent with the
     features (the head needs the grasp), the critic's a masked mean of its own encoder's."""
 
-    def __init__(self, max_contacts: int, width: int, layers: int, heads: int) -> None:
+    def __init__(
+        self, max_contacts: int, width: int, layers: int, heads: int, mechanics: bool = True
+    ) -> None:
         super().__init__()
         self.max_contacts, self.width = max_contacts, width
-        self.actor, self.critic = SetEncoder(width, layers, heads), SetEncoder(width, layers, heads)
+        self.actor = SetEncoder(width, layers, heads, mechanics)
+        self.critic = SetEncoder(width, layers, heads, mechanics)
         self.value = nn.Sequential(nn.Linear(width, width), nn.SiLU())
-        self.latent_dim_pi = max_contacts * width + (TOKEN + 1) * max_contacts
+        self.latent_dim_pi = max_contacts * width + (FULL_TOKEN + 1) * max_contacts
         self.latent_dim_vf = width
 
     @property
@@ -487,7 +511,8 @@ class ContactSetPolicy(ActorCriticPolicy):
 
     Takes ``ActorCriticPolicy``'s arguments (its ``net_arch`` is not used), plus ``k_max_ratio``
     (the environment's k_max / w), ``width`` (of every token's latent), ``layers`` (attention
-    blocks) and ``heads`` (of each). Its features are always :class:`ContactSetFeatures`.
+    blocks), ``heads`` (of each) and ``mechanics`` (whether the encoders read the mechanics
+    tokens beside the geometry). Its features are always :class:`ContactSetFeatures`.
     """
 
     def __init__(
@@ -499,6 +524,7 @@ class ContactSetPolicy(ActorCriticPolicy):
         width: int = 64,
         layers: int = 2,
         heads: int = 4,
+        mechanics: bool = True,
         **kwargs: Any,
     ) -> None:
         big = max_contacts_of(observation_space.shape[0])
@@ -511,12 +537,13 @@ class ContactSetPolicy(ActorCriticPolicy):
         if width % heads:
             raise ValueError(f"width ({width}) must be a multiple of heads ({heads})")
         self.k_max_ratio, self.width, self.layers, self.heads = k_max_ratio, width, layers, heads
+        self.mechanics = bool(mechanics)
         kwargs["features_extractor_class"] = ContactSetFeatures
         super().__init__(observation_space, action_space, lr_schedule, **kwargs)
 
     def _build_mlp_extractor(self) -> None:
         big = self.features_extractor.max_contacts
-        self.mlp_extractor = _SetExtractor(big, self.width, self.layers, self.heads)
+        self.mlp_extractor = _SetExtractor(big, self.width, self.layers, self.heads, self.mechanics)
 
     def _build(self, lr_schedule: Any) -> None:
         super()._build(lr_schedule)
@@ -537,6 +564,7 @@ class ContactSetPolicy(ActorCriticPolicy):
             "width": self.width,
             "layers": self.layers,
             "heads": self.heads,
+            "mechanics": self.mechanics,
         }
 
 

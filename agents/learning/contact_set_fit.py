@@ -84,20 +84,23 @@ def fit_contact_set(
     generator: torch.Generator | None = None,
     imitation_weight: float = 1.0,
     reward_weight: float = 0.0,
+    gate_weight: float = 0.1,
 ) -> list[float]:
     """Fit the policy's actor on padded observations ``obs`` (B, 14 + 7N); returns each
     epoch's mean loss.
 
-    The loss, per minibatch: ``imitation_weight`` x (the mean angle between d_i and the
-    expert's force P*_i over the contacts it holds, + 0.1 x the mean squared error of
-    log rho_i against log |P*_i| there, + 0.1 x the release gate's cross-entropy against the
-    expert's released set, :func:`expert_forces`), plus ``reward_weight`` x the mean largest
-    friction angle of the head's grip as the environment counts it (:func:`reward_angles`,
-    radians: the reward's exact gradient, the released set as the head chose it). With
-    ``imitation_weight`` 0 the expert's actions are not read (they may be None). Adam with a
-    cosine decay of the learning rate to 1% and the gradient norm clipped at 1 (a finger whose
-    force nearly vanishes has a huge angle gradient); only the actor is trained.
+    The loss, per minibatch: ``imitation_weight`` x (the mean angle between d_i and the expert's
+    force P*_i over the contacts it holds, + 0.1 x the mean squared error of log rho_i against log
+    |P*_i| there, + ``gate_weight`` x the release gate's cross-entropy against the expert's released
+    set, :func:`expert_forces`), plus ``reward_weight`` x the mean largest friction angle of the
+    head's grip as the environment counts it (:func:`reward_angles`, radians: the reward's exact
+    gradient, the released set as the head chose it). With ``imitation_weight`` 0 the expert's
+    actions are not read (they may be None). Adam with a cosine decay of the learning rate to 1% and
+    the gradient norm clipped at 1 (a finger whose force nearly vanishes has a huge angle gradient);
+    only the actor is trained.
     """
+    if gate_weight < 0:
+        raise ValueError(f"gate_weight must be >= 0, got {gate_weight}")
     if imitation_weight < 0 or reward_weight < 0 or imitation_weight + reward_weight == 0:
         raise ValueError(
             f"imitation_weight and reward_weight must be >= 0 and not both 0, got"
@@ -142,7 +145,7 @@ def fit_contact_set(
                     logits[r], released[index][r].to(logits.dtype)
                 )
                 loss = loss + imitation_weight * (
-                    angle[h].mean() + 0.1 * log_error[h].square().mean() + 0.1 * gate
+                    angle[h].mean() + 0.1 * log_error[h].square().mean() + gate_weight * gate
                 )
             if reward_weight > 0:
                 chosen = release_set(logits, mask)
@@ -160,4 +163,45 @@ def fit_contact_set(
     return losses
 
 
-__all__ = ["expert_states", "fit_contact_set"]
+def imitation_errors(
+    policy: ContactSetPolicy, obs: np.ndarray, expert_actions: np.ndarray, batch_size: int = 2048
+) -> dict[str, float]:
+    """How far the policy's head is from the expert's forces on ``obs`` (B, 14 + 7N) with the
+    expert's actions (B, M): the angle (deg) between d_i and P*_i over the contacts the expert
+    holds (median, p90), and the release gate's choice (:func:`release_set`) against the
+    expert's released set over the real contacts: the share right, the releases missed and the
+    false releases (counts)."""
+    if len(expert_actions) != len(obs):
+        raise ValueError(f"one expert action per observation: {len(expert_actions)} for {len(obs)}")
+    head = policy.action_net
+    angles, right, missed, false, total = [], 0, 0, 0, 0
+    with torch.no_grad():
+        for start in range(0, len(obs), batch_size):
+            obs_t = torch.as_tensor(obs[start : start + batch_size], dtype=torch.float32)
+            grasp = set_grasp(obs_t)
+            actions = torch.as_tensor(expert_actions[start : start + batch_size])
+            target, released = expert_forces(actions, grasp, head.k_max_ratio)
+            features = policy.extract_features(obs_t, policy.pi_features_extractor)
+            directions, _, logits, *_, mask = head.parts(
+                policy.mlp_extractor.forward_actor(features)
+            )
+            real = grasp.mask > 0.5
+            held = real & ~released
+            chord = _direction_error(directions, target).clamp(max=2.0)  # 2 sin(angle / 2)
+            angles.append(torch.rad2deg(2.0 * torch.asin(chord / 2.0))[held])
+            chosen = release_set(logits, mask)
+            right += int((chosen == released)[real].sum())
+            missed += int((released & ~chosen)[real].sum())
+            false += int((chosen & ~released)[real].sum())
+            total += int(real.sum())
+    angle = torch.cat(angles).numpy()
+    return {
+        "direction_median_deg": float(np.median(angle)),
+        "direction_p90_deg": float(np.quantile(angle, 0.9)),
+        "gate_right": right / max(total, 1),
+        "releases_missed": float(missed),
+        "false_releases": float(false),
+    }
+
+
+__all__ = ["expert_states", "fit_contact_set", "imitation_errors"]
