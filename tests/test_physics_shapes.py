@@ -46,6 +46,7 @@ from grasp_env_agents.benchmarks.study_physics_shapes import (
     shape_cases,
     torque_error,
 )
+from grasp_env_agents.benchmarks.study_physics_shapes import main as study_main
 from grasp_env_agents.cli import main
 
 CAN = Cylinder(radius=0.033, height=0.115)
@@ -399,7 +400,7 @@ def test_a_small_shape_study_agrees_on_every_trajectory():
     assert row["agree %"] == 100.0 and row["hold/hold"] == 2 * len(KINDS)
 
 
-def test_the_shape_study_names_bad_arguments():
+def test_the_shape_study_names_bad_arguments(capsys):
     for kwargs, message in (
         ({"per_cell": 0}, "per_cell"),
         ({"kinds": ("torus",)}, "kinds"),
@@ -408,6 +409,11 @@ def test_the_shape_study_names_bad_arguments():
     ):
         with pytest.raises(ValueError, match=message):
             shape_cases(**kwargs)
+    for share in ("-0.1", "1.5"):  # a share of the grip's largest normal force: in [0, 1]
+        with pytest.raises(SystemExit):
+            study_main(["--rolling-share", share, "--per-cell", "1"])
+        assert f"--rolling-share must be in [0, 1], got {float(share)}" in capsys.readouterr().err
+    assert physics_model.ROLLING_SHARE == 0.02  # refused before the model's knob is set
 
 
 def test_a_box_shape_is_the_cubes_model():
