@@ -5,7 +5,7 @@ scored on the unshaped environment.
 
     python -m grasp_env_agents.benchmarks.study_gait_rl [--object cube|can]
         [--seeds 0 1 2 3 4] [--steps 300000] [--no-starts] [--no-shaping] [--no-lookahead]
-        [--out DIR]
+        [--no-hold] [--out DIR]
 
 Training (sb3-contrib's MaskablePPO, rl-zoo3's ``CubeGaitMoves-v0`` hyperparameters: 8 envs x
 256 steps, gamma 0.99, lr linear from 3e-4, entropy bonus 0.05, 2 x 256 network, one torch
@@ -21,8 +21,9 @@ interval over seeds. Writes DIR/seed{S}/model.zip (the masks' settings in its da
 ``gait_masks`` entry: ``grasp-env gait --models`` plays the model with them) and
 DIR/seed{S}/curve.csv (steps, held, worst margin, CPU s, every 25,000 steps; 10,000 on the
 can); prints the baselines on the same environment (the certified expert, the greedy gait,
-the best fixed set), one row per seed and the IQM. ``--no-shaping``, ``--no-starts`` and
-``--no-lookahead`` (hold masks only) are the ablations.
+the best fixed set), one row per seed and the IQM. ``--no-shaping``, ``--no-starts``,
+``--no-lookahead`` (hold masks only) and ``--no-hold`` (the refused moves masked alone) are
+the ablations.
 """
 
 from __future__ import annotations
@@ -52,10 +53,11 @@ ENV_IDS = {"cube": ENV_ID, "can": "grasp_env/CanGaitMoves-v0"}
 CURVE_EVERY = {"cube": 25_000, "can": 10_000}
 
 
-def masked(env: gym.Env, lookahead: bool = True) -> GaitMoveMasks:
-    """The masks the agents train and act with: refused moves, moves that slip at this pose,
-    moves into a state that loses a contact at the next (``lookahead``)."""
-    return GaitMoveMasks(env, hold=True, lookahead=lookahead)
+def masked(env: gym.Env, lookahead: bool = True, hold: bool = True) -> GaitMoveMasks:
+    """The masks the agents train and act with: refused moves, moves that slip at this pose
+    (``hold``), moves into a state that loses a contact at the next (``lookahead``, with
+    ``hold`` only)."""
+    return GaitMoveMasks(env, hold=hold, lookahead=lookahead and hold)
 
 
 def episode(env: gym.Env, act: Any) -> tuple[int, float]:
@@ -70,11 +72,13 @@ def episode(env: gym.Env, act: Any) -> tuple[int, float]:
     return len(held), float(np.rad2deg(held.min())) if len(held) else float("nan")
 
 
-def score(model: MaskablePPO, env_id: str = ENV_ID, lookahead: bool = True) -> tuple[int, float]:
+def score(
+    model: MaskablePPO, env_id: str = ENV_ID, lookahead: bool = True, hold: bool = True
+) -> tuple[int, float]:
     """Poses held (of 181 on the cube, 37 on the can) and the worst margin held (deg) of one
     deterministic episode of the unshaped environment ``env_id``, to its first slip or drop,
     with the masks the model trained with."""
-    env = masked(gym.make(env_id), lookahead)
+    env = masked(gym.make(env_id), lookahead, hold)
     try:
         return episode(
             env,
@@ -112,10 +116,15 @@ class _Curve(BaseCallback):
     """Scores the policy every ``every`` steps into a CSV (the learning curve)."""
 
     def __init__(
-        self, path: Path, every: int, env_id: str = ENV_ID, lookahead: bool = True
+        self,
+        path: Path,
+        every: int,
+        env_id: str = ENV_ID,
+        lookahead: bool = True,
+        hold: bool = True,
     ) -> None:
         super().__init__()
-        self.env_id, self.lookahead = env_id, lookahead
+        self.env_id, self.lookahead, self.hold = env_id, lookahead, hold
         self.file = path.open("w", newline="")
         self.rows = csv.writer(self.file)
         self.rows.writerow(["steps", "held", "worst_margin_deg", "cpu_s"])
@@ -124,7 +133,7 @@ class _Curve(BaseCallback):
     def _on_step(self) -> bool:
         if self.num_timesteps >= self.next:
             self.next += self.every
-            held, worst = score(self.model, self.env_id, self.lookahead)
+            held, worst = score(self.model, self.env_id, self.lookahead, self.hold)
             self.rows.writerow(
                 [self.num_timesteps, held, f"{worst:.3f}", f"{time.process_time():.0f}"]
             )
@@ -144,10 +153,12 @@ def train(
     object_name: str = "cube",
     shaping: bool = True,
     lookahead: bool = True,
+    hold: bool = True,
 ) -> tuple[int, float, float]:
     """Train one seed on ``object_name``'s moves-only env (``"cube"`` or ``"can"``) with
     expert starts (share ``starts``), the shaping (unless ``shaping`` is False) and the hold
-    masks (with the lookahead unless False); returns (poses held, worst margin held in deg,
+    masks (unless ``hold`` is False: the refused moves alone; with the lookahead unless
+    False); returns (poses held, worst margin held in deg,
     CPU minutes)."""
     if object_name not in ENV_IDS:
         raise ValueError(f"object_name must be one of {sorted(ENV_IDS)}, got {object_name!r}")
@@ -160,7 +171,7 @@ def train(
             env = GaitExpertStarts(env, starts, "expert")
         if shaping:
             env = GaitShaping(env, "held", gamma=0.99)
-        return masked(env, lookahead)
+        return masked(env, lookahead, hold)
 
     venv = make_vec_env(env_id, n_envs=8, seed=seed, wrapper_class=wrap)
     model = MaskablePPO(
@@ -179,13 +190,13 @@ def train(
         device="cpu",
     )
     cpu = time.process_time()
-    curve = _Curve(out / "curve.csv", CURVE_EVERY[object_name], env_id, lookahead)
+    curve = _Curve(out / "curve.csv", CURVE_EVERY[object_name], env_id, lookahead, hold)
     model.learn(steps, callback=curve)
     # the masks are part of the policy: grasp-env gait --models plays the model with them
     model.gait_masks = {"hold": True, "lookahead": lookahead}  # saved in the data
     model.save(out / "model.zip")
     venv.close()
-    held, worst = score(model, env_id, lookahead)
+    held, worst = score(model, env_id, lookahead, hold)
     return held, worst, (time.process_time() - cpu) / 60
 
 
@@ -197,6 +208,7 @@ def main() -> None:
     parser.add_argument("--no-starts", action="store_true", help="every episode from pose 0")
     parser.add_argument("--no-shaping", action="store_true", help="the env's reward alone")
     parser.add_argument("--no-lookahead", action="store_true", help="hold masks only")
+    parser.add_argument("--no-hold", action="store_true", help="mask the refused moves only")
     parser.add_argument("--out", type=Path, default=None, help="default results/gait_rl[_can]")
     args = parser.parse_args()
     if args.steps < 1 or any(not 0 <= s < 2**32 for s in args.seeds):
@@ -216,6 +228,7 @@ def main() -> None:
             object_name=args.object,
             shaping=not args.no_shaping,
             lookahead=not args.no_lookahead,
+            hold=not args.no_hold,
         )
         rows.append((held, worst))
         print(
