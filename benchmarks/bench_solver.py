@@ -210,9 +210,9 @@ def conic_steps(grasp: Grasp, k_max: float) -> tuple[Counter, float]:
     """The conic solver's kernel calls on one grasp, counted: the kernels' own Python source
     (``py_func``, what numba compiles) run with plain floats, each kernel's calls tallied by
     name (``cholesky_solve``: a barrier Newton step; ``lu_solve``: a KKT Newton step or a
-    step of the QP's projections; ``dual_qp``: an SQP step's QP; ``level``: a level t
-    tried). Returns (the tallies, the largest angle found). Seconds a
-    solve (about 2 s at n = 5, 15 s at n = 8)."""
+    step of the QP's projections; ``dual_qp`` or ``quadprog``: an SQP step's QP; ``level``:
+    a level t tried). Returns (the tallies, the largest angle found). Seconds a solve
+    (about 2 s at n = 5, 15 s at n = 8)."""
     calls: Counter = Counter()
     names: dict = {}  # the conic modules' names in one namespace, so calls between them count
     # (fingers: setup, the angles; linalg and sqp: the active-set attempt's QP)

@@ -175,13 +175,16 @@ class ConicInterpreter(Interpreter):
         return np.array(k, dtype=float), float(lower), int(status)
 
 
-#: The units of a conic solve: (name, the call that marks one unit: (caller, callee), or a
-#: kernel's name for its calls from anywhere).
+#: The SQP's QP calls: warm-started by qp.dual_qp, or (the cold retry where the warm attempt
+#: leaves a gap) by minimax.sqp.quadprog.
+SQP_QPS = (("sqp", "dual_qp"), ("sqp", "quadprog"))
+#: The units of a conic solve: (name, the call that marks one unit: (caller, callee), a
+#: tuple of such calls, or a kernel's name for its calls from anywhere).
 UNITS = (
     ("barrier Newton step", ("centre", "cholesky_solve")),
     ("KKT Newton step", ("polish", "lu_solve")),
     ("level", "level"),
-    ("SQP step", ("sqp", "dual_qp")),
+    ("SQP step", SQP_QPS),
 )
 
 
@@ -231,14 +234,19 @@ def count_conic(grasps: list[Grasp], k_max: np.ndarray, f_max: float = math.inf)
         svds.append(svd_flops(3 * n, m))
         totals.append(interpreter.total() + svds[-1])
         for name, edge in UNITS:
-            calls = interpreter.calls[edge] if isinstance(edge, str) else interpreter.edges[edge]
+            if isinstance(edge, str):
+                calls = interpreter.calls[edge]
+            elif isinstance(edge[0], tuple):
+                calls = sum(interpreter.edges[e] for e in edge)
+            else:
+                calls = interpreter.edges[edge]
             units[name] += calls
         centre_flops += interpreter.inclusive["centre"]
         centre_steps += interpreter.edges[("centre", "cholesky_solve")]
         polish_flops += interpreter.inclusive["polish"]
         polish_steps += interpreter.edges[("polish", "lu_solve")]
         sqp_flops += interpreter.inclusive["sqp"]
-        sqp_steps += interpreter.edges[("sqp", "dual_qp")]
+        sqp_steps += sum(interpreter.edges[e] for e in SQP_QPS)
         result.counted += 1
     if not result.counted:
         raise RuntimeError(f"every interpreted conic solve departed from the compiled one "

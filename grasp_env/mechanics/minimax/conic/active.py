@@ -29,7 +29,7 @@ import numpy as np
 
 from ..codes import GAP_TOL
 from ..fingers import evaluate, finger_derivatives, force_derivatives
-from ..sqp import convexified_inverse, predicted_change
+from ..sqp import convexified_inverse, predicted_change, quadprog
 from .codes import (
     ACTIVE_STEPS,
     ACTIVE_TOL,
@@ -113,9 +113,10 @@ def sqp(a0, al, tau0, T, box, K, f, R, y, lam, nu, mu, max_iter, tol, warm_start
     backtracks on the merit. Where it converges, a released finger whose multipliers say
     that pushing would lower the largest angle pushes again (twice at most). Fills lam (the angle
     multipliers, summing to 1), nu (the limits') and mu (the box rows', signed: + on
-    b_j . y = K, - on -K). warm_start: each QP starts from the last one's active rows (while no
-    finger was released or pushed again since). Returns the steps taken, or < 0 where a QP
-    failed."""
+    b_j . y = K, - on -K). warm_start: each QP by ``qp.dual_qp`` from the last one's active
+    rows (while no finger was released or pushed again since); else by
+    ``minimax.sqp.quadprog``, cold (the attempt as it was before ``dual_qp``, bit for bit).
+    Returns the steps taken, or < 0 where a QP failed."""
     n, m = al.shape
     pairs = box.shape[0]
     has_f = f < inf
@@ -209,10 +210,13 @@ def sqp(a0, al, tau0, T, box, K, f, R, y, lam, nu, mu, max_iter, tol, warm_start
             if was_active[r_]:
                 active[guess] = r_
                 guess += 1
-        code = dual_qp(
-            Ginv, c, C, b, nc, meq, first_box, pairs, guess, dim, x, u, GN, Mq, Lq, vec, active,
-            is_active,
-        )  # fmt: skip
+        if warm_start:
+            code = dual_qp(
+                Ginv, c, C, b, nc, meq, first_box, pairs, guess, dim, x, u, GN, Mq, Lq, vec,
+                active, is_active,
+            )  # fmt: skip
+        else:  # the previous attempt's QP, bit for bit
+            code = quadprog(Ginv, c, C, b, nc, meq, dim, x, u, GN, Mq, vec, active, is_active)
         if code != 0:
             return -10 - code
         was_active[:nc] = is_active[:nc]
@@ -377,7 +381,7 @@ def active_search(a0, al, tau0, T, box, K, f, best, theta):
     to a predicted decrease of ACTIVE_TOL[0], then Newton's method on the cone problem's
     KKT system on the sets its QP ends on (:func:`certify_sqp`); where that leaves a gap,
     the SQP on to ACTIVE_TOL[1] and the polish again; where a gap is still open, the same
-    from the start with the QPs cold (no warm start from the last step's rows). best moves
+    from the start with the QPs of ``minimax.sqp.quadprog``, cold (the previous attempt). best moves
     to the best grip found (it holds the grip to beat on entry). Returns (lower, share):
     lower > 0 only where the polish's multipliers proved it."""
     n, m = al.shape
@@ -397,18 +401,25 @@ def active_search(a0, al, tau0, T, box, K, f, best, theta):
     if t_push < t_zero:
         y[:] = trial
     start = y.copy()
+    entry = best.copy()  # the grip to beat on entry
+    t_entry = t_best
+    grip = np.empty(m)
     R = np.zeros(n, dtype=np.bool_)
     lam = np.empty(n)
     nu = np.empty(n)
     mu = np.empty(pairs)
     lower, share = 0.0, 0.0
-    # the QPs warm-started from the last step's active rows; where that leaves a gap, the
-    # attempt again from the start with every QP cold (rounding sends the warm SQP down
-    # another path near the optimum: of the bench's 256 seven-finger scenes it alone left
-    # two uncertified that the cold one certifies). Each bound is a proof and each grip
-    # attained, so the better of the attempts is kept.
+    # the QPs warm-started from the last step's active rows (qp.dual_qp); where that leaves
+    # a gap, the attempt again from the start with its own best grip and every QP by
+    # minimax.sqp.quadprog, cold: the previous attempt bit for bit (rounding sends the warm
+    # SQP down another path near the optimum: of the bench's 256 seven-finger scenes with
+    # force limits it alone left five uncertified that the previous attempt certifies).
+    # Each bound is a proof and each grip attained, so the better of the attempts is kept:
+    # no scene that the previous attempt certified goes uncertified.
     for cold in range(2):
         y[:] = start
+        grip[:] = entry
+        t_grip = t_entry
         R[:] = False
         lam[:] = 1.0 / n
         nu[:] = 0.0
@@ -416,9 +427,12 @@ def active_search(a0, al, tau0, T, box, K, f, best, theta):
         for tol in ACTIVE_TOL:
             # (a QP that fails leaves y where the SQP got to: the polish may still certify)
             sqp(a0, al, tau0, T, box, K, f, R, y, lam, nu, mu, ACTIVE_STEPS, tol, cold == 0)
-            t_best, low, part = certify_sqp(
-                a0, al, tau0, T, box, K, f, y, R, lam, nu, mu, best, t_best, theta
+            t_grip, low, part = certify_sqp(
+                a0, al, tau0, T, box, K, f, y, R, lam, nu, mu, grip, t_grip, theta
             )
+            if t_grip < t_best:
+                t_best = t_grip
+                best[:] = grip
             if low > lower:
                 lower, share = low, part
             if lower >= t_best - GAP_TOL:
