@@ -144,12 +144,13 @@ print("rate:", targets.check("rate >= 1", True))
 sys.exit(targets.exit_code())
 """,
     "bench_crash.py": "raise RuntimeError('the benchmark broke')\n",
+    "bench_solver.py": "import sys\nprint('solver argv:', sys.argv[1:])\n",
 }
 
 
 @pytest.fixture
 def fake_benchmarks(tmp_path, monkeypatch):
-    """A package of three tiny benchmarks in place of grasp_env_agents.benchmarks."""
+    """A package of four tiny benchmarks in place of grasp_env_agents.benchmarks."""
     package = tmp_path / "fake_grasp_benchmarks"
     package.mkdir()
     (package / "__init__.py").write_text("")
@@ -177,6 +178,14 @@ def test_bench_says_last_which_targets_were_missed(fake_benchmarks, capfd):
         "exit code 1: 1 target missed (fast: speed >= 2 op/s); failed without a verdict on"
         " its targets: crash (exit code 1)"
     )
+
+
+def test_bench_passes_contacts_to_the_solver_benchmark_alone(fake_benchmarks, capfd):
+    assert main(["bench", "solver", "--contacts", "6,8", "--seconds", "0.5"]) == 0
+    assert "solver argv: ['--seconds', '0.5', '--contacts', '6,8']" in capfd.readouterr().out
+    assert main(["bench", "good", "--contacts", "6"]) == 2
+    assert "--contacts applies to the solver benchmark alone" in capfd.readouterr().err
+    assert main(["bench", "--contacts", "6"]) == 2  # all of them: not the solver's alone
 
 
 def test_a_benchmark_on_its_own_says_why_it_exits_1(fake_benchmarks):

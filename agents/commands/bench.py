@@ -85,6 +85,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--seconds", type=float, help="time per measurement (each benchmark has its default)"
     )
+    parser.add_argument(
+        "--contacts",
+        metavar="N,N,...",
+        help="the solver benchmark only: the numbers of contacts to measure, comma-separated"
+        " (3 to 8; default all)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -94,7 +100,14 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"unknown benchmark(s) {unknown}; available: {available()}")
     if args.seconds is not None and not 0 < args.seconds < math.inf:
         raise ValueError(f"--seconds must be a finite number > 0, got {args.seconds}")
+    if args.contacts is not None and names != ["solver"]:
+        raise ValueError(
+            "--contacts applies to the solver benchmark alone: grasp-env bench solver"
+            f" --contacts {args.contacts}"
+        )
     extra = [] if args.seconds is None else ["--seconds", str(args.seconds)]
+    if args.contacts is not None:
+        extra += ["--contacts", args.contacts]  # the benchmark checks its range
     failed: dict[str, int] = {}
     with tempfile.TemporaryDirectory() as folder:
         report = Path(folder) / "missed"
