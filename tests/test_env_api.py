@@ -27,7 +27,11 @@ def test_registration():
         "grasp_env/CubeGaitMoves-v0",
         "grasp_env/CubeGaitMovesShaped-v0",
     }
-    gaits |= {"grasp_env/CanGait-v0", "grasp_env/CanGaitMoves-v0"}
+    gaits |= {
+        "grasp_env/CanGait-v0",
+        "grasp_env/CanGaitMoves-v0",
+        "grasp_env/CanGaitMovesShaped-v0",
+    }
     objects = {"grasp_env/ObjectGrasp-v0", "grasp_env/ObjectGraspRandom-v0"}
     assert set(FAST_IDS) | set(MUJOCO_IDS) | gaits | objects == set(grasp_env.ENV_IDS)
     for env_id in grasp_env.ENV_IDS:
