@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from ..progress import console
+from .gait_options import add_arguments, resolve
 
 #: The model's attribute (its file's ``data`` entry) holding its masks' settings.
 MASKS_ENTRY = "gait_masks"
@@ -55,8 +56,6 @@ def check_rliable(args: argparse.Namespace) -> None:
 def env_kwargs(args: argparse.Namespace) -> dict[str, Any]:
     """``grasp_env/CubeGait-v0``'s keywords for the options (ValueError for options that
     environment cannot take: it has the default hand, sites and weight)."""
-    from .gait import add_arguments, resolve
-
     add_arguments(parser := argparse.ArgumentParser())
     defaults = resolve(parser.parse_args([]))
     resolve(args)
