@@ -458,6 +458,21 @@ def _can_legal_moves(t, x, hold, lookahead, ptr, move, nxt, config, states, H, T
                 out[move[k]] = False
 
 
+def _shaped(
+    env: gym.Env,
+    potential: str,
+    scale: float | None,
+    gamma: float,
+    expert_starts: float,
+    starts_among: str,
+) -> GaitShaping:
+    """``env`` with :class:`GaitExpertStarts` if ``expert_starts`` > 0, in :class:`GaitShaping`."""
+    fraction = real_number("expert_starts", expert_starts, 0.0, 1.0)
+    if fraction > 0.0:
+        env = GaitExpertStarts(env, fraction, starts_among)
+    return GaitShaping(env, potential, scale, gamma)
+
+
 def shaped_gait_env(
     potential: str = "held",
     scale: float | None = None,
@@ -472,11 +487,7 @@ def shaped_gait_env(
     :class:`GaitShaping` with ``potential``, ``scale`` and ``gamma``: the id
     ``grasp_env/CubeGaitMovesShaped-v0``."""
     kwargs.setdefault("optimal_grip", True)
-    env: gym.Env = CubeGaitEnv(**kwargs)
-    fraction = real_number("expert_starts", expert_starts, 0.0, 1.0)
-    if fraction > 0.0:
-        env = GaitExpertStarts(env, fraction, starts_among)
-    return GaitShaping(env, potential, scale, gamma)
+    return _shaped(CubeGaitEnv(**kwargs), potential, scale, gamma, expert_starts, starts_among)
 
 
 def shaped_can_gait_env(
@@ -493,11 +504,7 @@ def shaped_can_gait_env(
     the can's optimal gait's smallest margin, 8.893 deg, a pose) and ``gamma``: the id
     ``grasp_env/CanGaitMovesShaped-v0``."""
     kwargs.setdefault("optimal_grip", True)
-    env: gym.Env = CanGaitEnv(**kwargs)
-    fraction = real_number("expert_starts", expert_starts, 0.0, 1.0)
-    if fraction > 0.0:
-        env = GaitExpertStarts(env, fraction, starts_among)
-    return GaitShaping(env, potential, scale, gamma)
+    return _shaped(CanGaitEnv(**kwargs), potential, scale, gamma, expert_starts, starts_among)
 
 
 __all__ = [
